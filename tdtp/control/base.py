@@ -1,0 +1,118 @@
+"""The rate-controller interface: what the connection tells a controller and what it asks back.
+
+A controller is sans-IO like the rest of the core: it never reads a clock; every hook takes ``now=`` (seconds
+on the caller's monotonic clock) as a keyword argument. The connection calls
+
+* :meth:`RateController.on_packet_sent` for every data packet that leaves (not for ACK or control packets);
+* :meth:`RateController.on_ack` once per datagram whose acknowledgement newly reported data packets as
+  received, with the RTT estimator's state and the current loss-event rate;
+* :meth:`RateController.on_loss_event` once per loss event (all losses within one RTT are one event);
+* :meth:`RateController.on_timer` when ``now`` reaches :meth:`RateController.get_timer`;
+
+and asks :meth:`RateController.next_send_time` (the earliest moment the next data packet may leave) and
+:attr:`RateController.rate` (the allowed rate, packets per second).
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from typing import ClassVar
+
+NO_LIMIT = -math.inf
+"""What :meth:`RateController.next_send_time` returns when nothing holds the next packet back."""
+
+
+class PacingSchedule:
+    """Turns an allowed rate into departure times on an absolute schedule that does not drift.
+
+    The next departure is ``previous deadline + 1/rate``. A packet that leaves late (a late timer
+    wake-up) does not push the schedule back, so the long-run rate is the allowed rate; the catch-up
+    is limited to one extra gap so that a long stall never turns into a burst: over any window of
+    length ``T`` at most ``rate * T + 2`` packets leave (the ``+ 2`` is the packet on the window's edge
+    plus the one catch-up packet after a stall or an idle period).
+    """
+
+    __slots__ = ("_anchor", "_next")
+
+    def __init__(self) -> None:
+        self._next = NO_LIMIT
+        self._anchor = NO_LIMIT  # the slot the last departure was booked in; _next = _anchor + gap
+
+    @property
+    def next_departure(self) -> float:
+        return self._next
+
+    def on_departure(self, now: float, rate: float) -> None:
+        """Record a departure at ``now`` under the allowed ``rate`` (packets/s; ``inf`` = no pacing)."""
+        if rate == math.inf:
+            self._next = self._anchor = NO_LIMIT
+            return
+        gap = 1.0 / rate
+        self._anchor = max(self._next, now - gap)
+        self._next = self._anchor + gap
+
+    def reschedule(self, now: float, rate: float) -> None:
+        """Re-aim a pending deadline after the rate changed, so the new rate takes effect at once.
+
+        The pending deadline is moved to ``slot of the last departure + 1/rate``: later after a
+        decrease, earlier after an increase (a packet held back 250 ms by ``min_rate`` need not wait
+        out the old gap once the rate has recovered), never earlier than ``now``. A deadline already
+        reached is left alone.
+        """
+        if rate == math.inf:
+            self._next = self._anchor = NO_LIMIT
+        elif self._next > now:
+            self._next = max(now, self._anchor + 1.0 / rate)
+
+    def reset(self) -> None:
+        self._next = self._anchor = NO_LIMIT
+
+
+class RateController(abc.ABC):
+    """Decides how fast data packets may leave. Subclasses register under a name in ``registry.py``."""
+
+    name: ClassVar[str]
+
+    @property
+    @abc.abstractmethod
+    def rate(self) -> float:
+        """The allowed sending rate in data packets per second (``math.inf`` when unlimited)."""
+
+    @abc.abstractmethod
+    def next_send_time(self) -> float:
+        """Earliest absolute time the next data packet may leave; :data:`NO_LIMIT` if any time."""
+
+    @abc.abstractmethod
+    def on_packet_sent(self, *, now: float, size: int) -> None:
+        """A data packet of ``size`` bytes (header included) left at ``now``."""
+
+    @abc.abstractmethod
+    def on_ack(
+        self,
+        *,
+        now: float,
+        acked: int,
+        rtt_sample: float | None,
+        srtt: float,
+        rttvar: float,
+        loss_event_rate: float,
+    ) -> None:
+        """Feedback arrived: ``acked`` data packets newly reported received.
+
+        ``rtt_sample`` is this datagram's RTT sample (hold time already removed) or ``None``; ``srtt`` and
+        ``rttvar`` are the smoothed estimates after it; ``loss_event_rate`` is RFC 5348's p (0 before
+        the first loss event).
+        """
+
+    @abc.abstractmethod
+    def on_loss_event(self, *, now: float, srtt: float, loss_event_rate: float) -> None:
+        """A new loss event began (one call per event, however many packets it lost)."""
+
+    @abc.abstractmethod
+    def get_timer(self) -> float | None:
+        """The controller's own next deadline (absolute), or ``None``."""
+
+    @abc.abstractmethod
+    def on_timer(self, *, now: float) -> None:
+        """``now`` reached :meth:`get_timer` (it may be called late, or when nothing is due)."""
