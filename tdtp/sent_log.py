@@ -1,0 +1,199 @@
+"""The sender's memory of its data packets: ACK expansion, acknowledgement marking and loss detection.
+
+Every data packet takes the next sequence number, so a packet's record sits at ``seq - base`` in a deque
+that starts at the oldest packet whose fate is still open. Records leave from the front once acknowledged
+or declared lost, so the work per packet is constant on average.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import NamedTuple
+
+from tdtp.wire.header import SEQ_MASK
+from tdtp.wire.seqnum import SEQ_MODULUS
+
+ACK_WINDOW_BEHIND = 1024
+"""An ACK may be this far below the largest acknowledged value (reordered feedback) and still decode."""
+SACK_SPAN = 6
+RECENTLY_LOST = 256
+"""How many declared losses are remembered to recognise a spurious one (the packet arrived after all)."""
+
+
+class SentPacket:
+    __slots__ = ("acked", "send_time", "size")
+
+    def __init__(self, send_time: float, size: int) -> None:
+        self.send_time = send_time
+        self.size = size
+        self.acked = False
+
+
+class LostPacket(NamedTuple):
+    seq: int
+    send_time: float
+
+
+class AckOutcome(NamedTuple):
+    newly_acked: int
+    rtt_sample: float | None
+    spurious: int
+
+
+class SentPacketLog:
+    """Records of sent data packets, from the oldest unresolved one to the newest."""
+
+    __slots__ = (
+        "_base",
+        "_largest_send_time",
+        "_max_tracked",
+        "_recently_lost",
+        "_recently_lost_order",
+        "_records",
+        "_reorder_threshold",
+        "first_seq",
+        "largest_acked",
+        "next_seq",
+    )
+
+    def __init__(self, first_seq: int, *, reorder_threshold: int, max_tracked: int) -> None:
+        self.first_seq = first_seq
+        self.next_seq = first_seq
+        self.largest_acked = first_seq - 1
+        self._largest_send_time = 0.0
+        self._base = first_seq
+        self._records: deque[SentPacket] = deque()
+        self._reorder_threshold = reorder_threshold
+        self._max_tracked = max_tracked
+        self._recently_lost: set[int] = set()
+        self._recently_lost_order: deque[int] = deque()
+
+    @property
+    def in_flight(self) -> int:
+        """Packets sent whose fate is still open."""
+        return sum(1 for record in self._records if not record.acked)
+
+    def on_sent(self, send_time: float, size: int, lost: list[LostPacket]) -> int:
+        """Record a departure; returns its sequence number. Past the table bound the oldest open
+        record is declared lost and appended to ``lost``."""
+        seq = self.next_seq
+        self.next_seq = seq + 1
+        records = self._records
+        records.append(SentPacket(send_time, size))
+        if len(records) > self._max_tracked:
+            record = records.popleft()
+            if not record.acked:
+                self._declare_lost(self._base, record, lost)
+            self._base += 1
+        return seq
+
+    def expand_ack(self, truncated: int, hold: float | None, now: float, srtt: float) -> int | None:
+        """The full sequence number a 12-bit ACK refers to, or ``None`` if it names a packet never sent.
+
+        The ACK is read in ``[largest_acked - 1024, largest_acked + 3071]``. When more than 4096 packets
+        are in flight several values fit; the one whose RTT best matches ``srtt`` wins, and a repeat of
+        the largest acknowledged value is taken as that repeat (the peer received nothing newer).
+        """
+        highest_sent = self.next_seq - 1
+        largest = self.largest_acked
+        if truncated == largest & SEQ_MASK and largest >= self.first_seq:
+            return largest
+        low = largest - ACK_WINDOW_BEHIND
+        full = low + ((truncated - low) & SEQ_MASK)
+        if full < self.first_seq:
+            full += SEQ_MODULUS
+        if full > highest_sent:
+            return None
+        if full + SEQ_MODULUS > highest_sent:
+            return full
+        best, best_error = full, float("inf")
+        elapsed_hold = hold if hold is not None else 0.0
+        candidate = full
+        while candidate <= highest_sent:
+            send_time = self._send_time(candidate)
+            if send_time is not None:
+                error = abs(now - send_time - elapsed_hold - srtt)
+                if error < best_error:
+                    best, best_error = candidate, error
+            candidate += SEQ_MODULUS
+        return best
+
+    def _send_time(self, seq: int) -> float | None:
+        index = seq - self._base
+        if 0 <= index < len(self._records):
+            return self._records[index].send_time
+        if seq == self.largest_acked:
+            return self._largest_send_time
+        return None
+
+    def on_ack(self, ack: int, sack: int, hold: float | None, now: float) -> AckOutcome:
+        """Mark ``ack`` and the SACK-reported packets below it as received."""
+        records = self._records
+        base = self._base
+        count = len(records)
+        newly = 0
+        spurious = 0
+        rtt_sample: float | None = None
+        index = ack - base
+        if 0 <= index < count:
+            record = records[index]
+            if not record.acked:
+                record.acked = True
+                newly = 1
+                if ack > self.largest_acked:
+                    if hold is not None:
+                        rtt_sample = now - record.send_time - hold
+                    self.largest_acked = ack
+                    self._largest_send_time = record.send_time
+        elif index < 0 and ack in self._recently_lost:
+            spurious += self._forget_loss(ack)
+        bit = 1
+        for distance in range(1, SACK_SPAN + 1):
+            if sack & bit:
+                index = ack - distance - base
+                if 0 <= index < count:
+                    record = records[index]
+                    if not record.acked:
+                        record.acked = True
+                        newly += 1
+                elif index < 0 and (ack - distance) in self._recently_lost:
+                    spurious += self._forget_loss(ack - distance)
+            bit <<= 1
+        return AckOutcome(newly, rtt_sample, spurious)
+
+    def detect_losses(self, now: float, timeout: float, lost: list[LostPacket]) -> None:
+        """Retire resolved records from the front; declare lost those ``reorder_threshold`` below the
+        largest acknowledged packet or unacknowledged for ``timeout``."""
+        records = self._records
+        threshold_seq = self.largest_acked - self._reorder_threshold
+        while records:
+            record = records[0]
+            seq = self._base
+            if record.acked:
+                pass
+            elif seq <= threshold_seq or record.send_time + timeout <= now:
+                # (The same sum as loss_deadline(): a timer set from it must find the packet due.)
+                self._declare_lost(seq, record, lost)
+            else:
+                break
+            records.popleft()
+            self._base = seq + 1
+
+    def loss_deadline(self, timeout: float) -> float | None:
+        """When the oldest open record times out, or ``None`` with nothing open."""
+        for record in self._records:
+            if not record.acked:
+                return record.send_time + timeout
+        return None
+
+    def _declare_lost(self, seq: int, record: SentPacket, lost: list[LostPacket]) -> None:
+        lost.append(LostPacket(seq, record.send_time))
+        self._recently_lost.add(seq)
+        order = self._recently_lost_order
+        order.append(seq)
+        if len(order) > RECENTLY_LOST:
+            self._recently_lost.discard(order.popleft())
+
+    def _forget_loss(self, seq: int) -> int:
+        self._recently_lost.discard(seq)
+        return 1

@@ -1,0 +1,106 @@
+"""Counters a connection keeps: live, cheap to update, and plain data to print or serialise."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+
+class DropReason(enum.Enum):
+    """Why a received datagram was not taken in. Every dropped datagram has exactly one reason."""
+
+    TRUNCATED = "truncated"
+    """Shorter than the 5-byte header."""
+    UNKNOWN_TYPE = "unknown_type"
+    """TYPE is the reserved value."""
+    UNKNOWN_VERSION = "unknown_version"
+    """An OPEN for a protocol version this implementation does not speak."""
+    OVERSIZED = "oversized"
+    """Longer than the header plus the maximum payload."""
+    WRONG_ADDRESS = "wrong_address"
+    """Not from the connection's peer (off-path)."""
+    OPTIMISTIC_ACK = "optimistic_ack"
+    """Acknowledges a sequence number this side never sent."""
+    DUPLICATE = "duplicate"
+    """A second copy of a data packet (replayed or duplicated by the network)."""
+    LATE = "late"
+    """Arrived after a newer data packet; a stale sample (still acknowledged)."""
+    STALE = "stale"
+    """Older than the 64-packet reordering window: cannot be told apart from a replay."""
+    NOT_ESTABLISHED = "not_established"
+    """Data or acknowledgement before the connection is open."""
+    CLOSED = "closed"
+    """Arrived after the connection ended."""
+    BAD_CONTROL = "bad_control"
+    """A control packet with an unknown code or a body of the wrong size."""
+    NONCE_MISMATCH = "nonce_mismatch"
+    """A control packet of another (earlier) connection: a replay or a stale retransmission."""
+    UNEXPECTED_CONTROL = "unexpected_control"
+    """A well-formed control packet that makes no sense in this state or role."""
+
+
+@dataclass(slots=True)
+class DirectionStats:
+    """Traffic one way. Byte counts are TDTP datagram bytes: the 5-byte header included, IP/UDP not."""
+
+    datagrams: int = 0
+    bytes: int = 0
+    header_bytes: int = 0
+    payload_bytes: int = 0
+    data_packets: int = 0
+    ack_packets: int = 0
+    control_packets: int = 0
+
+
+@dataclass(slots=True)
+class ConnectionStats:
+    sent: DirectionStats = field(default_factory=DirectionStats)
+    received: DirectionStats = field(default_factory=DirectionStats)
+    """Datagrams taken in (dropped ones are in ``drops`` only)."""
+    datagrams_in: int = 0
+    """Every datagram handed to ``receive_datagram``; equals ``received.datagrams + dropped``."""
+    drops: dict[str, int] = field(default_factory=dict)
+    """Dropped datagrams by :class:`DropReason` value."""
+    samples_offered: int = 0
+    """Payloads the application passed to ``send``."""
+    samples_superseded: int = 0
+    """Payloads replaced by a newer one before the pacer let them leave (latest-value semantics)."""
+    samples_delivered: int = 0
+    """Payloads handed to the application as :class:`~tdtp.events.DataReceived`."""
+    events_discarded: int = 0
+    """Data events dropped because the application did not drain ``next_event`` fast enough."""
+    packets_acked: int = 0
+    """Own data packets the peer reported received."""
+    packets_lost: int = 0
+    """Own data packets declared lost (reorder threshold, timeout, or forgotten past the table bound)."""
+    spurious_losses: int = 0
+    """Packets declared lost and later reported received after all (deep reordering)."""
+    loss_events: int = 0
+    reordered: int = 0
+    """Peer data packets that arrived after a newer one."""
+    peer_gaps: int = 0
+    """Peer sequence numbers skipped at arrival (lost or not yet arrived), as this side saw them."""
+    rtt_samples: int = 0
+    srtt: float = 0.0
+    rttvar: float = 0.0
+    min_rtt: float = 0.0
+    loss_event_rate: float = 0.0
+    rate: float = 0.0
+    """The rate controller's allowed rate, packets per second."""
+
+    @property
+    def dropped(self) -> int:
+        return sum(self.drops.values())
+
+    def count_drop(self, reason: DropReason) -> None:
+        key = reason.value
+        self.drops[key] = self.drops.get(key, 0) + 1
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready copy (``math.inf`` rates become ``None``)."""
+        data = asdict(self)
+        data["dropped"] = self.dropped
+        if data["rate"] == float("inf"):
+            data["rate"] = None
+        return data

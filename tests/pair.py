@@ -1,0 +1,187 @@
+"""A master and a slave Connection wired together in fake time, with scripted loss and reordering.
+
+Time jumps from one thing to the next (a sample tick, a delivery, a connection timer), so simulated
+minutes cost seconds. Loss and extra delay are decided by deterministic functions of each direction's
+datagram index, so every test run sees exactly the same network.
+"""
+
+from __future__ import annotations
+
+import heapq
+import random
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from tdtp import Connection, ConnectionConfig, DataReceived, Event, Role
+
+MASTER_ADDR = ("192.0.2.1", 40001)
+SLAVE_ADDR = ("192.0.2.2", 40002)
+
+DropRule = Callable[[int], bool]
+DelayRule = Callable[[int], float]
+
+
+def never(_: int) -> bool:
+    return False
+
+
+def no_extra(_: int) -> float:
+    return 0.0
+
+
+@dataclass
+class Direction:
+    """One way across the fake network."""
+
+    delay: float = 0.010
+    drop: DropRule = never
+    extra_delay: DelayRule = no_extra
+    datagrams: int = 0
+    dropped: int = 0
+    wire: list[bytes] = field(default_factory=list)
+    keep_wire: bool = False
+
+    def admit(self, datagram: bytes) -> float | None:
+        """The datagram's one-way delay, or None if the rule drops it."""
+        index = self.datagrams
+        self.datagrams += 1
+        if self.keep_wire:
+            self.wire.append(datagram)
+        if self.drop(index):
+            self.dropped += 1
+            return None
+        return self.delay + self.extra_delay(index)
+
+
+@dataclass
+class Endpoint:
+    conn: Connection
+    addr: tuple[str, int]
+    rate: float = 0.0
+    payload_size: int = 100
+    received: list[DataReceived] = field(default_factory=list)
+    events: list[Event] = field(default_factory=list)
+    next_sample: float = 0.0
+    offered: int = 0
+
+
+class Pair:
+    def __init__(
+        self,
+        master_config: ConnectionConfig | None = None,
+        slave_config: ConnectionConfig | None = None,
+        *,
+        ms: Direction | None = None,
+        sm: Direction | None = None,
+        seed: int = 1,
+    ) -> None:
+        self.now = 0.0
+        self.master = Endpoint(
+            Connection(master_config, role=Role.MASTER, rng=random.Random(seed)), MASTER_ADDR
+        )
+        self.slave = Endpoint(
+            Connection(slave_config, role=Role.SLAVE, rng=random.Random(seed + 1)), SLAVE_ADDR
+        )
+        self.ms = ms if ms is not None else Direction()
+        self.sm = sm if sm is not None else Direction()
+        self._in_flight: list[tuple[float, int, bytes, bool]] = []  # (time, order, data, to_slave)
+        self._order = 0
+
+    # ----------------------------------------------------------------- driving
+
+    def open(self, timeout: float = 5.0) -> None:
+        self.master.conn.connect(SLAVE_ADDR, now=self.now)
+        self._flush(self.master)
+        self.run_until(self.now + timeout, stop=lambda: self.established)
+
+    @property
+    def established(self) -> bool:
+        from tdtp import State
+
+        return self.master.conn.state is State.ESTABLISHED and (
+            self.slave.conn.state is State.ESTABLISHED
+        )
+
+    def start_samples(self, master_rate: float, slave_rate: float, size: int = 100) -> None:
+        """Both applications offer ``size``-byte samples at fixed rates from now on (0 = silent)."""
+        for endpoint, rate in ((self.master, master_rate), (self.slave, slave_rate)):
+            endpoint.rate = rate
+            endpoint.payload_size = size
+            endpoint.next_sample = self.now
+
+    def drain(self, duration: float = 0.2) -> None:
+        """Stop both applications and let what is in flight arrive and be acknowledged."""
+        self.master.rate = self.slave.rate = 0.0
+        self.run_for(duration)
+
+    def run_for(self, duration: float) -> None:
+        self.run_until(self.now + duration)
+
+    def run_until(self, end: float, stop: Callable[[], bool] | None = None) -> None:
+        while True:
+            if stop is not None and stop():
+                return
+            upcoming = self._next_time()
+            if upcoming is None or upcoming > end:
+                self.now = end
+                return
+            self.now = max(self.now, upcoming)
+            self._step()
+
+    def _next_time(self) -> float | None:
+        times = []
+        if self._in_flight:
+            times.append(self._in_flight[0][0])
+        for endpoint in (self.master, self.slave):
+            timer = endpoint.conn.get_timer()
+            if timer is not None:
+                times.append(timer)
+            if endpoint.rate > 0:
+                times.append(endpoint.next_sample)
+        return min(times) if times else None
+
+    def _step(self) -> None:
+        now = self.now
+        while self._in_flight and self._in_flight[0][0] <= now:
+            _, _, data, to_slave = heapq.heappop(self._in_flight)
+            target, source = (self.slave, self.master) if to_slave else (self.master, self.slave)
+            target.conn.receive_datagram(data, source.addr, now=now)
+            self._drain(target)
+            self._flush(target)
+        for endpoint in (self.master, self.slave):
+            timer = endpoint.conn.get_timer()
+            if timer is not None and timer <= now:
+                endpoint.conn.handle_timer(now=now)
+                self._drain(endpoint)
+            if endpoint.rate > 0 and endpoint.next_sample <= now:
+                endpoint.next_sample += 1.0 / endpoint.rate
+                from tdtp import State
+
+                if endpoint.conn.state is State.ESTABLISHED:
+                    endpoint.offered += 1
+                    stamp = endpoint.offered.to_bytes(4, "big")
+                    endpoint.conn.send(stamp + bytes(endpoint.payload_size - 4), now=now)
+            self._flush(endpoint)
+
+    def _drain(self, endpoint: Endpoint) -> None:
+        while (event := endpoint.conn.next_event()) is not None:
+            if isinstance(event, DataReceived):
+                endpoint.received.append(event)
+            else:
+                endpoint.events.append(event)
+
+    def _flush(self, endpoint: Endpoint) -> None:
+        to_slave = endpoint is self.master
+        direction = self.ms if to_slave else self.sm
+        for data, _addr in endpoint.conn.datagrams_to_send(now=self.now):
+            delay = direction.admit(data)
+            if delay is not None:
+                self._order += 1
+                heapq.heappush(self._in_flight, (self.now + delay, self._order, data, to_slave))
+
+    def inject(self, data: bytes, *, to_slave: bool, source: tuple[str, int]) -> None:
+        """Hand a crafted datagram to one side now, as if it came from ``source``."""
+        target = self.slave if to_slave else self.master
+        target.conn.receive_datagram(data, source, now=self.now)
+        self._drain(target)
+        self._flush(target)

@@ -1,0 +1,136 @@
+"""Loss detection, loss events, p, RTT and sequence wrap-around through the fake-time pair."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from tdtp import ConnectionConfig
+from tdtp.control.fixed import FixedConfig
+
+from pair import Direction, Pair
+
+UNLIMITED = ConnectionConfig(controller="fixed", controller_config=FixedConfig(rate=float("inf")))
+
+
+@pytest.mark.parametrize("forward", ["master", "slave"])
+def test_every_dropped_packet_is_counted_lost_once(forward: str) -> None:
+    lossy = Direction(drop=lambda i: i % 50 == 7)
+    pair = Pair(
+        UNLIMITED,
+        UNLIMITED,
+        ms=lossy if forward == "master" else None,
+        sm=lossy if forward == "slave" else None,
+    )
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(5.0)
+    pair.drain()
+    sender = pair.master if forward == "master" else pair.slave
+    receiver = pair.slave if forward == "master" else pair.master
+    stats = sender.conn.stats
+    # Drops hit the data flow only (the handshake packet is index 0, never dropped).
+    assert stats.packets_lost == lossy.dropped
+    assert stats.loss_events == lossy.dropped  # 50 packets apart, much more than one RTT
+    assert stats.loss_event_rate == pytest.approx(1 / 50, rel=0.05)
+    assert stats.spurious_losses == 0
+    assert len(receiver.received) == stats.sent.data_packets - lossy.dropped
+
+
+def test_a_burst_within_one_rtt_is_one_loss_event() -> None:
+    burst = Direction(drop=lambda i: 1000 <= i < 1010 or 3000 <= i < 3004)
+    pair = Pair(UNLIMITED, UNLIMITED, ms=burst)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(5.0)
+    stats = pair.master.conn.stats
+    assert stats.packets_lost == 14
+    assert stats.loss_events == 2
+
+
+def test_reordering_below_the_threshold_is_not_loss_and_late_samples_are_dropped() -> None:
+    # Every 40th packet is held back 2 ms: it arrives after two newer ones (threshold is 3).
+    shuffled = Direction(extra_delay=lambda i: 0.002 if i % 40 == 20 else 0.0)
+    pair = Pair(UNLIMITED, UNLIMITED, ms=shuffled)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(4.0)
+    master, slave = pair.master.conn.stats, pair.slave.conn.stats
+    assert master.packets_lost == 0
+    assert slave.reordered == slave.drops["late"] > 90
+    seqs = [event.seq for event in pair.slave.received]
+    assert seqs == sorted(seqs)  # stale samples never reach the application
+
+
+def test_late_samples_are_delivered_when_configured() -> None:
+    shuffled = Direction(extra_delay=lambda i: 0.002 if i % 40 == 20 else 0.0)
+    pair = Pair(UNLIMITED, ConnectionConfig(deliver_late=True), ms=shuffled)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(2.0)
+    pair.drain()
+    slave = pair.slave.conn.stats
+    assert slave.reordered > 40
+    assert "late" not in slave.drops
+    assert slave.samples_delivered == pair.master.conn.stats.sent.data_packets
+
+
+def test_reordering_past_the_threshold_counts_as_loss_then_as_spurious() -> None:
+    # Held back 5 ms: declared lost when 3 newer ones are acknowledged, then reported by SACK.
+    shuffled = Direction(extra_delay=lambda i: 0.005 if i % 100 == 50 else 0.0)
+    pair = Pair(UNLIMITED, UNLIMITED, ms=shuffled)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(3.0)
+    master = pair.master.conn.stats
+    assert master.packets_lost == master.spurious_losses > 20
+
+
+def test_reordering_deeper_than_the_sack_span_stays_a_loss() -> None:
+    # Held back 9 ms: it arrives 9 packets late, beyond the 6 packets a SACK field can report.
+    shuffled = Direction(extra_delay=lambda i: 0.009 if i % 100 == 50 else 0.0)
+    pair = Pair(UNLIMITED, UNLIMITED, ms=shuffled)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(3.0)
+    master = pair.master.conn.stats
+    assert master.packets_lost == 30 and master.spurious_losses == 0
+    assert pair.slave.conn.stats.reordered == 30
+
+
+def test_rtt_follows_the_path_and_excludes_the_hold_time() -> None:
+    pair = Pair(UNLIMITED, UNLIMITED, ms=Direction(delay=0.030), sm=Direction(delay=0.050))
+    pair.open()
+    pair.start_samples(1000, 333)  # the slave holds ACKs up to 3 ms between its packets
+    pair.run_for(3.0)
+    for endpoint in (pair.master, pair.slave):
+        stats = endpoint.conn.stats
+        assert stats.srtt == pytest.approx(0.080, abs=0.0002)
+        assert stats.rtt_samples > 900
+    age = pair.slave.received[-1].age
+    assert age == pytest.approx(0.040, abs=0.0002)  # half the RTT: clocks are not synchronised
+
+
+def test_two_hundred_thousand_packets_each_way_across_sequence_wraps() -> None:
+    """4096-value sequence space wraps ~49 times; loss and RTT accounting stay exact."""
+    lossy_ms = Direction(drop=lambda i: i % 997 == 500)
+    lossy_sm = Direction(drop=lambda i: i % 1499 == 100, delay=0.015)
+    pair = Pair(UNLIMITED, UNLIMITED, ms=lossy_ms, sm=lossy_sm)
+    pair.open()
+    pair.start_samples(2000, 2000, size=20)
+    pair.run_for(100.1)
+    pair.drain()
+    for sender, receiver, direction in (
+        (pair.master, pair.slave, lossy_ms),
+        (pair.slave, pair.master, lossy_sm),
+    ):
+        stats = sender.conn.stats
+        assert stats.sent.data_packets >= 200_000
+        assert stats.packets_lost == direction.dropped
+        assert stats.packets_acked + stats.packets_lost == stats.sent.data_packets
+        assert stats.srtt == pytest.approx(0.025, abs=0.0002)
+        assert len(receiver.received) == stats.sent.data_packets - direction.dropped
+        seqs = [event.seq for event in receiver.received]
+        assert all(b > a for a, b in itertools.pairwise(seqs))
+        assert seqs[-1] - seqs[0] >= 200_000  # full numbers keep counting across the wraps

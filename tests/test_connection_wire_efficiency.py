@@ -1,0 +1,85 @@
+"""Bidirectionality on the wire: the paper's central claim, checked packet by packet."""
+
+from __future__ import annotations
+
+from tdtp import AckMode, ConnectionConfig
+from tdtp.control.fixed import FixedConfig
+from tdtp.wire import HEADER_SIZE, PacketType, decode_header
+
+from pair import Direction, Pair
+
+UNLIMITED = ConnectionConfig(controller="fixed", controller_config=FixedConfig(rate=float("inf")))
+
+
+def _run(config: ConnectionConfig, seconds: float) -> Pair:
+    pair = Pair(config, config, ms=Direction(keep_wire=True), sm=Direction(keep_wire=True))
+    pair.open()
+    pair.start_samples(1000, 1000, size=100)
+    pair.run_for(seconds)
+    return pair
+
+
+def test_tdtp_mode_sends_no_standalone_acks_and_five_byte_headers() -> None:
+    pair = _run(ConnectionConfig(), 10.0)
+    for direction, endpoint in ((pair.ms, pair.master), (pair.sm, pair.slave)):
+        kinds = [decode_header(d).ptype for d in direction.wire]
+        data = [d for d in direction.wire if decode_header(d).ptype == PacketType.DATA]
+        assert kinds.count(PacketType.ACK) == 0
+        assert len(data) >= 9990  # 1000 samples/s for 10 s, less the open's few milliseconds
+        assert all(len(d) == 100 + HEADER_SIZE for d in data)
+        # Every data packet after the first reverse one carries a real acknowledgement.
+        assert sum(decode_header(d).hold != 255 for d in data) >= len(data) - 15
+        stats = endpoint.conn.stats
+        assert stats.sent.ack_packets == 0
+        assert stats.sent.header_bytes == HEADER_SIZE * stats.sent.datagrams
+        assert stats.packets_lost == 0
+        assert 0.0199 < stats.srtt < 0.0201  # 10 ms each way; the hold time is subtracted
+
+
+def test_separate_ack_mode_sends_one_ack_per_received_data_packet() -> None:
+    pair = _run(ConnectionConfig(ack_mode=AckMode.SEPARATE, ack_size=20), 2.0)
+    for endpoint, direction in ((pair.master, pair.ms), (pair.slave, pair.sm)):
+        stats = endpoint.conn.stats
+        assert stats.sent.ack_packets == stats.received.data_packets > 1900
+        acks = [d for d in direction.wire if decode_header(d).ptype == PacketType.ACK]
+        assert all(len(a) == 20 for a in acks)
+        data = [d for d in direction.wire if decode_header(d).ptype == PacketType.DATA]
+        assert all(decode_header(d).hold == 255 for d in data)  # data carries no ACK
+
+
+def test_slave_adopts_the_masters_ack_mode() -> None:
+    pair = Pair(ConnectionConfig(ack_mode=AckMode.SEPARATE), ConnectionConfig())
+    pair.open()
+    assert pair.slave.conn.ack_mode is AckMode.SEPARATE
+    pair.start_samples(1000, 1000)
+    pair.run_for(0.5)
+    assert pair.slave.conn.stats.sent.ack_packets > 400
+
+
+def test_asymmetric_rates_stay_accurate_with_coverage_acks() -> None:
+    """Forward 1000/s, reverse 50/s: stand-alone ACKs keep every packet reported, no false loss."""
+    pair = Pair(UNLIMITED, UNLIMITED)
+    pair.open()
+    pair.start_samples(1000, 50)
+    pair.run_for(5.0)
+    pair.drain()
+    master, slave = pair.master.conn.stats, pair.slave.conn.stats
+    assert master.packets_lost == 0
+    assert master.packets_acked == master.sent.data_packets
+    # Something reports the forward flow at least every 7 packets, and no more often than needed:
+    # the slave's own 50 data packets/s carry some reports, stand-alone ACKs the rest.
+    reports = slave.sent.ack_packets + slave.sent.data_packets
+    assert master.sent.data_packets / 7 <= reports <= master.sent.data_packets / 6
+    assert 0.0195 < master.srtt < 0.0205
+
+
+def test_reverse_silence_is_acknowledged_by_standalone_acks() -> None:
+    pair = Pair(UNLIMITED, UNLIMITED)
+    pair.open()
+    pair.start_samples(100, 0)
+    pair.run_for(3.0)
+    master, slave = pair.master.conn.stats, pair.slave.conn.stats
+    assert master.packets_lost == 0
+    # 100 packets/s, nothing flowing back: one ACK per ack_delay (20 ms) window at most.
+    assert 100 <= slave.sent.ack_packets <= 160
+    assert 0.0199 < master.srtt < 0.0221  # the hold (up to 20 ms) is removed from the sample

@@ -1,0 +1,79 @@
+"""The sender's packet log: ACK expansion, SACK marking, loss by threshold and by timeout."""
+
+from __future__ import annotations
+
+import pytest
+
+from tdtp.sent_log import LostPacket, SentPacketLog
+
+
+def _log(first: int = 4000, count: int = 0, gap: float = 0.001) -> SentPacketLog:
+    log = SentPacketLog(first, reorder_threshold=3, max_tracked=300_000)
+    lost: list[LostPacket] = []
+    for i in range(count):
+        log.on_sent(i * gap, 105, lost)
+    assert not lost
+    return log
+
+
+def test_ack_expands_across_the_wrap_and_rejects_packets_never_sent() -> None:
+    log = _log(4000, 200)  # sequence numbers 4000..4199
+    assert log.expand_ack(4150 & 0xFFF, 0.0, 0.3, 0.1) == 4150
+    assert log.expand_ack(4199 & 0xFFF, 0.0, 0.3, 0.1) == 4199
+    assert log.expand_ack(4200 & 0xFFF, 0.0, 0.3, 0.1) is None  # not sent yet: optimistic
+    assert log.expand_ack(3999 & 0xFFF, 0.0, 0.3, 0.1) is None  # before the first packet
+    assert (
+        SentPacketLog(7, reorder_threshold=3, max_tracked=64).expand_ack(7, 0.0, 0.0, 0.1) is None
+    )
+
+
+def test_ack_and_sack_mark_packets_and_give_one_rtt_sample() -> None:
+    log = _log(0, 20)
+    outcome = log.on_ack(10, 0b000101, 0.002, 0.040)  # 10, 9 and 7 received
+    assert outcome.newly_acked == 3
+    assert outcome.rtt_sample == pytest.approx(0.040 - 0.010 - 0.002)
+    assert log.largest_acked == 10
+    again = log.on_ack(10, 0b000101, 0.003, 0.041)
+    assert again.newly_acked == 0 and again.rtt_sample is None  # no sample from a repeat
+    lost: list[LostPacket] = []
+    log.detect_losses(0.041, 1.0, lost)
+    # 0..6 are 3 or more below 10 and unacknowledged: lost. 8 is only 2 below: still open.
+    assert [p.seq for p in lost] == [0, 1, 2, 3, 4, 5, 6]
+    assert log.loss_deadline(1.0) == pytest.approx(1.008)
+
+
+def test_timeout_declares_the_oldest_packets_lost() -> None:
+    log = _log(0, 5)
+    lost: list[LostPacket] = []
+    assert log.loss_deadline(0.1) == pytest.approx(0.1)
+    log.detect_losses(0.1025, 0.1, lost)
+    assert [p.seq for p in lost] == [0, 1, 2]
+    assert log.loss_deadline(0.1) == pytest.approx(0.103)
+
+
+def test_late_report_of_a_declared_loss_is_spurious() -> None:
+    log = _log(0, 10)
+    log.on_ack(9, 0, 0.0, 0.05)
+    lost: list[LostPacket] = []
+    log.detect_losses(0.05, 1.0, lost)
+    assert [p.seq for p in lost] == list(range(7))
+    assert log.on_ack(9, 0b100000, 0.0, 0.06).spurious == 1  # 3 (9 - 6) arrived after all
+
+
+def test_table_bound_evicts_the_oldest_as_lost() -> None:
+    log = SentPacketLog(0, reorder_threshold=3, max_tracked=64)
+    lost: list[LostPacket] = []
+    for i in range(70):
+        log.on_sent(i * 0.001, 10, lost)
+    assert [p.seq for p in lost] == [0, 1, 2, 3, 4, 5]
+
+
+def test_many_candidates_in_flight_are_told_apart_by_rtt() -> None:
+    """100 kHz with a 2 s RTT: 200,000 packets in flight, so a 12-bit ACK fits ~49 of them."""
+    rate, rtt = 100_000, 2.0
+    log = _log(0, 210_000, gap=1 / rate)
+    now = 2.09  # the packet sent at now - rtt (= 0.09 s) is seq 9000
+    assert log.expand_ack(9000 & 0xFFF, 0.0, now, rtt) == 9000
+    log.on_ack(9000, 0, 0.0, now)
+    # Later ACKs are matched the same way, against the send time the RTT points at.
+    assert log.expand_ack(9100 & 0xFFF, 0.0, now + 0.001, rtt) == 9100
