@@ -57,7 +57,8 @@ _CONTROL = int(PacketType.CONTROL)
 _NO_ACK = (0, 0, HOLD_NO_ACK)
 LOSS_TIMEOUT_SRTT = 1.2
 LOSS_TIMEOUT_RTTVAR = 4.0
-MIN_LOSS_TIMEOUT = 0.001
+TIMER_GRANULARITY = 0.001
+"""Slack for the peer's ACK timer firing late (RFC 9002's kGranularity)."""
 
 
 class State(enum.Enum):
@@ -98,6 +99,8 @@ class Connection:
         self._controller: RateController = create_controller(
             self.config.controller, self.config.controller_config
         )
+        # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
+        self._controller.feedback_delay = self.config.ack_delay
         first_seq = rng.randrange(SEQ_MODULUS)
         self._sent = SentPacketLog(
             first_seq,
@@ -108,6 +111,7 @@ class Connection:
         self._loss = LossIntervalEstimator(first_seq)
         self._window: ReceiveWindow | None = None
         self._pending: bytes | None = None
+        self._pending_paced = False  # the pending sample had to wait for the pacer
         self._control_out: list[tuple[bytes, Address]] = []
         self._separate_acks: deque[tuple[int, float]] = deque()
         self._event_seq = 0
@@ -199,6 +203,9 @@ class Connection:
         stats.samples_offered += 1
         if self._pending is not None:
             stats.samples_superseded += 1
+            self._pending_paced = True
+        else:
+            self._pending_paced = now < self._controller.next_send_time()
         self._pending = bytes(payload)
 
     def close(self, *, now: float) -> None:
@@ -355,9 +362,10 @@ class Connection:
 
     def _loss_timeout(self) -> float:
         rtt = self._rtt
-        return max(
-            LOSS_TIMEOUT_SRTT * rtt.srtt + LOSS_TIMEOUT_RTTVAR * rtt.rttvar + self.config.ack_delay,
-            MIN_LOSS_TIMEOUT,
+        return (
+            LOSS_TIMEOUT_SRTT * rtt.srtt
+            + max(LOSS_TIMEOUT_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
+            + self.config.ack_delay
         )
 
     def _on_control(
@@ -571,7 +579,7 @@ class Connection:
             self._sent.on_sent(now, size, self._lost)
             if self._lost:
                 self._on_losses(now)
-            self._controller.on_packet_sent(now=now, size=size)
+            self._controller.on_packet_sent(now=now, size=size, paced=self._pending_paced)
             sent = self._stats.sent
             sent.data_packets += 1
             sent.payload_bytes += len(payload)

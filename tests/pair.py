@@ -62,7 +62,14 @@ class Endpoint:
     received: list[DataReceived] = field(default_factory=list)
     events: list[Event] = field(default_factory=list)
     next_sample: float = 0.0
+    """The next tick of the ideal schedule (k / rate)."""
+    jitter: DelayRule = no_extra
+    """Lateness of tick k in seconds (a real event loop does not tick on time)."""
     offered: int = 0
+
+    @property
+    def next_tick(self) -> float:
+        return self.next_sample + self.jitter(self.offered)
 
 
 class Pair:
@@ -102,12 +109,20 @@ class Pair:
             self.slave.conn.state is State.ESTABLISHED
         )
 
-    def start_samples(self, master_rate: float, slave_rate: float, size: int = 100) -> None:
-        """Both applications offer ``size``-byte samples at fixed rates from now on (0 = silent)."""
+    def start_samples(
+        self,
+        master_rate: float,
+        slave_rate: float,
+        size: int = 100,
+        jitter: DelayRule = no_extra,
+    ) -> None:
+        """Both applications offer ``size``-byte samples at fixed rates from now on (0 = silent),
+        tick k late by ``jitter(k)`` seconds."""
         for endpoint, rate in ((self.master, master_rate), (self.slave, slave_rate)):
             endpoint.rate = rate
             endpoint.payload_size = size
             endpoint.next_sample = self.now
+            endpoint.jitter = jitter
 
     def drain(self, duration: float = 0.2) -> None:
         """Stop both applications and let what is in flight arrive and be acknowledged."""
@@ -137,7 +152,7 @@ class Pair:
             if timer is not None:
                 times.append(timer)
             if endpoint.rate > 0:
-                times.append(endpoint.next_sample)
+                times.append(endpoint.next_tick)
         return min(times) if times else None
 
     def _step(self) -> None:
@@ -153,7 +168,7 @@ class Pair:
             if timer is not None and timer <= now:
                 endpoint.conn.handle_timer(now=now)
                 self._drain(endpoint)
-            if endpoint.rate > 0 and endpoint.next_sample <= now:
+            if endpoint.rate > 0 and endpoint.next_tick <= now:
                 endpoint.next_sample += 1.0 / endpoint.rate
                 from tdtp import State
 

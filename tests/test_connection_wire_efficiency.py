@@ -83,3 +83,20 @@ def test_reverse_silence_is_acknowledged_by_standalone_acks() -> None:
     # 100 packets/s, nothing flowing back: one ACK per ack_delay (20 ms) window at most.
     assert 100 <= slave.sent.ack_packets <= 160
     assert 0.0199 < master.srtt < 0.0221  # the hold (up to 20 ms) is removed from the sample
+
+
+def test_a_1khz_application_does_not_inflate_its_allowance() -> None:
+    """The connection tells the controller which packets the pacer held back; a 1 kHz loop that
+    never waits keeps the trinomial allowance within 2x its own rate (docs/CONTROL.md 3.4)."""
+    pair = Pair(ms=Direction(delay=0.0001), sm=Direction(delay=0.0001))  # a LAN: srtt 0.2 ms
+    pair.open()
+    # Every 7th tick runs 0.7 ms late, so it and the next one leave 0.3 ms apart, as on a real loop.
+    pair.start_samples(1000, 1000, jitter=lambda k: 0.0007 if k % 7 == 3 else 0.0)
+    highest = 0.0
+    for _ in range(50):
+        pair.run_for(0.1)
+        highest = max(highest, pair.master.conn.stats.rate, pair.slave.conn.stats.rate)
+    # 2x the measured rate; the moving average of gaps reads up to ~10 % high just after a short gap.
+    # (Measuring each interval's spacing alone let this loop inflate the allowance to 6667/s.)
+    assert 1000.0 < highest <= 2200.0
+    assert pair.master.conn.stats.samples_superseded == 0

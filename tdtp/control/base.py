@@ -74,6 +74,11 @@ class RateController(abc.ABC):
 
     name: ClassVar[str]
 
+    feedback_delay: float = 0.0
+    """Longest the peer may hold an acknowledgement before it leaves (the peer's ``ack_delay``): the
+    connection sets it. A feedback gap this much longer than the RTT is not yet a blackout, so
+    no-feedback timers add it."""
+
     @property
     @abc.abstractmethod
     def rate(self) -> float:
@@ -84,8 +89,13 @@ class RateController(abc.ABC):
         """Earliest absolute time the next data packet may leave; :data:`NO_LIMIT` if any time."""
 
     @abc.abstractmethod
-    def on_packet_sent(self, *, now: float, size: int) -> None:
-        """A data packet of ``size`` bytes (header included) left at ``now``."""
+    def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
+        """A data packet of ``size`` bytes (header included) left at ``now``.
+
+        ``paced`` says whether the pacer held it back: the application offered it before the
+        controller allowed it to leave (or offered a newer one meanwhile). ``False`` means it left as
+        soon as it was offered, so the application, not the controller, set the pace.
+        """
 
     @abc.abstractmethod
     def on_ack(

@@ -53,7 +53,7 @@ class FixedRateController(RateController):
             return NO_LIMIT
         return self._schedule.next_departure
 
-    def on_packet_sent(self, *, now: float, size: int) -> None:
+    def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
         self._schedule.on_departure(now, self._rate)
 
     def on_ack(

@@ -141,7 +141,7 @@ class TfrcController(RateController):
     def on_timer(self, *, now: float) -> None:
         self._advance(now)
 
-    def on_packet_sent(self, *, now: float, size: int) -> None:
+    def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
         self._advance(now)
         if self._cfg.packet_size is None and size > 0:
             mean = self._mean_size
@@ -178,7 +178,7 @@ class TfrcController(RateController):
             recv_limit = 2.0 * self.x_recv
             self._set_rate(now, max(min(2.0 * self._x, recv_limit), self._initial_window() / r))
             self._t_ld = now
-        self._nf_deadline = now + max(4.0 * r, 2.0 / self._x)
+        self._nf_deadline = now + max(4.0 * r, 2.0 / self._x) + self.feedback_delay
         self._sent_since_nf = False
 
     def on_loss_event(self, *, now: float, srtt: float, loss_event_rate: float) -> None:
@@ -265,7 +265,7 @@ class TfrcController(RateController):
             self._recv_set = [(now, limit / 2.0)]
             self._halve(now, min(x_eq, limit))
         timeout = max(4.0 * r, 2.0 / self._x) if r is not None else cfg.initial_no_feedback_timeout
-        self._nf_deadline = now + timeout
+        self._nf_deadline = now + timeout + self.feedback_delay
         self._sent_since_nf = False
 
     def _halve(self, now: float, rate: float) -> None:

@@ -31,6 +31,11 @@ __all__ = [
 ]
 
 
+GAP_GAIN: Final = 0.125
+"""Gain of the moving averages behind the application-limited guard: departure gaps and the share
+of departures the pacer held back (about the last eight packets)."""
+
+
 def _positive_finite(value: float) -> bool:
     return 0.0 < value < math.inf
 
@@ -178,9 +183,9 @@ class TrinomialController(RateController):
         self._iv_alpha = cfg.alpha_min
         self._iv_w = math.inf
         self._iv_sent = 0
-        self._iv_prev_send: float | None = None  # last departure before the interval
-        self._iv_first_send = 0.0
         self._last_send: float | None = None
+        self._gap_avg: float | None = None  # moving average of departure gaps
+        self._paced_avg = 0.0  # moving share of departures the pacer held back
         self._iv_acks = 0
         self._iv_allowance = 0.0  # packets the allowed rate permitted since _iv_start...
         self._iv_mark = 0.0  # ...integrated up to this time
@@ -252,10 +257,13 @@ class TrinomialController(RateController):
     def on_timer(self, *, now: float) -> None:
         self._advance(now)
 
-    def on_packet_sent(self, *, now: float, size: int) -> None:
+    def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
         self._advance(now)
-        if not self._iv_sent:
-            self._iv_first_send = now
+        if self._last_send is not None:
+            gap = now - self._last_send
+            avg = self._gap_avg
+            self._gap_avg = gap if avg is None else avg + GAP_GAIN * (gap - avg)
+        self._paced_avg += GAP_GAIN * ((1.0 if paced else 0.0) - self._paced_avg)
         self._last_send = now
         self._iv_sent += 1
         if self._nf_deadline is None:
@@ -333,7 +341,6 @@ class TrinomialController(RateController):
         self._iv_start = self._iv_mark = now
         self._iv_end = now + max(srtt, 2.0 / rate)
         self._iv_sent = 0
-        self._iv_prev_send = self._last_send
         self._iv_acks = 0
         self._iv_allowance = 0.0
 
@@ -348,9 +355,12 @@ class TrinomialController(RateController):
             and self._iv_sent >= cfg.app_limited_fraction * self._iv_allowance
         ):
             rate = self.rate
-            ceiling = min(
-                cfg.max_rate, self._cap(), max(rate, cfg.app_headroom * self._send_rate())
-            )
+            ceiling = min(cfg.max_rate, self._cap())
+            if self._paced_avg < 0.5:
+                # Most recent packets left as soon as offered: the application sets the pace, so
+                # the allowance grows only to headroom x its rate. (A share, not any one packet:
+                # a jittery 1 kHz loop has the odd pair of samples 0.3 ms apart.)
+                ceiling = min(ceiling, max(rate, cfg.app_headroom * self._send_rate()))
             if ceiling > rate * (1.0 + 1e-9):  # not for a rounding error in the measured rate
                 ipg, w = self.ipg, self._iv_w
                 self._set_rate(now, min(1.0 / (ipg * w / (ipg + w)), ceiling))  # eq. 9
@@ -358,30 +368,18 @@ class TrinomialController(RateController):
         self._start_interval(now)
 
     def _send_rate(self) -> float:
-        """The rate this interval's packets left at, measured from their spacing.
+        """The rate packets actually left at: the inverse of a moving average of departure gaps.
 
-        Gaps, not a count per interval: counting is off by up to one packet per interval, a large
-        error when an srtt holds few packets. Two spacings, the larger wins: the ``n`` gaps that
-        ended with this interval's packets (``n / (last - last before the interval)``), and the
-        ``n - 1`` gaps between them. Both are exact for a periodic application (its own rate) and
-        for a sender held back by the pacer (the allowed rate), but right after an increase the
-        first gap still belongs to the old rate, which only the second spacing leaves out. An idle
-        period makes both low, as it should: the sender did not use its allowance.
+        The average (gain 1/8, so about the last eight gaps) smooths the jitter of a real event loop,
+        where a periodic 1 kHz application's packets leave 0.2 ms or 1.8 ms apart as often as 1 ms: a
+        measurement over one short interval would read that as 5000 packets/s. A periodic
+        application reads as its own rate, a sender held back by the pacer as the allowed rate, and an
+        idle period, one long gap, pulls the estimate down as it should.
         """
-        n = self._iv_sent
-        last = self._last_send
-        if n == 0 or last is None:
+        gap = self._gap_avg
+        if gap is None:
             return 0.0
-        estimate = 0.0
-        prev = self._iv_prev_send
-        if prev is not None:
-            estimate = n / (last - prev) if last > prev else math.inf
-        if n >= 2:
-            span = last - self._iv_first_send
-            estimate = max(estimate, (n - 1) / span if span > 0.0 else math.inf)
-        elif prev is None:
-            estimate = n / max(self._iv_mark - self._iv_start, 1e-9)
-        return estimate
+        return 1.0 / gap if gap > 0.0 else math.inf
 
     def _cap(self) -> float:
         p = self._p
@@ -439,4 +437,4 @@ class TrinomialController(RateController):
             self._last_loss = now
 
     def _no_feedback_timeout(self) -> float:
-        return max(self._cfg.no_feedback_rtts * self._srtt, 2.0 / self.rate)
+        return max(self._cfg.no_feedback_rtts * self._srtt, 2.0 / self.rate) + self.feedback_delay

@@ -221,7 +221,13 @@ def run(
                     now,
                 )
         else:
-            call("send", functools.partial(controller.on_packet_sent, now=now, size=path.size), now)
+            # Paced: the pacer, not the application, held this packet (as the connection reports it).
+            paced = path.demand == math.inf or (nst != NO_LIMIT and nst > next_sample)
+            call(
+                "send",
+                functools.partial(controller.on_packet_sent, now=now, size=path.size, paced=paced),
+                now,
+            )
             trace.sends.append(now)
             if path.demand < math.inf:
                 # The sample is consumed; the next one is the first sample time after now.
