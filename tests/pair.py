@@ -133,6 +133,7 @@ class Pair:
         self.run_until(self.now + duration)
 
     def run_until(self, end: float, stop: Callable[[], bool] | None = None) -> None:
+        same_instant = 0
         while True:
             if stop is not None and stop():
                 return
@@ -140,6 +141,13 @@ class Pair:
             if upcoming is None or upcoming > end:
                 self.now = end
                 return
+            if upcoming <= self.now:
+                same_instant += 1
+                if same_instant > 100_000:
+                    # A deadline that stays due after it was served would hang the event loop too.
+                    raise AssertionError(f"livelock at t={self.now}: a deadline never moves on")
+            else:
+                same_instant = 0
             self.now = max(self.now, upcoming)
             self._step()
 

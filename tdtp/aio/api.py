@@ -1,0 +1,267 @@
+"""The asyncio entry points: :func:`connect` for a master, :func:`listen` for a slave.
+
+``connect`` gives one :class:`~tdtp.aio.endpoint.Endpoint` on its own connected UDP socket (the kernel
+drops datagrams from anyone but the slave). ``listen`` binds one UDP socket for any number of masters, up
+to ``max_peers``, and hands out an endpoint for each master whose OPEN arrives.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import random
+import socket
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+
+from tdtp.aio.endpoint import DataCallback, Endpoint, EndpointClosedError
+from tdtp.aio.timer import monotonic
+from tdtp.config import ConnectionConfig, Role
+from tdtp.connection import Connection, State
+from tdtp.events import Address
+from tdtp.wire.control import ControlCode
+from tdtp.wire.header import HEADER_SIZE, PacketType
+
+_CONTROL_TYPE_BITS = int(PacketType.CONTROL) << 6
+_OPEN = int(ControlCode.OPEN)
+
+
+class ConnectError(ConnectionError):
+    """The slave did not accept: no answer within ``open_timeout``, or an explicit refusal."""
+
+
+def _peer_key(addr: Address) -> tuple[object, object]:
+    return addr[0], addr[1]
+
+
+class _MasterProtocol(asyncio.DatagramProtocol):
+    def __init__(self) -> None:
+        self.endpoint: Endpoint | None = None
+
+    def datagram_received(self, data: bytes, addr: Address) -> None:
+        endpoint = self.endpoint
+        if endpoint is not None:
+            endpoint.datagram_received(data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP port unreachable and friends: the idle timeout decides whether the peer is gone.
+        if self.endpoint is not None:
+            self.endpoint.send_errors += 1
+
+
+async def connect(
+    host: str,
+    port: int,
+    *,
+    config: ConnectionConfig | None = None,
+    local_addr: tuple[str, int] | None = None,
+    timer: str = "auto",
+    on_data: DataCallback | None = None,
+    rng: random.Random | None = None,
+) -> Endpoint:
+    """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
+
+    Use it as ``async with await tdtp.aio.connect(host, port) as ep:``. Raises :class:`ConnectError`
+    when the slave does not answer within ``config.open_timeout`` or refuses.
+    """
+    loop = asyncio.get_running_loop()
+    infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+    if not infos:
+        raise ConnectError(f"cannot resolve {host!r}")
+    family, _, _, _, remote = infos[0]
+    # Both loops want (host, port) here and resolve it again themselves; the core compares only
+    # host and port, so an IPv6 peer's 4-tuple source address still matches ``remote``.
+    transport, protocol = await loop.create_datagram_endpoint(
+        _MasterProtocol,
+        remote_addr=(str(remote[0]), int(remote[1])),
+        local_addr=local_addr,
+        family=family,
+    )
+    conn = Connection(config, role=Role.MASTER, rng=rng)
+
+    def _close_transport(_: Endpoint) -> None:
+        transport.close()
+
+    endpoint = Endpoint(
+        conn, transport, connected=True, timer=timer, on_data=on_data, on_closed=_close_transport
+    )
+    protocol.endpoint = endpoint
+    conn.connect(remote, now=monotonic())
+    endpoint._flush()
+    try:
+        await endpoint.wait_established()
+    except EndpointClosedError as exc:
+        transport.close()
+        raise ConnectError(f"could not open a TDTP connection to {host}:{port}: {exc}") from exc
+    except BaseException:
+        await endpoint.close()
+        raise
+    return endpoint
+
+
+@dataclass(slots=True)
+class ServerStats:
+    """What the listening socket saw outside any connection."""
+
+    datagrams_unattached: int = 0
+    """Datagrams from addresses without a connection that were not a valid OPEN."""
+    peers_refused: int = 0
+    """OPENs turned away because ``max_peers`` connections were already open."""
+    peers_accepted: int = 0
+    drops: dict[str, int] = field(default_factory=dict)
+    """Drops by connections that were created for an OPEN and never established."""
+
+
+class _ServerProtocol(asyncio.DatagramProtocol):
+    def __init__(self, server: Server) -> None:
+        self.server = server
+
+    def datagram_received(self, data: bytes, addr: Address) -> None:
+        self.server._datagram_received(data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        pass  # an ICMP error about one master says nothing about the others
+
+
+class Server:
+    """A slave's listening socket. Iterate it (``async for endpoint in server``) or call
+    :meth:`accept` to get an endpoint for each master that connects."""
+
+    def __init__(
+        self,
+        *,
+        config: ConnectionConfig | None,
+        max_peers: int,
+        timer: str,
+        on_data: DataCallback | None,
+    ) -> None:
+        if max_peers < 1:
+            raise ValueError(f"max_peers must be at least 1, got {max_peers}")
+        self._config = config
+        self._max_peers = max_peers
+        self._timer = timer
+        self._on_data = on_data
+        self._transport: asyncio.DatagramTransport | None = None
+        self._peers: dict[tuple[object, object], Endpoint] = {}
+        self._accepted: asyncio.Queue[Endpoint | None] = asyncio.Queue()
+        self._closed = False
+        self.stats = ServerStats()
+
+    @property
+    def sockname(self) -> Address:
+        """The bound address, e.g. to learn the port after ``listen(port=0)``."""
+        if self._transport is None:
+            raise RuntimeError("the server is not bound")
+        sockname: Address = self._transport.get_extra_info("sockname")
+        return sockname
+
+    @property
+    def port(self) -> int:
+        return int(self.sockname[1])
+
+    @property
+    def endpoints(self) -> list[Endpoint]:
+        """The masters connected (or connecting) now."""
+        return list(self._peers.values())
+
+    async def accept(self) -> Endpoint:
+        """The next master's endpoint, once its connection is established."""
+        endpoint = await self._accepted.get()
+        if endpoint is None:
+            self._accepted.put_nowait(None)
+            raise ConnectionError("the server is closed")
+        return endpoint
+
+    def __aiter__(self) -> AsyncIterator[Endpoint]:
+        return self._iterate()
+
+    async def _iterate(self) -> AsyncIterator[Endpoint]:
+        while True:
+            try:
+                yield await self.accept()
+            except ConnectionError:
+                return
+
+    async def close(self) -> None:
+        """Close every connection (each peer gets a CLOSE) and the socket. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        for endpoint in list(self._peers.values()):
+            await endpoint.close()
+        if self._transport is not None:
+            self._transport.close()
+        self._accepted.put_nowait(None)
+
+    async def __aenter__(self) -> Server:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.close()
+
+    # ------------------------------------------------------------------ internals
+
+    def _datagram_received(self, data: bytes, addr: Address) -> None:
+        key = _peer_key(addr)
+        endpoint = self._peers.get(key)
+        if endpoint is not None:
+            endpoint.datagram_received(data, addr)
+            return
+        if self._closed:
+            return
+        # Only an OPEN may create state: anything else from an unknown address costs nothing.
+        if len(data) <= HEADER_SIZE or data[0] & 0xC0 != _CONTROL_TYPE_BITS or data[5] != _OPEN:
+            self.stats.datagrams_unattached += 1
+            return
+        if len(self._peers) >= self._max_peers:
+            self.stats.peers_refused += 1
+            return
+        assert self._transport is not None
+        conn = Connection(self._config, role=Role.SLAVE)
+        endpoint = Endpoint(
+            conn,
+            self._transport,
+            connected=False,
+            timer=self._timer,
+            on_data=self._on_data,
+            on_closed=self._forget,
+        )
+        self._peers[key] = endpoint
+        endpoint.datagram_received(data, addr)
+        if conn.state is State.ESTABLISHED:
+            self.stats.peers_accepted += 1
+            self._accepted.put_nowait(endpoint)
+        elif conn.state is not State.CLOSED:
+            # An OPEN the connection refused (unknown version, malformed): keep no state for it.
+            for reason, count in conn.stats.drops.items():
+                self.stats.drops[reason] = self.stats.drops.get(reason, 0) + count
+            del self._peers[key]
+            endpoint._release()
+
+    def _forget(self, endpoint: Endpoint) -> None:
+        peer = endpoint.peer
+        if peer is not None and self._peers.get(_peer_key(peer)) is endpoint:
+            del self._peers[_peer_key(peer)]
+
+
+async def listen(
+    host: str | None = "127.0.0.1",
+    port: int = 0,
+    *,
+    config: ConnectionConfig | None = None,
+    max_peers: int = 256,
+    timer: str = "auto",
+    on_data: DataCallback | None = None,
+) -> Server:
+    """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
+
+    Use it as ``async with await tdtp.aio.listen(host, port) as server: async for ep in server: ...``.
+    At most ``max_peers`` masters are served at once; further OPENs are ignored and counted.
+    """
+    loop = asyncio.get_running_loop()
+    server = Server(config=config, max_peers=max_peers, timer=timer, on_data=on_data)
+    family = socket.AF_INET6 if host is not None and ":" in host else socket.AF_UNSPEC
+    transport, _ = await loop.create_datagram_endpoint(
+        lambda: _ServerProtocol(server), local_addr=(host or "0.0.0.0", port), family=family
+    )
+    server._transport = transport
+    return server

@@ -1,0 +1,78 @@
+"""A periodic ticker on absolute deadlines, for applications that sample at a fixed rate.
+
+``async for tick in Ticker(1000): ep.send(read_sensor())`` wakes at ``start + k / rate`` for k = 0, 1, 2,
+... on the precise deadline timer. Deadlines never drift with wake-up lateness: 1000 ticks per second
+means 1000. After a stall longer than ``max_catch_up`` periods the missed ticks are skipped and counted
+(a teleoperation sample that old is worth nothing) instead of being fired in a burst.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import AsyncIterator
+
+from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
+
+
+class Ticker:
+    def __init__(
+        self,
+        rate: float,
+        *,
+        start: float | None = None,
+        max_catch_up: int = 10,
+        timer: str = "auto",
+    ) -> None:
+        if not (0.0 < rate < math.inf):
+            raise ValueError(
+                f"rate must be a positive, finite number of ticks per second, got {rate!r}"
+            )
+        if max_catch_up < 0:
+            raise ValueError(f"max_catch_up must be >= 0, got {max_catch_up}")
+        self.rate = rate
+        self.period = 1.0 / rate
+        self._start = start
+        self._max_catch_up = max_catch_up
+        self._timer_kind = timer
+        self.ticks = 0
+        """Ticks delivered so far."""
+        self.skipped = 0
+        """Ticks dropped after stalls longer than ``max_catch_up`` periods."""
+        self.max_lateness = 0.0
+        """Largest delay between a deadline and the moment its tick was delivered, seconds."""
+
+    def __aiter__(self) -> AsyncIterator[int]:
+        return self._run()
+
+    async def _run(self) -> AsyncIterator[int]:
+        loop = asyncio.get_running_loop()
+        waiter: asyncio.Future[None] | None = None
+
+        def wake() -> None:
+            if waiter is not None and not waiter.done():
+                waiter.set_result(None)
+
+        timer: DeadlineTimer = create_timer(loop, wake, prefer=self._timer_kind)
+        start = monotonic() if self._start is None else self._start
+        index = 0
+        try:
+            while True:
+                deadline = start + index * self.period
+                now = monotonic()
+                if now < deadline:
+                    waiter = loop.create_future()
+                    timer.arm(deadline)
+                    await waiter
+                    now = monotonic()
+                behind = int((now - deadline) * self.rate)
+                if behind > self._max_catch_up:
+                    self.skipped += behind
+                    index += behind
+                    deadline = start + index * self.period
+                self.max_lateness = max(self.max_lateness, now - deadline)
+                self.ticks += 1
+                yield index
+                index += 1
+        finally:
+            timer.close()
