@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: test lint typecheck unit clean
+.PHONY: demo test lint typecheck unit clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -14,6 +14,10 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test,fast]'
 	touch $(STAMP)
+
+# Master and slave on localhost, 1000 samples/s of 100 bytes each way, live statistics for 5 s.
+demo: $(STAMP)
+	$(BIN)/tdtp demo --duration 5
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

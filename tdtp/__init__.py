@@ -1,9 +1,14 @@
 """tdtp: the Teleoperation Data Transport Protocol.
 
 A 5-byte header, acknowledgements piggybacked on the reverse supermedia flow, and trinomial flow control.
-The core (:class:`Connection`) is sans-IO: it never touches sockets or reads a clock.
+The core (:class:`Connection`) is sans-IO: it never touches sockets or reads a clock. The asyncio entry
+points (:func:`connect`, :func:`listen`) run it over real UDP sockets.
 """
 
+from tdtp.aio.api import ConnectError, Server, ServerStats, connect, listen
+from tdtp.aio.endpoint import Endpoint, EndpointClosedError
+from tdtp.aio.ticker import Ticker
+from tdtp.aio.timer import monotonic
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.connection import Connection, State
 from tdtp.errors import (
@@ -30,6 +35,7 @@ __all__ = [
     "AckMode",
     "Address",
     "CloseCause",
+    "ConnectError",
     "Connection",
     "ConnectionClosed",
     "ConnectionClosedError",
@@ -40,10 +46,18 @@ __all__ = [
     "DataReceived",
     "DirectionStats",
     "DropReason",
+    "Endpoint",
+    "EndpointClosedError",
     "Event",
     "PayloadTooLargeError",
     "Role",
+    "Server",
+    "ServerStats",
     "State",
     "TdtpError",
+    "Ticker",
     "__version__",
+    "connect",
+    "listen",
+    "monotonic",
 ]

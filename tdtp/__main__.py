@@ -1,0 +1,7 @@
+"""``python -m tdtp``: the same as the ``tdtp`` command."""
+
+import sys
+
+from tdtp.cli import main
+
+sys.exit(main())

@@ -1,0 +1,414 @@
+"""The ``tdtp`` command: ``tdtp demo``, ``tdtp master HOST:PORT``, ``tdtp slave --port N``.
+
+A master sends position samples (a circle traced at 0.5 Hz) at ``--rate`` per second; the slave answers
+each period with force feedback from a virtual spring wall. Both print a live status block once per second,
+or with ``--json`` one JSON object at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import sys
+from collections.abc import Callable, Coroutine, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from tdtp.aio.api import ConnectError, Server, connect, listen
+from tdtp.aio.endpoint import Endpoint
+from tdtp.aio.ticker import Ticker
+from tdtp.aio.timer import monotonic
+from tdtp.config import AckMode, ConnectionConfig
+from tdtp.control.fixed import FixedConfig
+from tdtp.control.registry import available_controllers
+from tdtp.events import DataReceived
+from tdtp.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
+from tdtp.live_stats import (
+    DirectionMeter,
+    LatencyRecorder,
+    LiveDisplay,
+    direction_summary,
+    receive_line,
+)
+
+MAX_LATENCY = 10.0
+"""Latencies above this are not recorded (the clocks of two hosts are not comparable)."""
+
+
+# ---------------------------------------------------------------------------- arguments
+
+
+def _host_port(text: str) -> tuple[str, int]:
+    """``HOST:PORT``, ``[IPv6]:PORT`` or ``IPv6-without-brackets:PORT`` (last colon splits)."""
+    if text.startswith("["):
+        host, sep, port = text[1:].partition("]:")
+    else:
+        host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT (e.g. 127.0.0.1:7000), got {text!r}")
+    return host, int(port)
+
+
+def _positive(kind: Callable[[str], float]) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        value = kind(text)
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--rate", type=_positive(float), default=1000.0, help="samples/s (1000)")
+    common.add_argument(
+        "--size", type=int, default=100, help=f"payload bytes, >= {SAMPLE_SIZE} (100)"
+    )
+    common.add_argument("--duration", type=_positive(float), help="seconds to run")
+    common.add_argument(
+        "--controller", default="trinomial", choices=available_controllers(), help="rate control"
+    )
+    common.add_argument(
+        "--separate-acks",
+        action="store_true",
+        help="Trinomial mode: one ACK packet per data packet instead of piggybacked ACKs",
+    )
+    common.add_argument(
+        "--ack-size", type=int, default=5, help="bytes of a stand-alone ACK datagram (5)"
+    )
+    common.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    common.add_argument(
+        "--loop", choices=("auto", "uvloop", "asyncio"), default="auto", help="event loop"
+    )
+    common.add_argument(
+        "--timer", choices=("auto", "timerfd", "call_at"), default="auto", help="pacing timer"
+    )
+
+    parser = argparse.ArgumentParser(
+        prog="tdtp", description="TDTP teleoperation transport: master, slave and demo."
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+    demo = commands.add_parser(
+        "demo", parents=[common], help="master and slave on localhost, live statistics"
+    )
+    demo.set_defaults(duration=None)
+    slave = commands.add_parser("slave", parents=[common], help="serve masters on a UDP port")
+    slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
+    slave.add_argument("--port", type=int, required=True, help="UDP port")
+    slave.add_argument("--max-peers", type=int, default=256, help="masters served at once")
+    master = commands.add_parser("master", parents=[common], help="connect to a slave")
+    master.add_argument("address", type=_host_port, help="the slave, HOST:PORT")
+    return parser
+
+
+def _config(args: argparse.Namespace) -> ConnectionConfig:
+    controller_config: object | None = None
+    if args.controller == "fixed":
+        controller_config = FixedConfig(rate=args.rate)
+    return ConnectionConfig(
+        ack_mode=AckMode.SEPARATE if args.separate_acks else AckMode.BIDIRECTIONAL,
+        ack_size=args.ack_size,
+        controller=args.controller,
+        controller_config=controller_config,
+    )
+
+
+# ---------------------------------------------------------------------------- application loops
+
+
+@dataclass
+class Side:
+    """One end's application: what it sends, what it received, how late it arrived."""
+
+    name: str
+    latency: LatencyRecorder = field(default_factory=LatencyRecorder)
+    received: int = 0
+    last_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def on_data(self, event: DataReceived) -> None:
+        self.received += 1
+        sample = HapticSample.decode(event.payload)
+        if sample is None:
+            return
+        self.last_position = sample.position
+        latency = event.received_at - sample.sent_at
+        if 0.0 <= latency < MAX_LATENCY:
+            self.latency.add(latency)
+
+
+async def _send_loop(
+    ep: Endpoint, side: Side, rate: float, size: int, until: float, *, master: bool
+) -> None:
+    start = monotonic()
+    async for index in Ticker(rate, start=start):
+        now = monotonic()
+        if now >= until or ep.is_closed:
+            return
+        if master:
+            sample = master_trajectory(now - start, index, now)
+        else:
+            sample = slave_feedback(side.last_position, index, now)
+        ep.send(sample.encode(size))
+
+
+async def _every_second(until: float, tick: Callable[[float], None]) -> None:
+    """Call ``tick(interval)`` on whole seconds from now until ``until`` (a last, shorter interval
+    only if it is worth showing)."""
+    start = last = monotonic()
+    mark = 1
+    while True:
+        due = min(start + mark, until)
+        if due - last < 0.25:
+            return
+        await asyncio.sleep(max(0.0, due - monotonic()))
+        now = monotonic()
+        tick(now - last)
+        last = now
+        mark += 1
+
+
+def _header(args: argparse.Namespace, ep: Endpoint) -> str:
+    mode = "separate ACKs" if args.separate_acks else "piggybacked ACKs"
+    loop = type(asyncio.get_running_loop()).__module__.split(".")[0]
+    return (
+        f"tdtp {args.command}: {args.rate:g} samples/s of {args.size} B each way, "
+        f"{args.controller}, {mode}, loop {loop}, timer {ep.timer_kind}"
+    )
+
+
+async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
+    config = _config(args)
+    duration = args.duration if args.duration is not None else 5.0
+    master_side, slave_side = Side("master"), Side("slave")
+    async with (
+        await listen("127.0.0.1", 0, config=config, on_data=slave_side.on_data) as server,
+        await connect(
+            "127.0.0.1", server.port, config=config, on_data=master_side.on_data
+        ) as master,
+    ):
+        slave = await server.accept()
+        start = monotonic()
+        until = start + duration
+        display = None if args.json else LiveDisplay()
+        meters = (DirectionMeter("M->S"), DirectionMeter("S->M"))
+        if display is not None:
+            display.message(_header(args, master))
+
+        def show(interval: float) -> None:
+            assert display is not None
+            display.update(
+                [
+                    f"t={monotonic() - start:6.1f} s",
+                    meters[0].line(
+                        master.stats,
+                        slave.stats.received.data_packets,
+                        interval,
+                        slave_side.latency.take_window(),
+                    ),
+                    meters[1].line(
+                        slave.stats,
+                        master.stats.received.data_packets,
+                        interval,
+                        master_side.latency.take_window(),
+                    ),
+                ]
+            )
+
+        tasks = [
+            _send_loop(master, master_side, args.rate, args.size, until, master=True),
+            _send_loop(slave, slave_side, args.rate, args.size, until, master=False),
+        ]
+        if display is not None:
+            tasks.append(_every_second(until, show))
+        await asyncio.gather(*tasks)
+        elapsed = monotonic() - start  # the sending window: rates are per second of it
+        await asyncio.sleep(0.05)  # let the last samples land before counting
+        summary = {
+            "command": "demo",
+            "duration_s": round(elapsed, 3),
+            **_settings(args, master),
+            "master_to_slave": direction_summary(
+                master.stats, slave.stats, elapsed, slave_side.latency
+            ),
+            "slave_to_master": direction_summary(
+                slave.stats, master.stats, elapsed, master_side.latency
+            ),
+        }
+    return summary
+
+
+def _settings(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
+    return {
+        "rate": args.rate,
+        "size": args.size,
+        "controller": args.controller,
+        "ack_mode": "separate" if args.separate_acks else "bidirectional",
+        "loop": type(asyncio.get_running_loop()).__module__.split(".")[0],
+        "timer": ep.timer_kind,
+    }
+
+
+async def run_master(args: argparse.Namespace) -> dict[str, Any]:
+    host, port = args.address
+    side = Side("master")
+    until = math.inf if args.duration is None else monotonic() + args.duration
+    async with await connect(host, port, config=_config(args), on_data=side.on_data) as ep:
+        start = monotonic()
+        until = min(until, start + (args.duration or math.inf))
+        display = None if args.json else LiveDisplay()
+        meters = (DirectionMeter("M->S"),)
+        reverse_meter = DirectionMeter("S->M")
+        if display is not None:
+            display.message(_header(args, ep) + f", slave {host}:{port}")
+
+        def show(interval: float) -> None:
+            assert display is not None
+            display.update(
+                [
+                    f"t={monotonic() - start:6.1f} s",
+                    meters[0].line(ep.stats, ep.stats.packets_acked, interval, None),
+                    receive_line("S->M", side.received, reverse_meter, interval, side.latency),
+                ]
+            )
+
+        tasks = [_send_loop(ep, side, args.rate, args.size, until, master=True)]
+        if display is not None:
+            tasks.append(_every_second(until, show))
+        await asyncio.gather(*tasks)
+        elapsed = monotonic() - start
+        return {
+            "command": "master",
+            "duration_s": round(elapsed, 3),
+            **_settings(args, ep),
+            "master_to_slave": direction_summary(ep.stats, None, elapsed),
+            "slave_to_master": {
+                "packets_received": side.received,
+                "mean_rate": round(side.received / elapsed, 2) if elapsed else 0.0,
+                "latency_ms": side.latency.summary_ms(),
+            },
+            "close": None if not ep.is_closed else "closed by the slave",
+        }
+
+
+async def _serve_one(ep: Endpoint, side: Side, args: argparse.Namespace, until: float) -> None:
+    await _send_loop(ep, side, args.rate, args.size, until, master=False)
+
+
+async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
+    until = math.inf if args.duration is None else monotonic() + args.duration
+    sides: dict[int, Side] = {}
+    async with await listen(
+        args.host, args.port, config=_config(args), max_peers=args.max_peers
+    ) as server:
+        display = None if args.json else LiveDisplay()
+        if display is not None:
+            display.message(f"tdtp slave listening on {args.host}:{server.port}")
+        tasks: set[asyncio.Task[None]] = set()
+        acceptor = asyncio.create_task(_accept_loop(server, sides, args, until, tasks))
+        try:
+            await _every_second(until, lambda interval: _show_slave(display, server, sides))
+        finally:
+            acceptor.cancel()
+            for task in tasks:
+                task.cancel()
+        return {
+            "command": "slave",
+            "masters_served": server.stats.peers_accepted,
+            "masters_refused": server.stats.peers_refused,
+            "datagrams_unattached": server.stats.datagrams_unattached,
+        }
+
+
+async def _accept_loop(
+    server: Server,
+    sides: dict[int, Side],
+    args: argparse.Namespace,
+    until: float,
+    tasks: set[asyncio.Task[None]],
+) -> None:
+    async for ep in server:
+        side = Side(f"master {ep.peer}")
+        sides[id(ep)] = side
+        ep.set_data_callback(side.on_data)
+        task = asyncio.create_task(_serve_one(ep, side, args, until))
+        tasks.add(task)
+        task.add_done_callback(tasks.discard)
+
+
+def _show_slave(display: LiveDisplay | None, server: Server, sides: dict[int, Side]) -> None:
+    if display is None:
+        return
+    lines = [f"{len(server.endpoints)} master(s) connected"]
+    for ep in server.endpoints:
+        side = sides.get(id(ep))
+        stats = ep.stats
+        lines.append(
+            f"  {ep.peer}: received {side.received if side else 0} samples, "
+            f"sent {stats.sent.data_packets}, srtt {stats.srtt * 1e3:.3f} ms, "
+            f"lost {stats.packets_lost}, allowed {stats.rate:.0f}/s"
+        )
+    display.update(lines)
+
+
+# ---------------------------------------------------------------------------- entry point
+
+
+def _loop_factory(choice: str) -> Callable[[], asyncio.AbstractEventLoop] | None:
+    if choice == "asyncio":
+        return None
+    try:
+        import uvloop  # noqa: PLC0415 -- optional (the "fast" extra): imported only when wanted
+    except ImportError:
+        if choice == "uvloop":
+            raise SystemExit("uvloop is not installed: pip install 'tdtp[fast]'") from None
+        return None
+    factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
+    return factory
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.size < SAMPLE_SIZE:
+        print(f"tdtp: --size must be at least {SAMPLE_SIZE} bytes", file=sys.stderr)
+        return 2
+    runners: dict[str, Callable[[argparse.Namespace], Coroutine[Any, Any, dict[str, Any]]]] = {
+        "demo": run_demo,
+        "master": run_master,
+        "slave": run_slave,
+    }
+    try:
+        with asyncio.Runner(loop_factory=_loop_factory(args.loop)) as runner:
+            summary = runner.run(runners[args.command](args))
+    except ConnectError as exc:
+        print(f"tdtp: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(json.dumps(summary, indent=2) if args.command != "demo" else _demo_table(summary))
+    return 0
+
+
+def _demo_table(summary: dict[str, Any]) -> str:
+    rows = []
+    for key, label in (("master_to_slave", "M->S"), ("slave_to_master", "S->M")):
+        d = summary[key]
+        latency = d.get("latency_ms") or {}
+        rows.append(
+            f"{label}: offered {d['samples_offered']}, sent {d['packets_sent']}, "
+            f"received {d['packets_received']} ({d['delivery_ratio'] * 100:.2f} %), "
+            f"lost {d['losses']}, {d['mean_rate']:.1f} pkt/s, srtt {d['srtt_ms']:.3f} ms, "
+            f"latency p50 {latency.get('p50', math.nan):.3f} ms p99 "
+            f"{latency.get('p99', math.nan):.3f} ms, header bytes {d['header_bytes']}, "
+            f"ACK packets {d['ack_packets_sent_back']}"
+        )
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,178 @@
+"""Live and final statistics for the command line: per-direction meters, latency, a terminal display."""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+from tdtp.stats import ConnectionStats
+
+MAX_LATENCY_SAMPLES = 200_000
+"""Latencies kept for the final percentiles (a bounded reservoir: the first ones of a long run)."""
+
+
+def percentile(sorted_values: list[float], fraction: float) -> float:
+    """Nearest-rank percentile of an already sorted list (NaN when empty)."""
+    if not sorted_values:
+        return math.nan
+    rank = min(len(sorted_values) - 1, max(0, math.ceil(fraction * len(sorted_values)) - 1))
+    return sorted_values[rank]
+
+
+@dataclass(slots=True)
+class LatencyRecorder:
+    """One-way latencies in seconds: all of them (bounded) and those of the current display window."""
+
+    all: list[float] = field(default_factory=list)
+    window: deque[float] = field(default_factory=lambda: deque(maxlen=10_000))
+
+    def add(self, latency: float) -> None:
+        if len(self.all) < MAX_LATENCY_SAMPLES:
+            self.all.append(latency)
+        self.window.append(latency)
+
+    def take_window(self) -> list[float]:
+        values = sorted(self.window)
+        self.window.clear()
+        return values
+
+    def summary_ms(self) -> dict[str, float] | None:
+        if not self.all:
+            return None
+        values = sorted(self.all)
+        return {
+            "p50": round(percentile(values, 0.50) * 1e3, 4),
+            "p99": round(percentile(values, 0.99) * 1e3, 4),
+            "max": round(values[-1] * 1e3, 4),
+        }
+
+
+def direction_summary(
+    sender: ConnectionStats,
+    receiver: ConnectionStats | None,
+    duration: float,
+    latency: LatencyRecorder | None = None,
+) -> dict[str, Any]:
+    """One direction of a session, as the ``--json`` output reports it.
+
+    ``receiver`` is ``None`` when the far end is another process (then only the sender's view).
+    """
+    sent = sender.sent.data_packets
+    lost = sender.packets_lost
+    summary: dict[str, Any] = {
+        "samples_offered": sender.samples_offered,
+        "samples_superseded": sender.samples_superseded,
+        "packets_sent": sent,
+        "packets_acked": sender.packets_acked,
+        "losses": lost,
+        "loss_ratio": round(lost / sent, 6) if sent else 0.0,
+        "loss_events": sender.loss_events,
+        "srtt_ms": round(sender.srtt * 1e3, 4),
+        "allowed_rate": None if math.isinf(sender.rate) else round(sender.rate, 2),
+        "bytes_sent": sender.sent.bytes,
+        "header_bytes": sender.sent.header_bytes,
+        "ack_packets_sent_back": None,
+    }
+    if receiver is not None:
+        received = receiver.received.data_packets
+        summary["packets_received"] = received
+        summary["mean_rate"] = round(received / duration, 2) if duration > 0 else 0.0
+        summary["delivery_ratio"] = (
+            round(received / sender.samples_offered, 6) if sender.samples_offered else 0.0
+        )
+        summary["ack_packets_sent_back"] = receiver.sent.ack_packets
+        summary["drops_at_receiver"] = dict(receiver.drops)
+    else:
+        summary["packets_received"] = sender.packets_acked
+        summary["mean_rate"] = round(sender.packets_acked / duration, 2) if duration > 0 else 0.0
+    if latency is not None:
+        summary["latency_ms"] = latency.summary_ms()
+    return summary
+
+
+@dataclass(slots=True)
+class DirectionMeter:
+    """Turns cumulative counters into per-interval figures for the live display."""
+
+    label: str
+    last_received: int = 0
+    last_lost: int = 0
+    last_sent: int = 0
+
+    def line(
+        self,
+        sender: ConnectionStats,
+        received_total: int,
+        interval: float,
+        latency: list[float] | None,
+    ) -> str:
+        received = received_total - self.last_received
+        lost = sender.packets_lost - self.last_lost
+        sent = sender.sent.data_packets - self.last_sent
+        self.last_received = received_total
+        self.last_lost = sender.packets_lost
+        self.last_sent = sender.sent.data_packets
+        allowed = "unlimited" if math.isinf(sender.rate) else f"{sender.rate:8.0f}/s"
+        parts = [
+            f"{self.label}",
+            f"{received / interval:7.0f} pkt/s",
+            f"lost {lost:4d} ({(lost / sent * 100) if sent else 0.0:5.2f}%)",
+            f"srtt {sender.srtt * 1e3:7.3f} ms",
+            f"p {sender.loss_event_rate:6.4f}",
+            f"allowed {allowed}",
+            f"superseded {sender.samples_superseded:6d}",
+        ]
+        if latency:
+            parts.append(
+                f"latency p50 {percentile(latency, 0.5) * 1e3:6.3f} ms"
+                f" p99 {percentile(latency, 0.99) * 1e3:6.3f} ms"
+            )
+        return "  ".join(parts)
+
+
+def receive_line(
+    label: str,
+    received_total: int,
+    meter: DirectionMeter,
+    interval: float,
+    latency: LatencyRecorder,
+) -> str:
+    """A direction seen only from its receiving end (the sender is another process)."""
+    received = received_total - meter.last_received
+    meter.last_received = received_total
+    window = latency.take_window()
+    text = f"{label}  {received / interval:7.0f} pkt/s received"
+    if window:
+        text += (
+            f"  latency p50 {percentile(window, 0.5) * 1e3:6.3f} ms"
+            f" p99 {percentile(window, 0.99) * 1e3:6.3f} ms"
+        )
+    return text
+
+
+class LiveDisplay:
+    """Prints a block of status lines once per update: redrawn in place on a terminal, appended
+    otherwise (a log file or a pipe gets one block per update)."""
+
+    def __init__(self, stream: TextIO | None = None) -> None:
+        self._stream = stream if stream is not None else sys.stdout
+        self._interactive = self._stream.isatty()
+        self._drawn = 0
+
+    def update(self, lines: list[str]) -> None:
+        stream = self._stream
+        if self._interactive and self._drawn:
+            stream.write(f"\x1b[{self._drawn}F")  # cursor to the start of the block
+        for line in lines:
+            stream.write(("\x1b[2K" if self._interactive else "") + line + "\n")
+        self._drawn = len(lines)
+        stream.flush()
+
+    def message(self, text: str) -> None:
+        """A line that stays (printed below the block, which is then redrawn beneath it)."""
+        self._stream.write(text + "\n")
+        self._drawn = 0
+        self._stream.flush()

@@ -1,0 +1,66 @@
+"""The ``tdtp`` command: the demo's JSON contract, and the argument checks."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from tdtp.cli import _host_port, build_parser, main
+
+
+def _demo(*extra: str) -> dict[str, object]:
+    done = subprocess.run(
+        [sys.executable, "-m", "tdtp", "demo", "--duration", "1.5", "--json", *extra],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    summary: dict[str, object] = json.loads(done.stdout)  # exactly one JSON object
+    return summary
+
+
+@pytest.mark.parametrize("extra", [(), ("--separate-acks", "--loop", "asyncio")])
+def test_demo_json_reports_both_directions(extra: tuple[str, ...]) -> None:
+    summary = _demo(*extra)
+    for key in ("master_to_slave", "slave_to_master"):
+        direction = summary[key]
+        assert isinstance(direction, dict)
+        for field in (
+            "samples_offered",
+            "packets_sent",
+            "packets_received",
+            "losses",
+            "mean_rate",
+            "srtt_ms",
+            "header_bytes",
+        ):
+            assert field in direction, field
+        assert direction["samples_offered"] >= 1400  # 1.5 s at 1 kHz
+        # No impairment on loopback: at least 99 % of the offered samples arrive.
+        assert direction["packets_received"] >= 0.99 * direction["samples_offered"]
+        # 5 header bytes on every datagram the sender sent: its data, plus a few control packets
+        # (and, with separate ACKs, its ACKs for the other direction).
+        assert direction["header_bytes"] % 5 == 0
+        assert direction["header_bytes"] >= 5 * direction["packets_sent"]
+    separate = "--separate-acks" in extra
+    acks_back = summary["master_to_slave"]["ack_packets_sent_back"]  # type: ignore[index]
+    assert (acks_back >= 1400) if separate else (acks_back <= 2)
+
+
+def test_bad_arguments_are_refused_with_a_message(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["master", "no-port-here"])
+    assert "expected HOST:PORT" in capsys.readouterr().err
+    assert main(["demo", "--size", "8"]) == 2
+    assert "--size must be at least" in capsys.readouterr().err
+
+
+def test_host_port_forms() -> None:
+    assert _host_port("127.0.0.1:7000") == ("127.0.0.1", 7000)
+    assert _host_port("[::1]:7000") == ("::1", 7000)
+    assert _host_port("fe80::1:7000") == ("fe80::1", 7000)
