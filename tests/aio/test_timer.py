@@ -314,7 +314,8 @@ async def test_many_rearms_and_timers_do_not_leak_fds(kind: str) -> None:
     t.close()
     for _ in range(50):
         make_timer(kind, loop, lambda: None).close()
-    assert _open_fds() == before
+    # No growth: an earlier test's timer may be collected (and its fd closed) meanwhile.
+    assert _open_fds() <= before
 
 
 @pytest.mark.asyncio
