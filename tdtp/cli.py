@@ -13,11 +13,12 @@ import json
 import math
 import sys
 from collections.abc import Callable, Coroutine, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from tdtp.aio.api import ConnectError, Server, connect, listen
 from tdtp.aio.endpoint import Endpoint
+from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
 from tdtp.config import AckMode, ConnectionConfig
@@ -32,6 +33,7 @@ from tdtp.live_stats import (
     direction_summary,
     receive_line,
 )
+from tdtp.netem import NetemSpec, parse_netem
 
 MAX_LATENCY = 10.0
 """Latencies above this are not recorded (the clocks of two hosts are not comparable)."""
@@ -49,6 +51,20 @@ def _host_port(text: str) -> tuple[str, int]:
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise argparse.ArgumentTypeError(f"expected HOST:PORT (e.g. 127.0.0.1:7000), got {text!r}")
     return host, int(port)
+
+
+def _host_port_or_port(text: str) -> tuple[str, int]:
+    """``:PORT`` (all interfaces) or ``HOST:PORT``."""
+    if text.startswith(":"):
+        text = "0.0.0.0" + text
+    return _host_port(text)
+
+
+def _netem_spec(text: str) -> NetemSpec:
+    try:
+        return parse_netem(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _positive(kind: Callable[[str], float]) -> Callable[[str], float]:
@@ -86,6 +102,13 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument(
         "--timer", choices=("auto", "timerfd", "call_at"), default="auto", help="pacing timer"
     )
+    netem = common.add_argument_group(
+        "impairment", 'emulated in-process with tc-netem\'s syntax, e.g. "delay 20ms 5ms loss 2%%"'
+    )
+    netem.add_argument("--netem", type=_netem_spec, help="both directions")
+    netem.add_argument("--netem-ms", type=_netem_spec, help="master -> slave (overrides --netem)")
+    netem.add_argument("--netem-sm", type=_netem_spec, help="slave -> master (overrides --netem)")
+    netem.add_argument("--netem-seed", type=int, help="seed for reproducible impairment")
 
     parser = argparse.ArgumentParser(
         prog="tdtp", description="TDTP teleoperation transport: master, slave and demo."
@@ -101,6 +124,22 @@ def build_parser() -> argparse.ArgumentParser:
     slave.add_argument("--max-peers", type=int, default=256, help="masters served at once")
     master = commands.add_parser("master", parents=[common], help="connect to a slave")
     master.add_argument("address", type=_host_port, help="the slave, HOST:PORT")
+    relay = commands.add_parser(
+        "netem-relay",
+        help="an impairing UDP relay for any application",
+        description="Relay UDP datagrams from --listen to --forward through emulated links.",
+    )
+    relay.add_argument("spec", type=_netem_spec, help='netem syntax, e.g. "delay 30ms loss 1%%"')
+    relay.add_argument(
+        "--listen", type=_host_port_or_port, required=True, help="[HOST]:PORT to listen on"
+    )
+    relay.add_argument("--forward", type=_host_port, required=True, help="HOST:PORT to relay to")
+    relay.add_argument("--return-spec", type=_netem_spec, help="the way back (default: spec)")
+    relay.add_argument("--seed", type=int, help="seed for reproducible impairment")
+    relay.add_argument("--duration", type=_positive(float), help="seconds to run")
+    relay.add_argument("--max-clients", type=int, default=256)
+    relay.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    relay.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
     return parser
 
 
@@ -183,10 +222,23 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     config = _config(args)
     duration = args.duration if args.duration is not None else 5.0
     master_side, slave_side = Side("master"), Side("slave")
+    ms_spec, sm_spec = _directions(args)
     async with (
-        await listen("127.0.0.1", 0, config=config, on_data=slave_side.on_data) as server,
+        await listen(
+            "127.0.0.1",
+            0,
+            config=config,
+            on_data=slave_side.on_data,
+            netem=sm_spec,
+            netem_seed=_seed(args, 1),
+        ) as server,
         await connect(
-            "127.0.0.1", server.port, config=config, on_data=master_side.on_data
+            "127.0.0.1",
+            server.port,
+            config=config,
+            on_data=master_side.on_data,
+            netem=ms_spec,
+            netem_seed=_seed(args, 0),
         ) as master,
     ):
         slave = await server.accept()
@@ -240,7 +292,21 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     return summary
 
 
+def _directions(args: argparse.Namespace) -> tuple[NetemSpec | None, NetemSpec | None]:
+    """The impairment master -> slave and slave -> master."""
+    both: NetemSpec | None = getattr(args, "netem", None)
+    ms = getattr(args, "netem_ms", None) or both
+    sm = getattr(args, "netem_sm", None) or both
+    return ms, sm
+
+
+def _seed(args: argparse.Namespace, offset: int) -> int | None:
+    seed: int | None = getattr(args, "netem_seed", None)
+    return None if seed is None else seed + offset
+
+
 def _settings(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
+    ms, sm = _directions(args)
     return {
         "rate": args.rate,
         "size": args.size,
@@ -248,6 +314,8 @@ def _settings(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
         "ack_mode": "separate" if args.separate_acks else "bidirectional",
         "loop": type(asyncio.get_running_loop()).__module__.split(".")[0],
         "timer": ep.timer_kind,
+        "netem_ms": None if ms is None else str(ms),
+        "netem_sm": None if sm is None else str(sm),
     }
 
 
@@ -255,7 +323,15 @@ async def run_master(args: argparse.Namespace) -> dict[str, Any]:
     host, port = args.address
     side = Side("master")
     until = math.inf if args.duration is None else monotonic() + args.duration
-    async with await connect(host, port, config=_config(args), on_data=side.on_data) as ep:
+    ms_spec, _ = _directions(args)
+    async with await connect(
+        host,
+        port,
+        config=_config(args),
+        on_data=side.on_data,
+        netem=ms_spec,
+        netem_seed=_seed(args, 0),
+    ) as ep:
         start = monotonic()
         until = min(until, start + (args.duration or math.inf))
         display = None if args.json else LiveDisplay()
@@ -300,8 +376,14 @@ async def _serve_one(ep: Endpoint, side: Side, args: argparse.Namespace, until: 
 async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
     until = math.inf if args.duration is None else monotonic() + args.duration
     sides: dict[int, Side] = {}
+    _, sm_spec = _directions(args)
     async with await listen(
-        args.host, args.port, config=_config(args), max_peers=args.max_peers
+        args.host,
+        args.port,
+        config=_config(args),
+        max_peers=args.max_peers,
+        netem=sm_spec,
+        netem_seed=_seed(args, 1),
     ) as server:
         display = None if args.json else LiveDisplay()
         if display is not None:
@@ -353,6 +435,52 @@ def _show_slave(display: LiveDisplay | None, server: Server, sides: dict[int, Si
     display.update(lines)
 
 
+async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
+    relay = await start_relay(
+        args.listen,
+        args.forward,
+        args.spec,
+        return_spec=args.return_spec,
+        seed=args.seed,
+        max_clients=args.max_clients,
+    )
+    display = None if args.json else LiveDisplay()
+    if display is not None:
+        display.message(
+            f"relaying {relay.address[0]}:{relay.address[1]} -> {args.forward[0]}:{args.forward[1]}"
+            f" with forward '{args.spec}', return '{args.return_spec or args.spec}'"
+        )
+
+    def show(interval: float) -> None:
+        if display is None:
+            return
+        fwd, back = relay.forward.link.stats, relay.back.link.stats
+        display.update(
+            [
+                f"clients {relay.stats.clients}  forwarded {relay.stats.forwarded}"
+                f"  returned {relay.stats.returned}",
+                f"  forward: {_link_line(fwd)}",
+                f"  return:  {_link_line(back)}",
+            ]
+        )
+
+    try:
+        until = math.inf if args.duration is None else monotonic() + args.duration
+        await _every_second(until, show)
+    finally:
+        await relay.close()
+    return {
+        "command": "netem-relay",
+        "relay": asdict(relay.stats),
+        "forward": asdict(relay.forward.link.stats),
+        "return": asdict(relay.back.link.stats),
+    }
+
+
+def _link_line(stats: Any) -> str:
+    return "  ".join(f"{name} {value}" for name, value in asdict(stats).items())
+
+
 # ---------------------------------------------------------------------------- entry point
 
 
@@ -371,13 +499,14 @@ def _loop_factory(choice: str) -> Callable[[], asyncio.AbstractEventLoop] | None
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.size < SAMPLE_SIZE:
+    if getattr(args, "size", SAMPLE_SIZE) < SAMPLE_SIZE:
         print(f"tdtp: --size must be at least {SAMPLE_SIZE} bytes", file=sys.stderr)
         return 2
     runners: dict[str, Callable[[argparse.Namespace], Coroutine[Any, Any, dict[str, Any]]]] = {
         "demo": run_demo,
         "master": run_master,
         "slave": run_slave,
+        "netem-relay": run_relay,
     }
     try:
         with asyncio.Runner(loop_factory=_loop_factory(args.loop)) as runner:
@@ -390,7 +519,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(json.dumps(summary, indent=2) if args.command != "demo" else _demo_table(summary))
+        print(_demo_table(summary) if args.command == "demo" else json.dumps(summary, indent=2))
     return 0
 
 

@@ -14,10 +14,12 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 
 from tdtp.aio.endpoint import DataCallback, Endpoint, EndpointClosedError
+from tdtp.aio.impairment import ImpairedTransport
 from tdtp.aio.timer import monotonic
 from tdtp.config import ConnectionConfig, Role
 from tdtp.connection import Connection, State
 from tdtp.events import Address
+from tdtp.netem import NetemSpec
 from tdtp.wire.control import ControlCode
 from tdtp.wire.header import HEADER_SIZE, PacketType
 
@@ -57,11 +59,16 @@ async def connect(
     timer: str = "auto",
     on_data: DataCallback | None = None,
     rng: random.Random | None = None,
+    netem: NetemSpec | str | None = None,
+    netem_seed: int | None = None,
 ) -> Endpoint:
     """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
 
     Use it as ``async with await tdtp.aio.connect(host, port) as ep:``. Raises :class:`ConnectError`
     when the slave does not answer within ``config.open_timeout`` or refuses.
+
+    ``netem`` impairs everything this master sends, in tc-netem's language
+    (``"delay 20ms 5ms loss 1%"``), emulated in-process (see :mod:`tdtp.aio.impairment`).
     """
     loop = asyncio.get_running_loop()
     infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
@@ -77,12 +84,15 @@ async def connect(
         family=family,
     )
     conn = Connection(config, role=Role.MASTER, rng=rng)
+    sender: asyncio.DatagramTransport | ImpairedTransport = transport
+    if netem is not None:
+        sender = ImpairedTransport(transport, netem, seed=netem_seed, timer=timer)
 
     def _close_transport(_: Endpoint) -> None:
-        transport.close()
+        sender.close()  # an impaired one lets the datagrams inside its link out first
 
     endpoint = Endpoint(
-        conn, transport, connected=True, timer=timer, on_data=on_data, on_closed=_close_transport
+        conn, sender, connected=True, timer=timer, on_data=on_data, on_closed=_close_transport
     )
     protocol.endpoint = endpoint
     conn.connect(remote, now=monotonic())
@@ -141,6 +151,7 @@ class Server:
         self._timer = timer
         self._on_data = on_data
         self._transport: asyncio.DatagramTransport | None = None
+        self._sender: asyncio.DatagramTransport | ImpairedTransport | None = None
         self._peers: dict[tuple[object, object], Endpoint] = {}
         self._accepted: asyncio.Queue[Endpoint | None] = asyncio.Queue()
         self._closed = False
@@ -188,8 +199,8 @@ class Server:
         self._closed = True
         for endpoint in list(self._peers.values()):
             await endpoint.close()
-        if self._transport is not None:
-            self._transport.close()
+        if self._sender is not None:
+            self._sender.close()
         self._accepted.put_nowait(None)
 
     async def __aenter__(self) -> Server:
@@ -215,11 +226,11 @@ class Server:
         if len(self._peers) >= self._max_peers:
             self.stats.peers_refused += 1
             return
-        assert self._transport is not None
+        assert self._sender is not None
         conn = Connection(self._config, role=Role.SLAVE)
         endpoint = Endpoint(
             conn,
-            self._transport,
+            self._sender,
             connected=False,
             timer=self._timer,
             on_data=self._on_data,
@@ -251,11 +262,14 @@ async def listen(
     max_peers: int = 256,
     timer: str = "auto",
     on_data: DataCallback | None = None,
+    netem: NetemSpec | str | None = None,
+    netem_seed: int | None = None,
 ) -> Server:
     """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
 
     Use it as ``async with await tdtp.aio.listen(host, port) as server: async for ep in server: ...``.
     At most ``max_peers`` masters are served at once; further OPENs are ignored and counted.
+    ``netem`` impairs everything the slave sends (all its masters share the one emulated link).
     """
     loop = asyncio.get_running_loop()
     server = Server(config=config, max_peers=max_peers, timer=timer, on_data=on_data)
@@ -264,4 +278,9 @@ async def listen(
         lambda: _ServerProtocol(server), local_addr=(host or "0.0.0.0", port), family=family
     )
     server._transport = transport
+    server._sender = (
+        transport
+        if netem is None
+        else ImpairedTransport(transport, netem, seed=netem_seed, timer=timer)
+    )
     return server
