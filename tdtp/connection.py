@@ -55,10 +55,10 @@ _DATA = int(PacketType.DATA)
 _ACK = int(PacketType.ACK)
 _CONTROL = int(PacketType.CONTROL)
 _NO_ACK = (0, 0, HOLD_NO_ACK)
-LOSS_TIMEOUT_SRTT = 1.2
-LOSS_TIMEOUT_RTTVAR = 4.0
+LOSS_DELAY_SRTT = 1.2
+LOSS_DELAY_RTTVAR = 4.0
 TIMER_GRANULARITY = 0.001
-"""Slack for the peer's ACK timer firing late (RFC 9002's kGranularity)."""
+"""Slack for timers firing late (RFC 9002's kGranularity)."""
 
 
 class State(enum.Enum):
@@ -158,6 +158,7 @@ class Connection:
         stats.rttvar = rtt.rttvar if rtt.has_sample else 0.0
         stats.min_rtt = rtt.min_rtt if rtt.has_sample else 0.0
         stats.loss_event_rate = self._loss.loss_event_rate
+        stats.packets_unreported = self._sent.unknown
         stats.rate = self._controller.rate
         return stats
 
@@ -330,7 +331,7 @@ class Connection:
             rtt.on_sample(outcome.rtt_sample)
             stats.rtt_samples += 1
         lost = self._lost
-        sent.detect_losses(now, self._loss_timeout(), lost)
+        sent.detect_losses(now, self._loss_delay(), lost)
         if lost:
             self._on_losses(now)
         if outcome.newly_acked:
@@ -360,11 +361,16 @@ class Connection:
                 )
         lost.clear()
 
-    def _loss_timeout(self) -> float:
+    def _loss_delay(self) -> float:
+        """How long a packet reported absent may still turn up (RAP's timeout, mu 1.2 and phi 4).
+
+        The peer's ACK delay is added because RTT samples exclude it: a late arrival is reported only
+        with the peer's next reverse packet, up to ``ack_delay`` later.
+        """
         rtt = self._rtt
         return (
-            LOSS_TIMEOUT_SRTT * rtt.srtt
-            + max(LOSS_TIMEOUT_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
+            LOSS_DELAY_SRTT * rtt.srtt
+            + max(LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
             + self.config.ack_delay
         )
 
@@ -500,7 +506,7 @@ class Connection:
                 deadline = min(deadline, window.unreported_since + config.ack_delay)
         elif self._separate_acks:
             deadline = min(deadline, self._separate_acks[0][1])
-        loss_deadline = self._sent.loss_deadline(self._loss_timeout())
+        loss_deadline = self._sent.loss_deadline(self._loss_delay())
         if loss_deadline is not None:
             deadline = min(deadline, loss_deadline)
         controller_deadline = self._controller.get_timer()
@@ -529,7 +535,7 @@ class Connection:
             )
             return
         lost = self._lost
-        self._sent.detect_losses(now, self._loss_timeout(), lost)
+        self._sent.detect_losses(now, self._loss_delay(), lost)
         if lost:
             self._on_losses(now)
         controller_deadline = self._controller.get_timer()

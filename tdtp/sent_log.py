@@ -21,12 +21,14 @@ RECENTLY_LOST = 256
 
 
 class SentPacket:
-    __slots__ = ("acked", "send_time", "size")
+    __slots__ = ("acked", "missing", "send_time", "size")
 
     def __init__(self, send_time: float, size: int) -> None:
         self.send_time = send_time
         self.size = size
         self.acked = False
+        self.missing = False
+        """A received ACK covered this packet and reported it absent: evidence it may be lost."""
 
 
 class LostPacket(NamedTuple):
@@ -38,6 +40,7 @@ class AckOutcome(NamedTuple):
     newly_acked: int
     rtt_sample: float | None
     spurious: int
+
 
 
 class SentPacketLog:
@@ -54,6 +57,7 @@ class SentPacketLog:
         "first_seq",
         "largest_acked",
         "next_seq",
+        "unknown",
     )
 
     def __init__(self, first_seq: int, *, reorder_threshold: int, max_tracked: int) -> None:
@@ -67,6 +71,8 @@ class SentPacketLog:
         self._max_tracked = max_tracked
         self._recently_lost: set[int] = set()
         self._recently_lost_order: deque[int] = deque()
+        self.unknown = 0
+        """Packets retired with no verdict: every ACK that could have reported them was lost."""
 
     @property
     def in_flight(self) -> int:
@@ -74,16 +80,18 @@ class SentPacketLog:
         return sum(1 for record in self._records if not record.acked)
 
     def on_sent(self, send_time: float, size: int, lost: list[LostPacket]) -> int:
-        """Record a departure; returns its sequence number. Past the table bound the oldest open
-        record is declared lost and appended to ``lost``."""
+        """Record a departure; returns its sequence number. Past the table bound the oldest record is
+        retired: lost (appended to ``lost``) if an ACK reported it absent, else unknown."""
         seq = self.next_seq
         self.next_seq = seq + 1
         records = self._records
         records.append(SentPacket(send_time, size))
         if len(records) > self._max_tracked:
             record = records.popleft()
-            if not record.acked:
+            if record.missing and not record.acked:
                 self._declare_lost(self._base, record, lost)
+            elif not record.acked:
+                self.unknown += 1
             self._base += 1
         return seq
 
@@ -149,8 +157,8 @@ class SentPacketLog:
             spurious += self._forget_loss(ack)
         bit = 1
         for distance in range(1, SACK_SPAN + 1):
+            index = ack - distance - base
             if sack & bit:
-                index = ack - distance - base
                 if 0 <= index < count:
                     record = records[index]
                     if not record.acked:
@@ -158,32 +166,54 @@ class SentPacketLog:
                         newly += 1
                 elif index < 0 and (ack - distance) in self._recently_lost:
                     spurious += self._forget_loss(ack - distance)
+            elif 0 <= index < count:
+                records[index].missing = True
             bit <<= 1
         return AckOutcome(newly, rtt_sample, spurious)
 
-    def detect_losses(self, now: float, timeout: float, lost: list[LostPacket]) -> None:
-        """Retire resolved records from the front; declare lost those ``reorder_threshold`` below the
-        largest acknowledged packet or unacknowledged for ``timeout``."""
+    def detect_losses(self, now: float, loss_delay: float, lost: list[LostPacket]) -> None:
+        """Retire resolved records from the front of the log.
+
+        Only a packet that a received ACK reported absent can be declared lost: once a packet
+        ``reorder_threshold`` or more later is acknowledged, or once it has waited ``loss_delay`` while
+        a later packet was acknowledged (RFC 9002's time threshold). A packet that no received ACK ever
+        covered is not evidence of loss (the reverse path lost its reports); once no future ACK can
+        cover it, it is retired as *unknown*. A gap in feedback alone declares nothing: that is a
+        blackout, which the rate controller's no-feedback timer handles.
+        """
         records = self._records
-        threshold_seq = self.largest_acked - self._reorder_threshold
+        largest = self.largest_acked
+        threshold_seq = largest - self._reorder_threshold
+        uncoverable_seq = largest - SACK_SPAN
         while records:
             record = records[0]
             seq = self._base
             if record.acked:
                 pass
-            elif seq <= threshold_seq or record.send_time + timeout <= now:
-                # (The same sum as loss_deadline(): a timer set from it must find the packet due.)
+            elif record.missing:
+                if not (
+                    seq <= threshold_seq or (seq < largest and record.send_time + loss_delay <= now)
+                ):
+                    # (The same sum as loss_deadline(): a timer set from it must find it due.)
+                    break
                 self._declare_lost(seq, record, lost)
+            elif seq < uncoverable_seq:
+                self.unknown += 1
             else:
                 break
             records.popleft()
             self._base = seq + 1
 
-    def loss_deadline(self, timeout: float) -> float | None:
-        """When the oldest open record times out, or ``None`` with nothing open."""
+    def loss_deadline(self, loss_delay: float) -> float | None:
+        """When the time threshold next declares a loss, or ``None``."""
+        largest = self.largest_acked
+        seq = self._base
         for record in self._records:
-            if not record.acked:
-                return record.send_time + timeout
+            if seq >= largest:
+                return None
+            if record.missing and not record.acked:
+                return record.send_time + loss_delay
+            seq += 1
         return None
 
     def _declare_lost(self, seq: int, record: SentPacket, lost: list[LostPacket]) -> None:

@@ -73,7 +73,11 @@ class ConnectionStats:
     packets_acked: int = 0
     """Own data packets the peer reported received."""
     packets_lost: int = 0
-    """Own data packets declared lost (reorder threshold, timeout, or forgotten past the table bound)."""
+    """Own data packets declared lost: an ACK reported them absent and a packet 3 later was acknowledged,
+    or they stayed absent for 9/8 of an RTT while later ones were acknowledged."""
+    packets_unreported: int = 0
+    """Own data packets whose fate is unknown: every ACK that could have reported them was lost on the
+    way back. Counted neither as acknowledged nor as lost (they are no evidence of congestion)."""
     spurious_losses: int = 0
     """Packets declared lost and later reported received after all (deep reordering)."""
     loss_events: int = 0

@@ -37,18 +37,27 @@ def test_ack_and_sack_mark_packets_and_give_one_rtt_sample() -> None:
     assert again.newly_acked == 0 and again.rtt_sample is None  # no sample from a repeat
     lost: list[LostPacket] = []
     log.detect_losses(0.041, 1.0, lost)
-    # 0..6 are 3 or more below 10 and unacknowledged: lost. 8 is only 2 below: still open.
-    assert [p.seq for p in lost] == [0, 1, 2, 3, 4, 5, 6]
+    # The ACK covered 4..10: 4, 5, 6 and 8 reported absent. 4..6 are 3+ below 10: lost. 8 is only
+    # 2 below: open until its time threshold. 0..3 were never covered by any ACK and no future one
+    # can reach them: their fate is unknown, which is no evidence of loss.
+    assert [p.seq for p in lost] == [4, 5, 6]
+    assert log.unknown == 4
     assert log.loss_deadline(1.0) == pytest.approx(1.008)
 
 
-def test_timeout_declares_the_oldest_packets_lost() -> None:
+def test_silence_declares_nothing_and_a_reported_gap_times_out() -> None:
     log = _log(0, 5)
     lost: list[LostPacket] = []
-    assert log.loss_deadline(0.1) == pytest.approx(0.1)
+    assert log.loss_deadline(0.1) is None  # no ACK at all: a blackout, not evidence of loss
+    log.detect_losses(10.0, 0.1, lost)
+    assert lost == []
+    # ACK 4 with SACK 3 and 1: 2 and 0 reported absent.
+    log.on_ack(4, 0b0101, 0.0, 0.05)
+    log.detect_losses(0.05, 0.1, lost)
+    assert [p.seq for p in lost] == [0]  # 0 is 4 below the ACK; 2 only 2 below
+    assert log.loss_deadline(0.1) == pytest.approx(0.102)
     log.detect_losses(0.1025, 0.1, lost)
-    assert [p.seq for p in lost] == [0, 1, 2]
-    assert log.loss_deadline(0.1) == pytest.approx(0.103)
+    assert [p.seq for p in lost] == [0, 2]  # the time threshold caught up with 2
 
 
 def test_late_report_of_a_declared_loss_is_spurious() -> None:
@@ -56,16 +65,23 @@ def test_late_report_of_a_declared_loss_is_spurious() -> None:
     log.on_ack(9, 0, 0.0, 0.05)
     lost: list[LostPacket] = []
     log.detect_losses(0.05, 1.0, lost)
-    assert [p.seq for p in lost] == list(range(7))
+    # ACK 9 covered 3..9 (3..8 absent); 0..2 were never covered: unknown, not lost.
+    assert [p.seq for p in lost] == [3, 4, 5, 6]
+    assert log.unknown == 3
     assert log.on_ack(9, 0b100000, 0.0, 0.06).spurious == 1  # 3 (9 - 6) arrived after all
 
 
-def test_table_bound_evicts_the_oldest_as_lost() -> None:
+def test_table_bound_retires_the_oldest() -> None:
     log = SentPacketLog(0, reorder_threshold=3, max_tracked=64)
     lost: list[LostPacket] = []
     for i in range(70):
         log.on_sent(i * 0.001, 10, lost)
-    assert [p.seq for p in lost] == [0, 1, 2, 3, 4, 5]
+    assert lost == [] and log.unknown == 6  # never reported: unknown
+    log.on_ack(69, 0, 0.0, 0.07)  # reports 63..68 absent
+    for i in range(70, 76):
+        log.on_sent(i * 0.001, 10, lost)
+    assert [p.seq for p in lost] == []  # evicting 6..11: still never reported
+    assert log.unknown == 12
 
 
 def test_many_candidates_in_flight_are_told_apart_by_rtt() -> None:
