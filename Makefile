@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck unit clean
+.PHONY: demo figures test lint typecheck unit clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -12,12 +12,16 @@ $(BIN)/python:
 
 # Reinstall whenever the project's declared dependencies change.
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[test,fast]'
+	$(BIN)/python -m pip install --quiet -e '.[test,fast,plot]'
 	touch $(STAMP)
 
 # Master and slave on localhost, 1000 samples/s of 100 bytes each way, live statistics for 5 s.
 demo: $(STAMP)
 	$(BIN)/tdtp demo --duration 5
+
+# The paper's figures 7 and 8 and the other scenarios, in virtual time (docs/REPRODUCTION.md).
+figures: $(STAMP)
+	$(BIN)/tdtp simulate all --out docs/figures --jobs 2
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -34,6 +34,7 @@ from tdtp.live_stats import (
     receive_line,
 )
 from tdtp.netem import NetemSpec, parse_netem
+from tdtp.sim.cli import simulate_main
 
 MAX_LATENCY = 10.0
 """Latencies above this are not recorded (the clocks of two hosts are not comparable)."""
@@ -140,6 +141,12 @@ def build_parser() -> argparse.ArgumentParser:
     relay.add_argument("--max-clients", type=int, default=256)
     relay.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     relay.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
+    simulate = commands.add_parser(
+        "simulate",
+        add_help=False,
+        help="reproduce the paper's experiments in virtual time (tdtp simulate --help)",
+    )
+    simulate.add_argument("arguments", nargs=argparse.REMAINDER)
     return parser
 
 
@@ -498,7 +505,11 @@ def _loop_factory(choice: str) -> Callable[[], asyncio.AbstractEventLoop] | None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    if arguments[:1] == ["simulate"]:
+        # Its own parser (tdtp.sim.cli); the subcommand below only lists it in --help.
+        return simulate_main(arguments[1:])
+    args = build_parser().parse_args(arguments)
     if getattr(args, "size", SAMPLE_SIZE) < SAMPLE_SIZE:
         print(f"tdtp: --size must be at least {SAMPLE_SIZE} bytes", file=sys.stderr)
         return 2

@@ -1,0 +1,42 @@
+"""A virtual-time network simulator that runs the real TDTP code: the paper's figures 6-8 and more.
+
+* :mod:`tdtp.sim.engine`: events, packets, nodes, links (a :class:`~tdtp.netem.NetemLink` per
+  direction for the rate and the DropTail queue, plus a propagation delay) and static routes;
+* :mod:`tdtp.sim.endpoints`: the unchanged sans-IO :class:`~tdtp.connection.Connection` at both ends
+  of a session, sampling at a fixed rate; a constant-rate UDP source;
+* :mod:`tdtp.sim.tcp`: ns-2-like NewReno/Reno TCP with an FTP source, for cross traffic;
+* :mod:`tdtp.sim.scenarios`: ``paper``, ``friendliness``, ``fairness``, ``best_effort``;
+* :mod:`tdtp.sim.plots`: their figures (needs matplotlib: ``pip install 'tdtp[plot]'``);
+* :mod:`tdtp.sim.cli`: ``tdtp simulate NAME --out DIR``.
+
+docs/REPRODUCTION.md compares the results with the paper's.
+"""
+
+from tdtp.sim.endpoints import CbrSource, TdtpEndpoint, TdtpSession
+from tdtp.sim.engine import Link, Network, Node, Packet, Simulator, Timer
+from tdtp.sim.metrics import FlowRecorder, FlowSummary, jain_index
+from tdtp.sim.scenarios import SCENARIOS, SCHEMES, best_effort, fairness, friendliness, paper
+from tdtp.sim.tcp import TcpConfig, TcpFlow
+
+__all__ = [
+    "SCENARIOS",
+    "SCHEMES",
+    "CbrSource",
+    "FlowRecorder",
+    "FlowSummary",
+    "Link",
+    "Network",
+    "Node",
+    "Packet",
+    "Simulator",
+    "TcpConfig",
+    "TcpFlow",
+    "TdtpEndpoint",
+    "TdtpSession",
+    "Timer",
+    "best_effort",
+    "fairness",
+    "friendliness",
+    "jain_index",
+    "paper",
+]

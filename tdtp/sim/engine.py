@@ -1,0 +1,476 @@
+"""A discrete-event network simulator in virtual time: events, packets, nodes, links and routes.
+
+* :class:`Simulator` keeps a heap of events ordered by ``(time, insertion order)``: two events due at
+  the same instant run in the order they were scheduled, so a run is a pure function of its inputs.
+* :class:`Timer` is a re-armable deadline on top of it (a TCP retransmission timer, a connection's
+  ``get_timer()``): re-arming it later costs nothing, earlier pushes one event.
+* :class:`Link` is one direction of a wire: a :class:`~tdtp.netem.NetemLink` does the serialisation
+  (``rate``) and the DropTail queue (``limit``, in packets), then the packet propagates for a fixed
+  delay. :meth:`Network.connect` makes the two directions of a symmetric link.
+* :class:`Node` is a host or a router: packets addressed to it go to the agent bound to their
+  destination port; others are forwarded on the static route to their destination
+  (:meth:`Network.compute_routes`: fewest hops, ties broken by the order links were created).
+
+Why the propagation delay is not the NetemLink's own ``delay``: netem's ``limit`` counts every packet
+held, including those still in their delay (netem's tfifo holds them), while a router's DropTail
+queue (ns-2's ``Queue/DropTail``, a real router) holds only the packets waiting for the wire. On a
+1 Mbit/s link with 10 ms of delay, about ten 125-byte packets are on the wire at any time; counting
+them would shrink a 15-packet queue to five. So each :class:`Link` gives its NetemLink the rate and
+the limit (and any random loss) and adds the delay itself. With ``limit`` N the link then holds at
+most N packets, the one being serialised included, exactly as ns-2's DropTail with ``limit_`` N
+(it drops an arrival when ``length + 1 >= limit_``, the packet on the wire not counted).
+
+Packets do not need real bytes: a :class:`Packet` carries its size in bytes on the wire (IP header
+included) and any payload object (a TDTP datagram, a TCP segment). The NetemLink gets a blank
+``bytes`` object of that size, shared between packets of equal size, with the packet as its tag.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import heapq
+import math
+from collections import deque
+from collections.abc import Callable, Iterable
+from typing import Any, Final, Protocol
+
+from tdtp.netem import NetemLink, NetemSpec, RateSpec, parse_netem
+
+__all__ = [
+    "Agent",
+    "DropListener",
+    "Link",
+    "LinkStats",
+    "Network",
+    "Node",
+    "Packet",
+    "Simulator",
+    "Timer",
+]
+
+
+class Simulator:
+    """Virtual time and the event heap.
+
+    Events are ``(time, order, callback, args)``; :meth:`run` pops them in ``(time, order)`` order and
+    calls ``callback(*args)`` with :attr:`now` set to ``time``. Scheduling in the past is an error:
+    virtual time never goes backwards.
+    """
+
+    __slots__ = ("_heap", "_order", "events_run", "now")
+
+    def __init__(self) -> None:
+        self.now = 0.0
+        self._heap: list[tuple[float, int, Callable[..., None], tuple[Any, ...]]] = []
+        self._order = 0
+        self.events_run = 0
+        """Events executed so far (a cost measure for benchmarks)."""
+
+    def call_at(self, when: float, callback: Callable[..., None], *args: Any) -> None:
+        """Run ``callback(*args)`` at virtual time ``when`` (at or after :attr:`now`)."""
+        if when < self.now:
+            if when < self.now - 1e-9 or math.isnan(when):
+                raise ValueError(
+                    f"cannot schedule at t={when!r}, before the current time {self.now!r}: "
+                    "virtual time only moves forward"
+                )
+            when = self.now
+        self._order += 1
+        heapq.heappush(self._heap, (when, self._order, callback, args))
+
+    def call_later(self, delay: float, callback: Callable[..., None], *args: Any) -> None:
+        self.call_at(self.now + delay, callback, *args)
+
+    def next_time(self) -> float | None:
+        """When the next event is due, or ``None`` when nothing is scheduled."""
+        return self._heap[0][0] if self._heap else None
+
+    def run(self, until: float) -> None:
+        """Run every event due at or before ``until``; then :attr:`now` is ``until``."""
+        heap = self._heap
+        pop = heapq.heappop
+        count = 0
+        while heap and heap[0][0] <= until:
+            when, _, callback, args = pop(heap)
+            self.now = when
+            callback(*args)
+            count += 1
+        self.events_run += count
+        self.now = max(self.now, until)
+
+
+class Timer:
+    """A deadline that can be moved at will; ``callback(now)`` runs when it is reached.
+
+    Setting it earlier than the event already scheduled pushes a new event; setting it later (the common
+    case: a TCP retransmission timer restarted by every ACK) only records the new deadline, and the early
+    event re-schedules itself when it fires. Superseded events find they are not the one expected and do
+    nothing, so there is no cancellation and the heap holds at most a few events per timer.
+    """
+
+    __slots__ = ("_callback", "_scheduled", "_sim", "deadline")
+
+    def __init__(self, sim: Simulator, callback: Callable[[float], None]) -> None:
+        self._sim = sim
+        self._callback = callback
+        self._scheduled = math.inf  # time of the earliest event of ours still in the heap
+        self.deadline: float | None = None
+
+    def set(self, when: float) -> None:
+        self.deadline = when
+        if when < self._scheduled:
+            self._scheduled = when
+            self._sim.call_at(when, self._fire, when)
+
+    def cancel(self) -> None:
+        self.deadline = None
+
+    @property
+    def armed(self) -> bool:
+        return self.deadline is not None
+
+    def _fire(self, when: float) -> None:
+        if when != self._scheduled:
+            return  # superseded by an earlier event of ours
+        self._scheduled = math.inf
+        deadline = self.deadline
+        if deadline is None:
+            return
+        if deadline > when:
+            self._scheduled = deadline
+            self._sim.call_at(deadline, self._fire, deadline)
+            return
+        self.deadline = None
+        self._callback(self._sim.now)
+
+
+class DropListener(Protocol):
+    """Told when the network drops a packet it owns (a queue overflow or a random loss)."""
+
+    def on_drop(self, packet: Packet, now: float) -> None: ...
+
+
+class Packet:
+    """One IP packet in flight. ``size`` is its length on the wire in bytes, IP header included."""
+
+    __slots__ = ("dport", "dst", "owner", "payload", "sent_at", "size", "sport", "src")
+
+    def __init__(
+        self,
+        src: str,
+        sport: int,
+        dst: str,
+        dport: int,
+        size: int,
+        payload: object,
+        sent_at: float,
+        owner: DropListener | None = None,
+    ) -> None:
+        self.src = src
+        self.sport = sport
+        self.dst = dst
+        self.dport = dport
+        self.size = size
+        self.payload = payload
+        self.sent_at = sent_at
+        self.owner = owner
+
+    def __repr__(self) -> str:
+        return (
+            f"Packet({self.src}:{self.sport} -> {self.dst}:{self.dport}, {self.size} B, "
+            f"sent {self.sent_at:.6f})"
+        )
+
+
+class Agent(Protocol):
+    """Whatever is bound to a port of a host: it takes the packets addressed to that port."""
+
+    def receive(self, packet: Packet, now: float) -> None: ...
+
+
+_BLANKS: dict[int, bytes] = {}
+
+
+def _blank(size: int) -> bytes:
+    """A shared zero-filled ``bytes`` of ``size``: what the NetemLink serialises for a packet."""
+    blank = _BLANKS.get(size)
+    if blank is None:
+        blank = _BLANKS[size] = bytes(size)
+    return blank
+
+
+@dataclasses.dataclass(slots=True)
+class LinkStats:
+    """What one direction of a link carried."""
+
+    packets: int = 0
+    """Packets offered to the link."""
+    bytes: int = 0
+    delivered: int = 0
+    """Packets that reached the far end."""
+    delivered_bytes: int = 0
+    dropped: int = 0
+    """Packets lost in the link: DropTail overflows plus random losses of the spec."""
+    max_queue: int = 0
+    """Most packets ever held (waiting or being serialised)."""
+
+
+def split_spec(spec: NetemSpec) -> tuple[NetemSpec, float]:
+    """``spec`` without its delay (for the NetemLink) and the delay as a propagation time.
+
+    Only what a wired router link does is supported: a fixed delay, a rate, a limit and random loss
+    before the queue. Jitter, reordering, duplication and corruption raise :class:`ValueError`.
+    """
+    delay = spec.delay
+    if delay is not None and delay.jitter:
+        raise ValueError(
+            f"simulated links have a fixed propagation delay; jitter is not supported ({spec})"
+        )
+    for name in ("duplicate", "corrupt", "reorder"):
+        if getattr(spec, name) is not None:
+            raise ValueError(f"simulated links do not support netem's {name!r} ({spec})")
+    if spec.rate is None:
+        raise ValueError(f"a simulated link needs a rate, e.g. 'rate 1mbit delay 10ms' ({spec})")
+    return dataclasses.replace(spec, delay=None), (delay.delay if delay is not None else 0.0)
+
+
+class Link:
+    """One direction of a wire from ``src`` to ``dst``: DropTail queue, serialisation, propagation."""
+
+    __slots__ = (
+        "_armed",
+        "_drops_seen",
+        "_netem",
+        "_on_wire",
+        "_sim",
+        "delay",
+        "dst",
+        "name",
+        "rate_bps",
+        "src",
+        "stats",
+    )
+
+    def __init__(
+        self,
+        sim: Simulator,
+        src: Node,
+        dst: Node,
+        spec: NetemSpec,
+        *,
+        seed: int = 0,
+    ) -> None:
+        queue_spec, delay = split_spec(spec)
+        self._sim = sim
+        self.src = src
+        self.dst = dst
+        self.name = f"{src.name}->{dst.name}"
+        self.delay: Final = delay
+        assert queue_spec.rate is not None
+        self.rate_bps: Final = queue_spec.rate.rate_bps
+        self._netem = NetemLink(queue_spec, seed=seed)
+        self._armed = False
+        self._drops_seen = 0
+        self._on_wire: deque[tuple[float, Packet]] = deque()  # propagating: (arrival time, packet)
+        self.stats = LinkStats()
+
+    @property
+    def netem(self) -> NetemLink:
+        """The NetemLink doing this direction's queue and serialisation."""
+        return self._netem
+
+    @property
+    def queued(self) -> int:
+        """Packets in the queue now, the one being serialised included."""
+        return self._netem.in_flight
+
+    def send(self, packet: Packet, now: float) -> None:
+        """Offer ``packet`` to the link at ``now``: queued, or dropped (and its owner told)."""
+        netem = self._netem
+        stats = self.stats
+        stats.packets += 1
+        stats.bytes += packet.size
+        netem.send(_blank(packet.size), now, packet)
+        nstats = netem.stats
+        drops = nstats.queue_dropped + nstats.lost
+        if drops != self._drops_seen:
+            self._drops_seen = drops
+            stats.dropped += 1
+            owner = packet.owner
+            if owner is not None:
+                owner.on_drop(packet, now)
+            return
+        held = netem.in_flight
+        stats.max_queue = max(stats.max_queue, held)
+        if not self._armed:
+            due = netem.next_delivery()
+            if due is not None:
+                self._armed = True
+                self._sim.call_at(due, self._serialised)
+
+    def _serialised(self) -> None:
+        """Packets whose last bit left: on to the far end after the propagation delay."""
+        sim = self._sim
+        now = sim.now
+        netem = self._netem
+        stats = self.stats
+        delay = self.delay
+        for _, tag in netem.deliver(now):
+            packet: Packet = tag  # type: ignore[assignment]
+            stats.delivered += 1
+            stats.delivered_bytes += packet.size
+            if delay:
+                on_wire = self._on_wire
+                on_wire.append((now + delay, packet))
+                if len(on_wire) == 1:
+                    sim.call_at(now + delay, self._arrive)
+            else:
+                self.dst.receive(packet, now)
+        due = netem.next_delivery()
+        if due is None:
+            self._armed = False
+        else:
+            sim.call_at(due, self._serialised)
+
+    def _arrive(self) -> None:
+        """The first propagating packet reaches ``dst`` (the delay is fixed, so order is kept)."""
+        sim = self._sim
+        now = sim.now
+        on_wire = self._on_wire
+        dst = self.dst
+        while on_wire and on_wire[0][0] <= now:
+            dst.receive(on_wire.popleft()[1], now)
+        if on_wire:
+            sim.call_at(on_wire[0][0], self._arrive)
+
+    def __repr__(self) -> str:
+        return f"Link({self.name}, {self.rate_bps:g} bit/s, {self.delay * 1000:g} ms)"
+
+
+class Node:
+    """A host or a router. Agents bind to ports; everything else is forwarded on its route."""
+
+    __slots__ = ("_sim", "agents", "links", "name", "routes")
+
+    def __init__(self, sim: Simulator, name: str) -> None:
+        self._sim = sim
+        self.name = name
+        self.agents: dict[int, Agent] = {}
+        self.links: list[Link] = []
+        """Outgoing links, in creation order."""
+        self.routes: dict[str, Link] = {}
+        """Next hop by destination node name."""
+
+    def bind(self, port: int, agent: Agent) -> None:
+        if port in self.agents:
+            raise ValueError(f"port {port} of {self.name} is already bound")
+        self.agents[port] = agent
+
+    def send(self, packet: Packet, now: float) -> None:
+        """Put a packet on the route to its destination (delivered locally if that is us)."""
+        if packet.dst == self.name:
+            self.receive(packet, now)
+            return
+        link = self.routes.get(packet.dst)
+        if link is None:
+            raise LookupError(f"{self.name} has no route to {packet.dst!r}")
+        link.send(packet, now)
+
+    def receive(self, packet: Packet, now: float) -> None:
+        if packet.dst != self.name:
+            self.send(packet, now)
+            return
+        agent = self.agents.get(packet.dport)
+        if agent is not None:
+            agent.receive(packet, now)
+
+    def __repr__(self) -> str:
+        return f"Node({self.name})"
+
+
+class Network:
+    """Nodes, links and static routes around one :class:`Simulator`."""
+
+    def __init__(self, sim: Simulator | None = None, *, seed: int = 0) -> None:
+        self.sim = sim if sim is not None else Simulator()
+        self.seed = seed
+        self.nodes: dict[str, Node] = {}
+        self.links: list[Link] = []
+
+    def node(self, name: str) -> Node:
+        """The node called ``name``, created on first use."""
+        node = self.nodes.get(name)
+        if node is None:
+            node = self.nodes[name] = Node(self.sim, name)
+        return node
+
+    def connect(
+        self,
+        a: str,
+        b: str,
+        spec: NetemSpec | str,
+        reverse: NetemSpec | str | None = None,
+    ) -> tuple[Link, Link]:
+        """A duplex link: ``spec`` from ``a`` to ``b`` and ``reverse`` (default: the same) back.
+
+        Specs are netem syntax or :class:`NetemSpec`: ``"rate 1mbit delay 10ms limit 15"``.
+        """
+        forward_spec = parse_netem(spec) if isinstance(spec, str) else spec
+        if reverse is None:
+            back_spec = forward_spec
+        else:
+            back_spec = parse_netem(reverse) if isinstance(reverse, str) else reverse
+        node_a, node_b = self.node(a), self.node(b)
+        made = []
+        for src, dst, link_spec in ((node_a, node_b, forward_spec), (node_b, node_a, back_spec)):
+            link = Link(self.sim, src, dst, link_spec, seed=self.seed + len(self.links))
+            src.links.append(link)
+            self.links.append(link)
+            made.append(link)
+        return made[0], made[1]
+
+    def link(self, a: str, b: str) -> Link:
+        """The link from ``a`` to ``b``."""
+        for candidate in self.nodes[a].links:
+            if candidate.dst.name == b:
+                return candidate
+        raise LookupError(f"no link from {a!r} to {b!r}")
+
+    def compute_routes(self) -> None:
+        """Static shortest-path routes (fewest hops) from every node to every other node."""
+        for source in self.nodes.values():
+            source.routes.clear()
+            first_hop: dict[str, Link] = {}
+            frontier: deque[Node] = deque([source])
+            seen = {source.name}
+            while frontier:
+                node = frontier.popleft()
+                for link in node.links:
+                    nxt = link.dst
+                    if nxt.name in seen:
+                        continue
+                    seen.add(nxt.name)
+                    first_hop[nxt.name] = link if node is source else first_hop[node.name]
+                    frontier.append(nxt)
+            source.routes.update(first_hop)
+
+    def run(self, until: float) -> None:
+        self.sim.run(until)
+
+
+def link_spec(rate_bps: float, delay: float, limit: int) -> NetemSpec:
+    """The spec of a wired link: ``rate`` bits/s, ``delay`` s of propagation, DropTail ``limit``."""
+    from tdtp.netem import DelaySpec  # noqa: PLC0415 - keep the public import list short
+
+    return NetemSpec(
+        delay=DelaySpec(delay) if delay else None, rate=RateSpec(rate_bps), limit=limit
+    )
+
+
+def describe(links: Iterable[Link]) -> list[dict[str, Any]]:
+    """JSON-ready statistics of some links."""
+    return [
+        {"link": link.name, "rate_bps": link.rate_bps, "delay": link.delay}
+        | dataclasses.asdict(link.stats)
+        for link in links
+    ]
