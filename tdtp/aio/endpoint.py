@@ -185,7 +185,14 @@ class Endpoint:
         if conn.state is State.CLOSED:
             self._release()
             return
-        self._timer.arm(conn.get_timer())  # a no-op when the deadline did not move
+        deadline = conn.get_timer()
+        armed = self._timer.deadline
+        if armed is None or (deadline is not None and deadline < armed):
+            # Only an earlier deadline re-arms. Most inputs push the deadline *later* (keep-alive
+            # and idle timers move with every packet); an expiry at the older, earlier time just runs
+            # handle_timer, which is harmless, and re-arms then. That saves a timerfd_settime
+            # system call per packet.
+            self._timer.arm(deadline)
 
     def _drain_events(self) -> None:
         conn = self._conn
