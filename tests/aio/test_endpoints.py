@@ -93,11 +93,20 @@ async def test_one_slave_serves_several_masters() -> None:
                 master.send(b"master-%d" % index)
             if tick == 30:
                 break
-        await _eventually(lambda: all(s.stats.received.data_packets >= 30 for s in slaves))
+        # Everything each master sent arrives (on a loaded machine some samples are superseded
+        # before they leave: latest-value semantics, not loss).
+        await _eventually(
+            lambda: (
+                sum(s.stats.received.data_packets for s in slaves)
+                == sum(m.stats.sent.data_packets for m in masters)
+            )
+        )
         # Each slave endpoint hears exactly one master: the server demultiplexes by address.
         senders = []
         for slave in slaves:
-            payloads = {(await slave.recv()).payload for _ in range(30)}
+            count = slave.stats.received.data_packets
+            assert count >= 1
+            payloads = {(await slave.recv()).payload for _ in range(count)}
             assert len(payloads) == 1
             senders.append(payloads.pop())
         assert sorted(senders) == [b"master-0", b"master-1", b"master-2"]
