@@ -1,0 +1,289 @@
+"""Ping-pong round-trip time through tdtp against raw uvloop UDP sockets, 100-byte payloads.
+
+Usage: ``python benchmarks/latency.py [--seconds 1] [--repeat 3] [--json]``
+
+Method. Two processes on loopback, each pinned to its own CPU: an **echo** side that sends back every
+payload it receives, and a **client** that sends one 100-byte payload, waits for it to come back, records
+the round trip (``time.perf_counter_ns`` from just before the send call to the receive callback) and
+sends the next one at once. One payload is in flight at a time, so the figure is the pure path latency:
+two socket hops, two process wake-ups and each side's per-packet processing. The first 200 round trips
+are a warm-up and are not recorded; then the client runs for ``--seconds``.
+
+- ``raw uvloop``: ``DatagramProtocol`` on uvloop both sides: ``transport.sendto`` from
+  ``datagram_received``.
+- ``tdtp uvloop``: ``tdtp.connect`` / ``tdtp.listen`` on uvloop, flow control out of the way
+  (``controller="fixed"``, ``FixedConfig(rate=math.inf)``: the pacer is not what is measured here), both
+  sides send from their ``on_data`` callback with ``ep.send``. Every sample carries the piggybacked ACK of
+  the one before it, so no stand-alone ACK packets are sent.
+
+A payload not answered within 50 ms is counted as lost and the next one goes out (none are expected on
+loopback). A run during which other processes on the machine used more than 20 % of a core is run
+again (at most ``--repeat`` reruns in all); if it is still contended, the statistics leave it out as
+long as at least two runs are clean. Reported per variant: RTT p50 / p99 / p99.9 (us), medians over
+the repetitions; the ratios are tdtp over raw, repetition by repetition.
+
+Target (issue 6): tdtp p50 <= 1.15 x raw p50.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import math
+import struct
+import sys
+import time
+from pathlib import Path
+from typing import Any, cast
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common as common
+from _common import Json, Row, Stat
+
+from tdtp import ConnectionConfig, DataReceived
+from tdtp.aio.api import connect, listen
+from tdtp.control.fixed import FixedConfig
+
+TARGET_P50_RATIO = 1.15
+PAYLOAD_SIZE = 100
+WARMUP_PINGS = 200
+LOSS_TIMEOUT = 0.05
+UNLIMITED = ConnectionConfig(controller="fixed", controller_config=FixedConfig(rate=math.inf))
+VARIANTS = {"raw-uvloop": "raw uvloop", "tdtp-uvloop": "tdtp uvloop"}
+_COUNTER = struct.Struct("!Q")
+
+
+# ---------------------------------------------------------------------------- echo side
+
+
+class RawEcho(asyncio.DatagramProtocol):
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.DatagramTransport, transport)  # uvloop's is not a subclass
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self.transport.sendto(data, addr)
+
+
+async def _echo(control: Any, impl: str) -> Json:
+    loop = asyncio.get_running_loop()
+    report: Json = {}
+    if impl == "raw":
+        transport, _ = await loop.create_datagram_endpoint(RawEcho, local_addr=("127.0.0.1", 0))
+        control.send({"port": transport.get_extra_info("sockname")[1]})
+        while not control.poll():
+            await asyncio.sleep(0.02)
+        transport.close()
+        return report
+    server = await listen("127.0.0.1", 0, config=UNLIMITED)
+    control.send({"port": server.port})
+    ep = await server.accept()
+
+    def echo(sample: DataReceived) -> None:
+        ep.send(sample.payload)
+
+    ep.set_data_callback(echo)
+    while not control.poll():
+        await asyncio.sleep(0.02)
+    stats = ep.stats
+    report["echo_tdtp"] = {
+        "data_sent": stats.sent.data_packets,
+        "acks_sent": stats.sent.ack_packets,
+        "drops": dict(stats.drops),
+    }
+    await server.close()
+    return report
+
+
+def echo_worker(conn: Any, *, impl: str, cpu_slot: int) -> None:
+    common.pin_to_cpu(cpu_slot)
+    report = common.run_in_loop("uvloop", lambda: _echo(conn, impl))
+    conn.send({"final": report})
+
+
+# ---------------------------------------------------------------------------- client side
+
+
+class Pinger:
+    """Sends payload i, waits for it, records the round trip, sends i + 1."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.send: Any = None
+        self.index = 0
+        self.sent_at = 0
+        self.rtts: list[int] = []
+        self.lost = 0
+        self.stray = 0
+        self.record_from = 0
+        self.stop_at = math.inf
+        self.done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self.padding = bytes(PAYLOAD_SIZE - _COUNTER.size)
+
+    def fire(self) -> None:
+        self.index += 1
+        payload = _COUNTER.pack(self.index) + self.padding
+        self.sent_at = time.perf_counter_ns()
+        self.send(payload)
+
+    def received(self, payload: bytes) -> None:
+        now = time.perf_counter_ns()
+        if _COUNTER.unpack_from(payload)[0] != self.index:
+            self.stray += 1  # an answer to a payload already given up on
+            return
+        if self.index > WARMUP_PINGS:
+            self.rtts.append(now - self.sent_at)
+        elif self.index == WARMUP_PINGS:
+            self.stop_at = time.monotonic() + self.seconds
+        if time.monotonic() >= self.stop_at:
+            if not self.done.done():
+                self.done.set_result(None)
+            return
+        self.fire()
+
+    async def watchdog(self) -> None:
+        last = -1
+        while not self.done.done():
+            await asyncio.sleep(LOSS_TIMEOUT)
+            if self.index == last and not self.done.done():
+                self.lost += 1
+                self.fire()
+            last = self.index
+
+
+class RawClient(asyncio.DatagramProtocol):
+    def __init__(self, pinger: Pinger) -> None:
+        self.pinger = pinger
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self.pinger.received(data)
+
+
+async def _client(impl: str, port: int, seconds: float) -> Json:
+    loop = asyncio.get_running_loop()
+    pinger = Pinger(seconds)
+    ep = None
+    if impl == "raw":
+        transport, _ = await loop.create_datagram_endpoint(
+            lambda: RawClient(pinger), remote_addr=("127.0.0.1", port)
+        )
+        pinger.send = transport.sendto
+    else:
+        ep = await connect(
+            "127.0.0.1", port, config=UNLIMITED, on_data=lambda s: pinger.received(s.payload)
+        )
+        pinger.send = ep.send
+    cpu0, t0 = common.cpu_seconds(), time.monotonic()
+    watchdog = asyncio.create_task(pinger.watchdog())
+    pinger.fire()
+    await pinger.done
+    watchdog.cancel()
+    cpu = (common.cpu_seconds() - cpu0) / (time.monotonic() - t0)
+    report: Json = {"lost": pinger.lost, "stray": pinger.stray, "client_cpu_percent": 100 * cpu}
+    if ep is not None:
+        stats = ep.stats
+        report["client_tdtp"] = {
+            "data_sent": stats.sent.data_packets,
+            "acks_sent": stats.sent.ack_packets,
+            "srtt_us": stats.srtt * 1e6,
+        }
+        await ep.close()
+    else:
+        transport.close()
+    rtts = sorted(pinger.rtts)
+    report["count"] = len(rtts)
+    for name, q in (("p50", 0.5), ("p99", 0.99), ("p999", 0.999)):
+        report[name] = common.percentile(rtts, q) / 1e3  # us
+    report["max"] = rtts[-1] / 1e3 if rtts else math.nan
+    return report
+
+
+def client_worker(conn: Any, *, impl: str, port: int, seconds: float, cpu_slot: int) -> None:
+    common.pin_to_cpu(cpu_slot)
+    report = common.run_in_loop("uvloop", lambda: _client(impl, port, seconds))
+    conn.send({"final": report})
+
+
+# ---------------------------------------------------------------------------- coordinator
+
+
+def run_variant(variant: str, seconds: float) -> Json:
+    impl = variant.split("-", maxsplit=1)[0]
+    others = common.OthersMeter()
+    echo = common.start_worker(f"{variant}-echo", echo_worker, impl=impl, cpu_slot=1)
+    client = None
+    try:
+        port = echo.recv(30)["port"]
+        client = common.start_worker(
+            f"{variant}-client", client_worker, impl=impl, port=port, seconds=seconds, cpu_slot=0
+        )
+        result: Json = client.recv(20 + 3 * seconds)["final"]
+        echo.send({"stop": True})
+        result["echo"] = echo.recv(30)["final"]
+    finally:
+        echo.finish()
+        if client is not None:
+            client.finish()
+    result["variant"] = variant
+    result["others_percent"] = others.percent()
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = common.parser(__doc__, seconds=1.0, repeat=3, help_seconds="ping-pong time per run")
+    args = p.parse_args(argv)
+    common.warn_if_loaded()
+    if not common.have_uvloop():
+        missing = "uvloop is not installed: nothing to compare (both variants run on it); skipped"
+        print(missing, file=sys.stderr)
+        return common.emit("latency", args, [], details={"skipped": missing}, text=missing)
+    runs: dict[str, list[Json]] = {v: [] for v in VARIANTS}
+    retrier = common.Retrier(args.repeat)
+    for rep in range(args.repeat):
+        for variant, name in VARIANTS.items():
+            label = f"rep {rep + 1}/{args.repeat}: {name}"
+            print(f"{label} ...", file=sys.stderr)
+            runs[variant].append(
+                retrier.run(label, functools.partial(run_variant, variant, args.seconds))
+            )
+    rows: list[Row] = []
+    raw, tdtp = runs["raw-uvloop"], runs["tdtp-uvloop"]
+    paired_tdtp, paired_raw = common.clean_pairs(tdtp, raw)
+    for key, label in (("p50", "p50"), ("p99", "p99"), ("p999", "p99.9")):
+        row = Row(
+            "latency",
+            f"RTT {label}, tdtp uvloop, 100 B ping-pong",
+            "us",
+            Stat.of([r[key] for r in common.clean(tdtp)]),
+            baseline="raw uvloop",
+            baseline_value=Stat.of([r[key] for r in common.clean(raw)]),
+            ratio=Stat.of(
+                common.paired_ratios([r[key] for r in paired_tdtp], [r[key] for r in paired_raw])
+            ),
+            ratio_label="tdtp/raw",
+            note=common.left_out(tdtp, raw),
+            digits=1,
+        )
+        if key == "p50":
+            row.target = f"ratio <= {TARGET_P50_RATIO}"
+            row.meets = row.ratio is not None and row.ratio.median <= TARGET_P50_RATIO
+        rows.append(row)
+    lines = [
+        "Other tenants: CPU time of every other process on the machine during the run "
+        "(/proc/[pid]/stat), % of one core.",
+        "",
+        "| variant | round trips | RTT p50 / p99 / p99.9 / max (us) | lost | client CPU % "
+        "| other tenants CPU % |",
+        "| --- | ---: | --- | ---: | ---: | ---: |",
+    ]
+    for variant, results in runs.items():
+        for r in results:
+            lines.append(
+                f"| {VARIANTS[variant]} | {r['count']:,} | {r['p50']:.1f} / {r['p99']:.1f} / "
+                f"{r['p999']:.1f} / {r['max']:.1f} | {r['lost']} | {r['client_cpu_percent']:.0f} "
+                f"| {r['others_percent']:.0f}{' (contended)' if r.get('contended') else ''} |"
+            )
+    return common.emit("latency", args, rows, details={"runs": runs}, text="\n".join(lines))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,143 @@
+"""Each benchmark script runs for a fraction of a second so that none can rot. No timing is asserted.
+
+(pacing.py has its own smoke test in tests/aio/test_benchmarks_smoke.py.)
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+QUICK = ("--seconds", "0.1", "--repeat", "1", "--json")
+needs_uvloop = pytest.mark.skipif(
+    importlib.util.find_spec("uvloop") is None, reason="uvloop not installed (the fast extra)"
+)
+
+
+def _run(script: str, *extra: str) -> dict[str, Any]:
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / script), *QUICK, *extra],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    report: dict[str, Any] = json.loads(done.stdout)
+    assert report["benchmark"] == script.removesuffix(".py")
+    assert report["environment"]["python"]
+    return report
+
+
+def _assert_rows(report: dict[str, Any], minimum: int) -> None:
+    rows = report["rows"]
+    assert len(rows) >= minimum, rows
+    for row in rows:
+        assert row["figure"] and row["reps"] >= 1
+        assert "median" in row["value"]
+
+
+def test_codec() -> None:
+    report = _run("codec.py", "--seconds", "0.01")
+    _assert_rows(report, 2)
+    assert {r["baseline"] for r in report["rows"]} == {"construct schema"}
+
+
+@needs_uvloop
+def test_throughput() -> None:
+    report = _run("throughput.py", "--variants", "raw-uvloop", "tdtp-uvloop")
+    _assert_rows(report, 2)
+    tdtp = next(r for r in report["rows"] if r["figure"].startswith("tdtp"))
+    assert tdtp["ratio"]["n"] == 1 and tdtp["target"]
+
+
+@needs_uvloop
+def test_latency() -> None:
+    _assert_rows(_run("latency.py"), 3)
+
+
+def test_wire_efficiency() -> None:
+    report = _run("wire_efficiency.py")
+    _assert_rows(report, 4)
+    (rep,) = report["details"]["reps"]
+    assert rep["tdtp"]["stats_wire_bytes"] == rep["tdtp"]["wire_bytes"]
+    assert rep["udp"]["bytes_per_sample"] == 128
+
+
+@needs_uvloop
+def test_scale() -> None:
+    report = _run("scale.py", "--ramp", "2")
+    _assert_rows(report, 1)
+    assert report["details"]["ramps"][0][0]["sessions"] == 2
+
+
+def test_bandwidth_figure(tmp_path: Path) -> None:
+    report = _run("bandwidth_figure.py", "--out", str(tmp_path))
+    _assert_rows(report, 4)
+    assert all(r["meets"] for r in report["rows"])
+    assert (tmp_path / "figure5.csv").read_text().count("\n") == 2001
+    assert (tmp_path / "figure5.md").exists()
+
+
+@needs_uvloop
+@pytest.mark.skipif(importlib.util.find_spec("aioquic") is None, reason="aioquic not installed")
+def test_quic_peer() -> None:
+    _assert_rows(_run("quic_peer.py"), 2)
+
+
+def _load(name: str) -> ModuleType:
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        spec = importlib.util.spec_from_file_location(
+            f"benchmarks_{name}", BENCHMARKS / f"{name}.py"
+        )
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[f"benchmarks_{name}"] = module  # dataclasses look their module up there
+        spec.loader.exec_module(module)
+        return module
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+
+
+def test_run_all_combines_pacing_runs_into_rows() -> None:
+    run_all = _load("run_all")
+
+    def result(variant: str, loop: str, p99: float) -> dict[str, Any]:
+        return {
+            "variant": variant,
+            "loop": loop,
+            "dev_p50_us": 1.0,
+            "dev_p99_us": p99,
+            "dev_max_us": 2 * p99,
+            "early": 0,
+            "rate_hz": 1000.0,
+            "cpu_percent": 3.0,
+        }
+
+    targets = {"p99_deviation_us": 150.0, "cpu_percent": 10.0, "rate_hz": 1000.0}
+    targets["rate_tolerance"] = 0.001
+    reports = [
+        {
+            "targets": targets,
+            "results": [
+                result("TimerfdTimer", "uvloop", p99),
+                result("naive call_at (baseline)", "uvloop", 10 * p99),
+            ],
+        }
+        for p99 in (100.0, 120.0, 200.0)
+    ]
+    rows = run_all.pacing_rows(reports)
+    deviation = rows[0]
+    assert deviation.value.median == 120.0 and deviation.reps == 3
+    assert deviation.ratio.median == pytest.approx(0.1)
+    assert deviation.meets is True
+    assert "| pacing |" in run_all.common.markdown_table(rows)
