@@ -42,7 +42,6 @@ class AckOutcome(NamedTuple):
     spurious: int
 
 
-
 class SentPacketLog:
     """Records of sent data packets, from the oldest unresolved one to the newest."""
 
