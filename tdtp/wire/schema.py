@@ -1,7 +1,7 @@
 """The TDTP wire format declared once with construct: the schema of record.
 
 This declaration is the readable, checkable statement of the format; the hot path uses the hand-written
-``struct`` codecs in ``header.py`` and ``control.py`` (about 70 times faster per parse). The test suite
+``struct`` codecs in ``header.py`` and ``control.py`` (49x faster to encode, 21x to decode a header: benchmarks/codec.py). The test suite
 proves that the two agree byte for byte on every header value and every control body.
 """
 
