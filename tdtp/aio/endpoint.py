@@ -104,8 +104,9 @@ class Endpoint:
 
         Raises :class:`~tdtp.ConnectionClosedError` after the association ended.
         """
-        self._conn.send(payload, now=monotonic())
-        self._flush()
+        now = monotonic()
+        self._conn.send(payload, now=now)
+        self._flush(now)
 
     async def recv(self) -> DataReceived:
         """The next sample from the peer. Raises :class:`EndpointClosedError` once the association is
@@ -153,8 +154,9 @@ class Endpoint:
     # ------------------------------------------------------------------ driven by the transport
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
-        self._conn.receive_datagram(data, addr, now=monotonic())
-        self._flush()
+        now = monotonic()
+        self._conn.receive_datagram(data, addr, now=now)
+        self._flush(now)
 
     def _on_timer(self) -> None:
         now = monotonic()
