@@ -71,6 +71,7 @@ def direction_summary(
         "loss_ratio": round(lost / sent, 6) if sent else 0.0,
         "loss_events": sender.loss_events,
         "srtt_ms": round(sender.srtt * 1e3, 4),
+        "min_rtt_ms": round(sender.min_rtt * 1e3, 4),
         "allowed_rate": None if math.isinf(sender.rate) else round(sender.rate, 2),
         "bytes_sent": sender.sent.bytes,
         "header_bytes": sender.sent.header_bytes,

@@ -110,8 +110,12 @@ def test_demo_reports_the_emulated_loss_and_delay() -> None:
     for key in ("master_to_slave", "slave_to_master"):
         direction = summary[key]
         sent = direction["packets_sent"]
-        assert sent >= 2800
-        # Binomial: 5 % of ~3000 has a standard deviation of 0.4 %; allow 4 of them.
+        # How many samples a busy machine manages to send varies; the loss is judged against what
+        # this run sent. Binomial: 5 % of n has a standard deviation of sqrt(0.05 * 0.95 / n).
+        assert sent >= 100
         sigma = (0.05 * 0.95 / sent) ** 0.5
         assert abs(direction["loss_ratio"] - 0.05) <= 4 * sigma
-        assert 39.0 <= direction["srtt_ms"] <= 45.0  # 2 x 20 ms plus loopback and scheduling
+        # The smallest RTT sample is the emulated 2 x 20 ms plus loopback: it is never shorter,
+        # and on a busy machine at least one of thousands of samples sees an idle scheduler.
+        assert 40.0 <= direction["min_rtt_ms"] <= 45.0
+        assert direction["srtt_ms"] >= 40.0
