@@ -175,10 +175,13 @@ async def _tdtp_session(mode: str, config: ConnectionConfig, count: int) -> Json
     await master.close()  # a CLOSE to the slave, counted like everything else
     await asyncio.sleep(0.01)
     await server.close()
+    front_door = server.stats.admission  # the COOKIE the server sent before any session
     return {
         "stats_wire_bytes": sum(
             ep.stats.sent.bytes + UDP_IP * ep.stats.sent.datagrams for ep in (master, slave)
-        ),
+        )
+        + front_door.bytes_out
+        + UDP_IP * (front_door.cookies_sent + front_door.rejects_sent),
         "superseded": sum(ep.stats.samples_superseded for ep in (master, slave)),
     }
 

@@ -9,11 +9,12 @@ from tdtp.aio.api import ConnectError, Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint, EndpointClosedError
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
-from tdtp.config import AckMode, ConnectionConfig, Role
+from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, Role
 from tdtp.connection import Connection, State
 from tdtp.errors import (
     ConnectionClosedError,
     ConnectionStateError,
+    InvalidKeyError,
     PayloadTooLargeError,
     TdtpError,
 )
@@ -25,8 +26,10 @@ from tdtp.events import (
     DataReceived,
     Event,
 )
+from tdtp.protection.key_file import load_keys, write_key_file
+from tdtp.protection.keys import KeyRing, PresharedKey
 from tdtp.stats import ConnectionStats, DirectionStats, DropReason
-from tdtp.wire import HEADER_SIZE
+from tdtp.wire import HEADER_SIZE, CipherSuite
 
 __version__ = "0.1.0"
 
@@ -34,6 +37,8 @@ __all__ = [
     "HEADER_SIZE",
     "AckMode",
     "Address",
+    "AdmissionConfig",
+    "CipherSuite",
     "CloseCause",
     "ConnectError",
     "Connection",
@@ -49,7 +54,10 @@ __all__ = [
     "Endpoint",
     "EndpointClosedError",
     "Event",
+    "InvalidKeyError",
+    "KeyRing",
     "PayloadTooLargeError",
+    "PresharedKey",
     "Role",
     "Server",
     "ServerStats",
@@ -59,5 +67,7 @@ __all__ = [
     "__version__",
     "connect",
     "listen",
+    "load_keys",
     "monotonic",
+    "write_key_file",
 ]

@@ -408,6 +408,7 @@ async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
             "masters_served": server.stats.peers_accepted,
             "masters_refused": server.stats.peers_refused,
             "datagrams_unattached": server.stats.datagrams_unattached,
+            "admission": asdict(server.stats.admission),
         }
 
 

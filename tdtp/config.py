@@ -4,13 +4,18 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from tdtp.wire.control import CipherSuite
 from tdtp.wire.header import HEADER_SIZE
 from tdtp.wire.hold import HOLD_MAX
+from tdtp.wire.protected import PROTECTION_OVERHEAD
 
 MAX_UDP_PAYLOAD = 65507
-"""Largest UDP payload over IPv4; the TDTP payload limit is this minus the 5-byte header."""
+"""Largest UDP payload over IPv4."""
+MAX_PAYLOAD = MAX_UDP_PAYLOAD - HEADER_SIZE - PROTECTION_OVERHEAD
+"""The largest TDTP payload: what fits in one UDP/IPv4 datagram with the header and, in a keyed
+session, the packet protection (65484 bytes)."""
 
 
 class Role(enum.Enum):
@@ -37,6 +42,39 @@ def _positive_finite(name: str, value: float) -> None:
         isinstance(value, int | float) and math.isfinite(value) and value > 0,
         f"{name} must be a positive number of seconds, got {value!r}",
     )
+
+
+@dataclass(frozen=True, slots=True)
+class AdmissionConfig:
+    """How a slave treats OPENs before any session exists (``tdtp.admission``)."""
+
+    cookie_lifetime: float = 5.0
+    """Seconds an address-validation cookie stays valid: longer than any RTT a master may have,
+    short enough to bound how long a captured OPEN can be replayed from the master's address."""
+    opens_per_source: float = 20.0
+    """OPENs per second one source host may send (a master retries every 0.25 s)."""
+    open_burst: int = 40
+    """OPENs a source may send at once before its rate applies."""
+    max_sources: int = 4096
+    """Sources whose OPEN rate is tracked (least recently seen forgotten first)."""
+    replies_per_second: float = 20_000.0
+    """COOKIE and version-REJECT replies per second to unvalidated sources, all together: bounds the
+    CPU a flood of OPENs from forged addresses costs (each reply is never larger than its OPEN)."""
+
+    def __post_init__(self) -> None:
+        _positive_finite("cookie_lifetime", self.cookie_lifetime)
+        for name in ("opens_per_source", "replies_per_second"):
+            value = getattr(self, name)
+            _require(
+                isinstance(value, int | float) and math.isfinite(value) and value > 0,
+                f"{name} must be a positive number per second, got {value!r}",
+            )
+        for name in ("open_burst", "max_sources"):
+            value = getattr(self, name)
+            _require(
+                isinstance(value, int) and value >= 1,
+                f"{name} must be a positive integer, got {value!r}",
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,13 +116,21 @@ class ConnectionConfig:
     """Rate controller by registry name: ``trinomial``, ``tfrc`` or ``fixed``."""
     controller_config: object | None = None
     """The chosen controller's own config dataclass (``None`` = its defaults)."""
+    min_peer_payload: int = 1
+    """The largest payload this side will send: a peer whose ``max_payload`` is smaller is refused at
+    the open (REJECT ``PAYLOAD_TOO_SMALL``) instead of failing on the first ``send``."""
+    cipher_suite: CipherSuite = CipherSuite.AES_128_GCM
+    """Keyed sessions: the AEAD the master asks for (the slave accepts any suite it implements)."""
+    encrypt: bool = True
+    """Keyed sessions: encrypt payloads (otherwise they are authenticated but readable). The master
+    chooses; the slave adopts its choice."""
+    admission: AdmissionConfig = field(default_factory=AdmissionConfig)
+    """A slave's policy for OPENs: cookies and rate limits."""
 
     def __post_init__(self) -> None:
         _require(
-            isinstance(self.max_payload, int)
-            and 0 < self.max_payload <= MAX_UDP_PAYLOAD - HEADER_SIZE,
-            f"max_payload must be an integer in 1..{MAX_UDP_PAYLOAD - HEADER_SIZE}, "
-            f"got {self.max_payload!r}",
+            isinstance(self.max_payload, int) and 0 < self.max_payload <= MAX_PAYLOAD,
+            f"max_payload must be an integer in 1..{MAX_PAYLOAD}, got {self.max_payload!r}",
         )
         _require(
             isinstance(self.ack_mode, AckMode),
@@ -122,6 +168,23 @@ class ConnectionConfig:
         _require(
             isinstance(self.max_tracked_packets, int) and self.max_tracked_packets >= 64,
             f"max_tracked_packets must be an integer >= 64, got {self.max_tracked_packets!r}",
+        )
+        _require(
+            isinstance(self.min_peer_payload, int)
+            and 1 <= self.min_peer_payload <= self.max_payload,
+            f"min_peer_payload must be an integer in 1..max_payload ({self.max_payload}), "
+            f"got {self.min_peer_payload!r}",
+        )
+        _require(
+            isinstance(self.cipher_suite, CipherSuite)
+            and self.cipher_suite is not CipherSuite.NONE,
+            f"cipher_suite must be CipherSuite.AES_128_GCM or CHACHA20_POLY1305, "
+            f"got {self.cipher_suite!r}",
+        )
+        _require(isinstance(self.encrypt, bool), f"encrypt must be a bool, got {self.encrypt!r}")
+        _require(
+            isinstance(self.admission, AdmissionConfig),
+            f"admission must be an AdmissionConfig, got {self.admission!r}",
         )
         _require(
             isinstance(self.controller, str) and bool(self.controller),

@@ -14,13 +14,20 @@ Peer input never raises: anything malformed, unexpected or hostile is dropped an
 from __future__ import annotations
 
 import enum
+import math
 import random
 from collections import deque
 
+from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.base import RateController
 from tdtp.control.registry import create_controller
-from tdtp.errors import ConnectionClosedError, ConnectionStateError, PayloadTooLargeError
+from tdtp.errors import (
+    ConnectionClosedError,
+    ConnectionStateError,
+    InvalidKeyError,
+    PayloadTooLargeError,
+)
 from tdtp.events import (
     Address,
     CloseCause,
@@ -30,31 +37,63 @@ from tdtp.events import (
     Event,
 )
 from tdtp.loss_rate import LossIntervalEstimator
+from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
+from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey, as_key, as_key_ring
+from tdtp.protection.packet_protection import (
+    PACKET_LIMIT,
+    Direction,
+    PacketOpener,
+    PacketSealer,
+)
 from tdtp.receive_window import Arrival, ReceiveWindow
 from tdtp.rtt import RttEstimator
 from tdtp.sent_log import LostPacket, SentPacketLog
 from tdtp.stats import ConnectionStats, DropReason
 from tdtp.wire.control import (
+    NO_COOKIE,
+    NO_KEY_ID,
+    NONCE_SIZE,
+    OPEN_BODY_SIZE,
     PROTOCOL_VERSION,
+    CipherSuite,
     CloseBody,
     CloseReason,
     ControlCode,
+    CookieBody,
+    KeepaliveBody,
+    OpenAckBody,
     OpenBody,
     OpenFlags,
     decode_control,
     encode_close,
     encode_keepalive,
     encode_open,
+    encode_open_ack,
 )
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header, encode_header
 from tdtp.wire.hold import HOLD_NO_ACK, decode_hold, encode_hold
+from tdtp.wire.protected import PROTECTION_OVERHEAD, TAG_SIZE
 from tdtp.wire.seqnum import SEQ_MODULUS
 
 _DATA = int(PacketType.DATA)
 _ACK = int(PacketType.ACK)
 _CONTROL = int(PacketType.CONTROL)
 _NO_ACK = (0, 0, HOLD_NO_ACK)
+_OPEN = int(ControlCode.OPEN)
+_HANDSHAKE = frozenset(
+    (
+        int(ControlCode.OPEN),
+        int(ControlCode.OPEN_ACK),
+        int(ControlCode.COOKIE),
+        int(ControlCode.REJECT),
+    )
+)
+_CLOSE_PREFIX = bytes((ControlCode.CLOSE,))
+_KEEPALIVE_PREFIX = encode_keepalive()
+_LARGEST_CONTROL = OPEN_BODY_SIZE + TAG_SIZE
+"""The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
+``max_payload`` is."""
 LOSS_DELAY_SRTT = 1.2
 LOSS_DELAY_RTTVAR = 4.0
 TIMER_GRANULARITY = 0.001
@@ -75,8 +114,16 @@ class State(enum.Enum):
 class Connection:
     """One TDTP association between a master and a slave.
 
-    ``rng`` supplies the connection nonce and the initial sequence number; pass a seeded
-    :class:`random.Random` for reproducible runs (the default draws from the OS).
+    Unkeyed by default. A master given ``key=`` (a :class:`~tdtp.protection.PresharedKey` or its
+    secret bytes) opens a keyed session; a slave given ``keys=`` (one key, several, or a
+    :class:`~tdtp.protection.KeyRing`) accepts keyed sessions only, from masters holding one of them.
+    A slave validates every master's address with a cookie before it keeps any state
+    (:mod:`tdtp.admission`); a server sharing one socket among many slave connections passes them one
+    shared ``admission``.
+
+    ``rng`` supplies the nonces and the initial sequence number; pass a seeded
+    :class:`random.Random` for reproducible runs (the default draws from the operating system's
+    CSPRNG, which a keyed session needs: its nonces must be unpredictable).
     """
 
     def __init__(
@@ -85,17 +132,56 @@ class Connection:
         *,
         role: Role,
         rng: random.Random | None = None,
+        key: KeyInput | None = None,
+        keys: KeysInput | None = None,
+        admission: Admission | None = None,
     ) -> None:
         if not isinstance(role, Role):
             raise TypeError(f"role must be Role.MASTER or Role.SLAVE, got {role!r}")
         self.config = config if config is not None else ConnectionConfig()
         self.role = role
         rng = rng if rng is not None else random.SystemRandom()
+        self._key: PresharedKey | None = None
+        self._admission: Admission | None = None
+        if role is Role.MASTER:
+            if keys is not None or admission is not None:
+                raise InvalidKeyError(
+                    "a master presents one key: pass key=, not keys= or admission="
+                )
+            self._key = as_key(key) if key is not None else None
+        else:
+            if key is not None:
+                raise InvalidKeyError(
+                    "a slave accepts keys=: one key, several, or a KeyRing (key= is the master's)"
+                )
+            if admission is not None and keys is not None:
+                raise InvalidKeyError("pass keys= or a shared admission=, not both")
+            self._admission = (
+                admission
+                if admission is not None
+                else Admission(
+                    self.config, as_key_ring(keys) if keys is not None else None, rng=rng
+                )
+            )
         self._state = State.IDLE if role is Role.MASTER else State.LISTENING
         self._peer: Address | None = None
-        self._nonce = rng.getrandbits(64)
+        self._master_nonce = rng.randbytes(NONCE_SIZE)
+        """The connection's identifier on control packets: the master's; a slave adopts it."""
+        self._slave_nonce = rng.randbytes(NONCE_SIZE)
+        self._keyed = self._key is not None
+        """Whether this session is keyed: the master's choice, adopted by the slave at the open."""
+        self._encrypt = self.config.encrypt
+        self._suite = self.config.cipher_suite if self._keyed else CipherSuite.NONE
+        self._sealer: PacketSealer | None = None
+        self._opener: PacketOpener | None = None
+        self._overhead = 0  # bytes packet protection adds to each session datagram, once keyed
+        self._open_tagger: Direction | None = None  # a keyed master's OPEN key
+        self._open_attempt = 0
+        self._cookie = NO_COOKIE
+        self._cookie_answered_at = -math.inf
         self._ack_mode = self.config.ack_mode
         self._send_limit = self.config.max_payload
+        self._size_limit = HEADER_SIZE + max(self.config.max_payload, _LARGEST_CONTROL)
         self._controller: RateController = create_controller(
             self.config.controller, self.config.controller_config
         )
@@ -112,7 +198,8 @@ class Connection:
         self._window: ReceiveWindow | None = None
         self._pending: bytes | None = None
         self._pending_paced = False  # the pending sample had to wait for the pacer
-        self._control_out: list[tuple[bytes, Address]] = []
+        self._control_out: list[tuple[bytes, Address, int]] = []
+        """Control datagrams queued for the next flush: datagram, destination, protection bytes."""
         self._separate_acks: deque[tuple[int, float]] = deque()
         self._event_seq = 0
         self._data_events: deque[tuple[int, Event]] = deque()
@@ -150,6 +237,28 @@ class Connection:
         return self._controller
 
     @property
+    def keyed(self) -> bool:
+        """Whether the session is keyed (every datagram authenticated, and encrypted if
+        :attr:`encrypted`). A listening slave with keys answers keyed OPENs only."""
+        return self._keyed
+
+    @property
+    def encrypted(self) -> bool:
+        """Whether a keyed session encrypts its payloads (the master's choice)."""
+        return self._keyed and self._encrypt
+
+    @property
+    def key(self) -> PresharedKey | None:
+        """The session's pre-shared key: the master's own, or the one a slave found in its ring for
+        this master (its :attr:`~tdtp.protection.PresharedKey.name` says which master it is)."""
+        return self._key
+
+    @property
+    def admission(self) -> Admission | None:
+        """A slave's front door (cookie, rate limits, keys); ``None`` for a master."""
+        return self._admission
+
+    @property
     def stats(self) -> ConnectionStats:
         """Live counters; the derived figures (srtt, p, rate) are refreshed on each access."""
         stats = self._stats
@@ -181,6 +290,10 @@ class Connection:
         self._open_deadline = now + self.config.open_timeout
         self._open_next = now
         self._last_receive = now
+        if self._key is not None:
+            self._open_tagger = Direction(
+                self._suite, derive_open_secret(self._key.secret, self._master_nonce, self._suite)
+            )
 
     def send(self, payload: bytes, *, now: float) -> None:
         """Offer the newest sample. It replaces any sample still waiting for the pacer (which is
@@ -217,6 +330,18 @@ class Connection:
             self._queue_close(CloseReason.NORMAL, self._peer)
         self._terminate(CloseCause.LOCAL_CLOSE, "closed by the application")
 
+    def accept_open(self, admitted: AdmittedOpen, addr: Address, *, now: float) -> None:
+        """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already
+        admitted for ``addr`` (a server demultiplexing many masters on one socket does this; a
+        stand-alone slave gets its OPENs through :meth:`receive_datagram`)."""
+        if self.role is not Role.SLAVE or self._state is not State.LISTENING:
+            raise ConnectionStateError(
+                f"accept_open() is for a listening slave (this is a {self.role.value} in state "
+                f"{self._state.value}); create a new Connection for each master"
+            )
+        self._stats.datagrams_in += 1
+        self._open_session(admitted, addr, now)
+
     def next_event(self) -> Event | None:
         """The oldest event not yet taken, or ``None``."""
         data, other = self._data_events, self._other_events
@@ -243,25 +368,61 @@ class Connection:
         if size < HEADER_SIZE:
             stats.count_drop(DropReason.TRUNCATED)
             return
-        if size > HEADER_SIZE + self.config.max_payload:
+        if size > self._size_limit:
             stats.count_drop(DropReason.OVERSIZED)
             return
-        ptype, seq, ack, sack, hold = decode_header(data)
+        ptype = data[0] >> 6
+        if ptype == _CONTROL and size > HEADER_SIZE and data[HEADER_SIZE] in _HANDSHAKE:
+            self._on_handshake(data, addr, now)
+            return
+        if ptype > _CONTROL:
+            stats.count_drop(DropReason.UNKNOWN_TYPE)
+            return
+        opener = self._opener
+        if opener is not None:
+            prefix = HEADER_SIZE + 1 if ptype == _CONTROL else HEADER_SIZE
+            if size < prefix + PROTECTION_OVERHEAD:
+                stats.count_drop(DropReason.TRUNCATED)
+                return
+            body = opener.open(data, prefix)
+            if body is None:
+                self._on_unopened(opener, now)
+                return
+            data = data[:prefix] + body
+        elif self._keyed:
+            # A keyed master before the OPEN_ACK has no keys to read session packets with.
+            stats.count_drop(DropReason.NOT_ESTABLISHED)
+            return
+        if self._state is State.OPENING and self.role is Role.SLAVE:
+            # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
+            self._establish(now)
+        _, seq, ack, sack, hold = decode_header(data)
         if ptype == _DATA:
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
-        elif ptype == _CONTROL:
-            self._on_control(data, addr, seq, ack, sack, hold, now)
         else:
-            stats.count_drop(DropReason.UNKNOWN_TYPE)
+            self._on_session_control(data, size, ack, sack, hold, now)
+
+    def _on_unopened(self, opener: PacketOpener, now: float) -> None:
+        """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
+        key that has seen too many forgeries is retired with its connection (RFC 9001, 6.6)."""
+        self._stats.count_drop(DropReason(opener.failure))
+        if opener.exhausted:
+            self._terminate(
+                CloseCause.KEY_EXHAUSTED,
+                "too many datagrams failed authentication under this session's key; open a new "
+                "connection",
+            )
 
     def _accept(self, size: int, payload_size: int, now: float) -> None:
+        """Count a datagram taken in; ``size`` is its length without packet protection."""
         received = self._stats.received
         received.datagrams += 1
-        received.bytes += size
+        received.bytes += size + self._overhead
         received.header_bytes += HEADER_SIZE
         received.payload_bytes += payload_size
+        received.protection_bytes += self._overhead
         self._last_receive = now
 
     def _on_data(self, data: bytes, seq: int, ack: int, sack: int, hold: int, now: float) -> None:
@@ -269,6 +430,9 @@ class Connection:
         window = self._window
         if self._state is not State.ESTABLISHED or window is None:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
+            return
+        if len(data) - HEADER_SIZE > self.config.max_payload:
+            stats.count_drop(DropReason.OVERSIZED)
             return
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)
@@ -374,36 +538,25 @@ class Connection:
             + self.config.ack_delay
         )
 
-    def _on_control(
-        self, data: bytes, addr: Address, seq: int, ack: int, sack: int, hold: int, now: float
+    def _on_session_control(
+        self, data: bytes, size: int, ack: int, sack: int, hold: int, now: float
     ) -> None:
+        """KEEPALIVE and CLOSE (already opened in a keyed session)."""
         stats = self._stats
         try:
             body = decode_control(data[HEADER_SIZE:])
         except MalformedPacketError:
             stats.count_drop(DropReason.BAD_CONTROL)
             return
-        code = body.code
-        if isinstance(body, OpenBody):
-            if code is ControlCode.OPEN:
-                self._on_open(body, addr, seq, len(data), now)
-            else:
-                self._on_open_ack(body, seq, len(data), now)
-            return
         if isinstance(body, CloseBody):
-            if body.nonce != self._nonce or self._state not in (State.OPENING, State.ESTABLISHED):
+            if body.nonce != self._master_nonce or self._state not in (
+                State.OPENING,
+                State.ESTABLISHED,
+            ):
                 stats.count_drop(DropReason.NONCE_MISMATCH)
                 return
-            if code is ControlCode.REJECT and (
-                self.role is not Role.MASTER or self._state is not State.OPENING
-            ):
-                stats.count_drop(DropReason.UNEXPECTED_CONTROL)
-                return
-            self._accept_control(len(data), now)
-            if code is ControlCode.REJECT:
-                self._terminate(CloseCause.REJECTED, _reason_text(body.reason))
-            else:
-                self._terminate(CloseCause.PEER_CLOSE, _reason_text(body.reason))
+            self._accept_control(size, now)
+            self._terminate(CloseCause.PEER_CLOSE, _reason_text(body.reason))
             return
         # KEEPALIVE
         if self._state is not State.ESTABLISHED:
@@ -412,77 +565,208 @@ class Connection:
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)
             return
-        self._accept_control(len(data), now)
+        self._accept_control(size, now)
 
     def _accept_control(self, size: int, now: float) -> None:
         self._accept(size, size - HEADER_SIZE, now)
         self._stats.received.control_packets += 1
 
-    def _on_open(self, body: OpenBody, addr: Address, seq: int, size: int, now: float) -> None:
+    def _accept_handshake(self, size: int, now: float, tag: int = 0) -> None:
+        """Count a handshake message taken in; ``tag`` is the bytes of its tag (keyed OPEN and
+        OPEN_ACK), counted as protection."""
+        received = self._stats.received
+        received.datagrams += 1
+        received.bytes += size
+        received.header_bytes += HEADER_SIZE
+        received.payload_bytes += size - HEADER_SIZE - tag
+        received.protection_bytes += tag
+        received.control_packets += 1
+        self._last_receive = now
+
+    # ------------------------------------------------------------------ opening
+
+    def _on_handshake(self, data: bytes, addr: Address, now: float) -> None:
+        """OPEN, OPEN_ACK, COOKIE or REJECT: the messages whose fields travel in the clear."""
         stats = self._stats
-        if self.role is not Role.SLAVE:
-            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
-            return
-        if self._state is State.ESTABLISHED:
-            if body.nonce != self._nonce:
-                stats.count_drop(DropReason.NONCE_MISMATCH)
+        if self.role is Role.SLAVE:
+            if data[HEADER_SIZE] != _OPEN:
+                stats.count_drop(DropReason.UNEXPECTED_CONTROL)
                 return
-            # The master did not hear our OPEN_ACK: answer its retransmission again.
-            self._accept_control(size, now)
-            self._queue_open_ack()
+            self._on_open(data, addr, now)
             return
-        if body.version != PROTOCOL_VERSION:
-            stats.count_drop(DropReason.UNKNOWN_VERSION)
-            self._control_out.append(
-                (
-                    encode_header(_CONTROL, 0, 0, 0, HOLD_NO_ACK)
-                    + encode_close(ControlCode.REJECT, body.nonce, CloseReason.VERSION_UNSUPPORTED),
-                    addr,
-                )
-            )
-            return
-        if body.max_payload == 0:
+        try:
+            body = decode_control(data[HEADER_SIZE:])
+        except MalformedPacketError:
             stats.count_drop(DropReason.BAD_CONTROL)
             return
+        if isinstance(body, OpenBody | KeepaliveBody):
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
+        elif body.nonce != self._master_nonce:
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+        elif self._state is not State.OPENING:
+            if isinstance(body, OpenAckBody) and self._state is State.ESTABLISHED:
+                self._on_duplicate_open_ack(body, data, now)
+            else:
+                stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+        elif isinstance(body, CookieBody):
+            self._on_cookie(body, len(data), now)
+        elif isinstance(body, OpenAckBody):
+            self._on_open_ack(body, data, now)
+        elif isinstance(body, CloseBody):  # REJECT
+            self._accept_handshake(len(data), now)
+            self._terminate(CloseCause.REJECTED, _reject_text(body.reason, self))
+        else:  # pragma: no cover - decode_control returns one of the above for these codes
+            stats.count_drop(DropReason.BAD_CONTROL)
+
+    def _on_open(self, data: bytes, addr: Address, now: float) -> None:
+        """A slave's OPEN: through admission first (cookie, rate, key), then by state."""
+        stats = self._stats
+        admission = self._admission
+        assert admission is not None  # every slave has one
+        verdict = admission.admit(data, addr, now)
+        if isinstance(verdict, DropReason):
+            stats.count_drop(verdict)
+            return
+        if isinstance(verdict, Reply):
+            stats.count_drop(verdict.reason)
+            self._control_out.append((verdict.datagram, addr, 0))
+            return
+        if self._state is State.LISTENING:
+            self._open_session(verdict, addr, now)
+        elif verdict.body.nonce == self._master_nonce:
+            # The master did not hear our OPEN_ACK: answer its retransmission again.
+            self._accept_handshake(verdict.size, now, self._tag_size())
+            self._queue_open_ack()
+        elif now - self._last_receive > self.config.keepalive_interval + 2.0 * self._rtt.srtt:
+            # The same address opens anew and this session has been silent longer than a live
+            # master ever is (it sends at least a KEEPALIVE per interval): the master restarted.
+            # A live session is never replaced, so a replayed OPEN cannot end it.
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+            self._terminate(
+                CloseCause.REPLACED, "the master opened a new connection from the same address"
+            )
+        else:
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+
+    def _open_session(self, admitted: AdmittedOpen, addr: Address, now: float) -> None:
+        """A listening slave takes the admitted OPEN: adopt its settings, answer OPEN_ACK, and wait
+        for the master's first packet of the session (it confirms the master has the OPEN_ACK)."""
+        body = admitted.body
         self._peer = addr
-        self._nonce = body.nonce
+        self._master_nonce = body.nonce
         self._ack_mode = (
             AckMode.SEPARATE if body.flags & OpenFlags.SEPARATE_ACKS else AckMode.BIDIRECTIONAL
         )
         self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = ReceiveWindow(seq)
-        self._accept_control(size, now)
+        self._window = ReceiveWindow(admitted.initial_seq)
+        if admitted.key is not None:
+            self._key = admitted.key
+            self._keyed = True
+            self._encrypt = bool(body.flags & OpenFlags.ENCRYPTED)
+            self._suite = CipherSuite(body.suite)
+            self._start_protection()
+        self._accept_handshake(admitted.size, now, self._tag_size())
+        self._state = State.OPENING
+        self._open_deadline = now + self.config.open_timeout
+        self._last_send = now
         self._queue_open_ack()
-        self._establish(addr, now)
 
-    def _on_open_ack(self, body: OpenBody, seq: int, size: int, now: float) -> None:
+    def _start_protection(self) -> None:
+        """Derive the session's keys from the pre-shared key and both nonces."""
+        key = self._key
+        assert key is not None
+        secrets = derive_session_secrets(
+            key.secret, self._master_nonce, self._slave_nonce, self._suite
+        )
+        master = self.role is Role.MASTER
+        ours, theirs = (
+            (secrets.master_to_slave, secrets.slave_to_master)
+            if master
+            else (secrets.slave_to_master, secrets.master_to_slave)
+        )
+        self._sealer = PacketSealer(self._suite, ours, encrypt=self._encrypt)
+        self._opener = PacketOpener(self._suite, theirs, encrypt=self._encrypt)
+        self._overhead = PROTECTION_OVERHEAD
+
+    def _on_cookie(self, body: CookieBody, size: int, now: float) -> None:
+        """The slave wants proof that we receive at our address: echo its cookie in the OPEN."""
+        if body.version != PROTOCOL_VERSION:
+            self._stats.count_drop(DropReason.UNKNOWN_VERSION)
+            return
+        self._accept_handshake(size, now)
+        self._cookie = body.cookie
+        # Answer at once, but at most once per retry interval: COOKIEs cannot make us flood.
+        if now >= self._cookie_answered_at + self.config.open_retry_interval:
+            self._cookie_answered_at = now
+            self._open_next = now
+
+    def _on_open_ack(self, body: OpenAckBody, data: bytes, now: float) -> None:
         stats = self._stats
-        if self.role is not Role.MASTER:
-            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
-            return
-        if body.nonce != self._nonce or self._state not in (State.OPENING, State.ESTABLISHED):
-            stats.count_drop(DropReason.NONCE_MISMATCH)
-            return
-        if self._state is State.ESTABLISHED:
-            self._accept_control(size, now)
-            return
         if body.version != PROTOCOL_VERSION:
             stats.count_drop(DropReason.UNKNOWN_VERSION)
             return
-        if body.max_payload == 0:
+        if body.max_payload == 0 or body.flags != self._open_flags() or body.suite != self._suite:
             stats.count_drop(DropReason.BAD_CONTROL)
             return
+        self._slave_nonce = body.slave_nonce
+        if self._keyed:
+            self._start_protection()
+            opener = self._opener
+            assert opener is not None
+            if not opener.verify_numbered(body.packet_number, data[:-TAG_SIZE], data[-TAG_SIZE:]):
+                stats.count_drop(DropReason(opener.failure))
+                self._sealer = self._opener = None  # not the slave we opened towards
+                self._overhead = 0
+                return
+        self._accept_handshake(len(data), now, self._tag_size())
+        if body.max_payload < self.config.min_peer_payload:
+            self._queue_close(CloseReason.PAYLOAD_TOO_SMALL, self._peer_address())
+            self._terminate(
+                CloseCause.REJECTED,
+                f"the slave accepts payloads of at most {body.max_payload} bytes, smaller than "
+                f"min_peer_payload ({self.config.min_peer_payload})",
+            )
+            return
         self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = ReceiveWindow(seq)
-        self._accept_control(size, now)
-        assert self._peer is not None  # set by connect(); OPENING implies it
-        self._establish(self._peer, now)
+        self._window = ReceiveWindow(decode_header(data).seq)
+        self._establish(now)
+        # Confirm at once (the slave waits for our first packet of the session): the next
+        # datagrams_to_send sends a KEEPALIVE unless a sample goes out.
+        self._last_send = now - self.config.keepalive_interval
 
-    def _establish(self, peer: Address, now: float) -> None:
+    def _on_duplicate_open_ack(self, body: OpenAckBody, data: bytes, now: float) -> None:
+        """The slave answered a retransmitted OPEN again; our open is already done. In a keyed
+        session it must still authenticate (through the replay window) to count as a sign of life."""
+        opener = self._opener
+        if opener is not None and not opener.verify_numbered(
+            body.packet_number, data[:-TAG_SIZE], data[-TAG_SIZE:]
+        ):
+            self._stats.count_drop(DropReason(opener.failure))
+            return
+        self._accept_handshake(len(data), now, self._tag_size())
+
+    def _tag_size(self) -> int:
+        """Bytes of the tag a keyed OPEN or OPEN_ACK ends in."""
+        return TAG_SIZE if self._keyed else 0
+
+    def _open_flags(self) -> int:
+        flags = OpenFlags.SEPARATE_ACKS if self._ack_mode is AckMode.SEPARATE else OpenFlags.NONE
+        if self._keyed:
+            flags |= OpenFlags.KEYED
+            if self._encrypt:
+                flags |= OpenFlags.ENCRYPTED
+        return int(flags)
+
+    def _peer_address(self) -> Address:
+        peer = self._peer
+        assert peer is not None  # set by connect() or at the OPEN
+        return peer
+
+    def _establish(self, now: float) -> None:
         self._state = State.ESTABLISHED
         self._last_receive = now
         self._last_send = now
-        self._push_other_event(ConnectionEstablished(peer))
+        self._push_other_event(ConnectionEstablished(self._peer_address()))
 
     # ------------------------------------------------------------------ timers
 
@@ -490,6 +774,8 @@ class Connection:
         """The next absolute time :meth:`handle_timer` (then :meth:`datagrams_to_send`) is due."""
         state = self._state
         if state is State.OPENING:
+            if self.role is Role.SLAVE:
+                return self._open_deadline
             return min(self._open_next, self._open_deadline)
         if state is not State.ESTABLISHED:
             return None
@@ -519,16 +805,19 @@ class Connection:
         state = self._state
         if state is State.OPENING:
             if now >= self._open_deadline:
-                self._terminate(
-                    CloseCause.OPEN_TIMEOUT,
-                    f"no answer to OPEN within {self.config.open_timeout} s",
-                )
+                if self.role is Role.MASTER:
+                    detail = f"no answer to OPEN within {self.config.open_timeout} s"
+                else:
+                    detail = (
+                        "the master never confirmed the session within "
+                        f"{self.config.open_timeout} s after our OPEN_ACK"
+                    )
+                self._terminate(CloseCause.OPEN_TIMEOUT, detail)
             return
         if state is not State.ESTABLISHED:
             return
         if now >= self._last_receive + self.config.idle_timeout:
-            assert self._peer is not None
-            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer)
+            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer_address())
             self._terminate(
                 CloseCause.IDLE_TIMEOUT,
                 f"nothing received from the peer for {self.config.idle_timeout} s",
@@ -548,31 +837,16 @@ class Connection:
         """Everything that should leave at ``now``, with its destination."""
         out: list[tuple[bytes, Address]] = []
         state = self._state
-        if state is State.OPENING and now >= self._open_next:
-            assert self._peer is not None
+        if state is State.OPENING and self.role is Role.MASTER and now >= self._open_next:
             self._open_next = now + self.config.open_retry_interval
-            flags = OpenFlags.SEPARATE_ACKS if self._ack_mode is AckMode.SEPARATE else 0
-            self._emit_control(
-                out,
-                encode_header(_CONTROL, self._sent.next_seq, 0, 0, HOLD_NO_ACK)
-                + encode_open(
-                    ControlCode.OPEN,
-                    PROTOCOL_VERSION,
-                    int(flags),
-                    self._nonce,
-                    self.config.max_payload,
-                ),
-                self._peer,
-                now,
-            )
+            self._emit_open(out, now)
         if self._control_out:
-            for datagram, addr in self._control_out:
-                self._emit_control(out, datagram, addr, now)
+            for datagram, addr, protection in self._control_out:
+                self._emit_control(out, datagram, addr, now, protection)
             self._control_out.clear()
-        if state is not State.ESTABLISHED:
+        if state is not State.ESTABLISHED or self._state is not State.ESTABLISHED:
             return out
-        peer = self._peer
-        assert peer is not None
+        peer = self._peer_address()
         window = self._window
         assert window is not None
         bidirectional = self._ack_mode is AckMode.BIDIRECTIONAL
@@ -580,7 +854,9 @@ class Connection:
         if payload is not None and now >= self._controller.next_send_time():
             self._pending = None
             ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
-            datagram = encode_header(_DATA, self._sent.next_seq, ack, sack, hold) + payload
+            datagram = self._protect(
+                encode_header(_DATA, self._sent.next_seq, ack, sack, hold), payload
+            )
             size = len(datagram)
             self._sent.on_sent(now, size, self._lost)
             if self._lost:
@@ -589,7 +865,7 @@ class Connection:
             sent = self._stats.sent
             sent.data_packets += 1
             sent.payload_bytes += len(payload)
-            self._count_sent(size, now)
+            self._count_sent(size, now, self._overhead)
             out.append((datagram, peer))
         if bidirectional:
             if window.unreported_since is not None and (
@@ -609,11 +885,50 @@ class Connection:
             ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
             self._emit_control(
                 out,
-                encode_header(_CONTROL, self._sent.next_seq, ack, sack, hold) + encode_keepalive(),
+                self._protect(
+                    encode_header(_CONTROL, self._sent.next_seq, ack, sack, hold)
+                    + _KEEPALIVE_PREFIX,
+                    b"",
+                ),
                 peer,
                 now,
+                self._overhead,
+            )
+        if self._sealer is not None and self._sealer.next_number >= PACKET_LIMIT:
+            self._terminate(
+                CloseCause.KEY_EXHAUSTED,
+                "the session protected as many packets as its keys may; open a new connection",
             )
         return out
+
+    def _protect(self, prefix: bytes, body: bytes) -> bytes:
+        """Seal a session datagram in a keyed session; plain ``prefix + body`` otherwise."""
+        sealer = self._sealer
+        return prefix + body if sealer is None else sealer.seal(prefix, body)
+
+    def _emit_open(self, out: list[tuple[bytes, Address]], now: float) -> None:
+        attempt = self._open_attempt
+        if attempt > 0xFFFF:  # the OPEN tag's nonce counter must never repeat
+            self._terminate(CloseCause.OPEN_TIMEOUT, "no answer to 65536 OPENs")
+            return
+        self._open_attempt = attempt + 1
+        key = self._key
+        datagram = encode_header(_CONTROL, self._sent.next_seq, 0, 0, HOLD_NO_ACK) + encode_open(
+            OpenBody(
+                PROTOCOL_VERSION,
+                self._open_flags(),
+                int(self._suite),
+                self.config.max_payload,
+                attempt,
+                self._master_nonce,
+                key.key_id if key is not None else NO_KEY_ID,
+                self._cookie,
+            )
+        )
+        tagger = self._open_tagger
+        if tagger is not None:
+            datagram += tagger.tag(attempt, datagram)
+        self._emit_control(out, datagram, self._peer_address(), now, self._tag_size())
 
     def _piggyback(self, window: ReceiveWindow, now: float) -> tuple[int, int, int]:
         """ACK fields reporting the newest peer data (or none before any arrived)."""
@@ -635,57 +950,64 @@ class Connection:
         peer: Address,
         now: float,
     ) -> None:
-        datagram = encode_header(_ACK, self._sent.next_seq, ack, sack, hold)
-        padding = self.config.ack_size - HEADER_SIZE
-        if padding:
-            datagram += bytes(padding)
+        datagram = self._protect(
+            encode_header(_ACK, self._sent.next_seq, ack, sack, hold),
+            bytes(self.config.ack_size - HEADER_SIZE),
+        )
         self._stats.sent.ack_packets += 1
-        self._count_sent(len(datagram), now)
+        self._count_sent(len(datagram), now, self._overhead)
         out.append((datagram, peer))
 
     def _emit_control(
-        self, out: list[tuple[bytes, Address]], datagram: bytes, addr: Address, now: float
+        self,
+        out: list[tuple[bytes, Address]],
+        datagram: bytes,
+        addr: Address,
+        now: float,
+        protection: int,
     ) -> None:
         sent = self._stats.sent
         sent.control_packets += 1
-        sent.payload_bytes += len(datagram) - HEADER_SIZE
-        self._count_sent(len(datagram), now)
+        sent.payload_bytes += len(datagram) - HEADER_SIZE - protection
+        self._count_sent(len(datagram), now, protection)
         out.append((datagram, addr))
 
-    def _count_sent(self, size: int, now: float) -> None:
+    def _count_sent(self, size: int, now: float, protection: int) -> None:
         sent = self._stats.sent
         sent.datagrams += 1
         sent.bytes += size
         sent.header_bytes += HEADER_SIZE
+        sent.protection_bytes += protection
         self._last_send = now
 
     # ------------------------------------------------------------------ helpers
 
     def _queue_open_ack(self) -> None:
-        assert self._peer is not None
-        flags = OpenFlags.SEPARATE_ACKS if self._ack_mode is AckMode.SEPARATE else 0
-        self._control_out.append(
-            (
-                encode_header(_CONTROL, self._sent.next_seq, 0, 0, HOLD_NO_ACK)
-                + encode_open(
-                    ControlCode.OPEN_ACK,
-                    PROTOCOL_VERSION,
-                    int(flags),
-                    self._nonce,
-                    self.config.max_payload,
-                ),
-                self._peer,
+        sealer = self._sealer
+        number = sealer.take_number() if sealer is not None else 0
+        datagram = encode_header(
+            _CONTROL, self._sent.next_seq, 0, 0, HOLD_NO_ACK
+        ) + encode_open_ack(
+            OpenAckBody(
+                PROTOCOL_VERSION,
+                self._open_flags(),
+                int(self._suite),
+                self.config.max_payload,
+                number & 0xFFFF,
+                self._master_nonce,
+                self._slave_nonce,
             )
         )
+        if sealer is not None:
+            datagram += sealer.tag(number, datagram)
+        self._control_out.append((datagram, self._peer_address(), self._tag_size()))
 
     def _queue_close(self, reason: CloseReason, addr: Address) -> None:
-        self._control_out.append(
-            (
-                encode_header(_CONTROL, self._sent.next_seq, 0, 0, HOLD_NO_ACK)
-                + encode_close(ControlCode.CLOSE, self._nonce, reason),
-                addr,
-            )
+        datagram = self._protect(
+            encode_header(_CONTROL, self._sent.next_seq, 0, 0, HOLD_NO_ACK) + _CLOSE_PREFIX,
+            encode_close(ControlCode.CLOSE, self._master_nonce, reason)[1:],
         )
+        self._control_out.append((datagram, addr, self._overhead))
 
     def _terminate(self, cause: CloseCause, detail: str) -> None:
         self._state = State.CLOSED
@@ -711,3 +1033,34 @@ def _reason_text(reason: int) -> str:
         return CloseReason(reason).name.lower()
     except ValueError:
         return f"reason code {reason}"
+
+
+_REJECT_TEXT = {
+    CloseReason.BUSY: "the slave serves as many masters as it may (max_peers) or its accept "
+    "backlog is full; try again later",
+    CloseReason.KEY_REQUIRED: "the slave accepts keyed sessions only; connect with key= "
+    "(--key-file) holding a key the slave knows",
+    CloseReason.KEY_UNKNOWN: "the slave does not hold this key (key id {key_id}), or accepts "
+    "unkeyed sessions only",
+    CloseReason.VERSION_UNSUPPORTED: f"the slave does not speak TDTP version {PROTOCOL_VERSION}",
+    CloseReason.PAYLOAD_TOO_SMALL: "the slave sends payloads larger than this master's "
+    "max_payload ({max_payload}); raise max_payload",
+    CloseReason.SUITE_UNSUPPORTED: "the slave does not implement the cipher suite {suite}",
+}
+
+
+def _reject_text(reason: int, conn: Connection) -> str:
+    """Why the slave refused us, in words a user can act on."""
+    try:
+        known = CloseReason(reason)
+    except ValueError:
+        return f"refused (reason code {reason})"
+    template = _REJECT_TEXT.get(known)
+    if template is None:
+        return known.name.lower()
+    key = conn.key
+    return template.format(
+        key_id=key.key_id.hex() if key is not None else "-",
+        max_payload=conn.config.max_payload,
+        suite=conn.config.cipher_suite.name,
+    )

@@ -17,3 +17,7 @@ class ConnectionClosedError(ConnectionStateError):
 
 class PayloadTooLargeError(TdtpError, ValueError):
     """A payload exceeds the connection's maximum; split it or raise ``max_payload`` on both ends."""
+
+
+class InvalidKeyError(TdtpError, ValueError):
+    """Key material or a key argument is unusable: too short, malformed, or given to the wrong role."""

@@ -20,7 +20,11 @@ class CloseCause(enum.Enum):
     OPEN_TIMEOUT = "open_timeout"
     """The master's OPEN was never answered."""
     REJECTED = "rejected"
-    """The slave refused the OPEN (for instance an unsupported protocol version)."""
+    """The slave refused the OPEN (busy, unknown key, unsupported version, ...): the detail says why."""
+    REPLACED = "replaced"
+    """The same master opened a new connection (it restarted): this older one is over."""
+    KEY_EXHAUSTED = "key_exhausted"
+    """A keyed session protected as many packets as its keys may (or saw too many forgeries)."""
 
 
 @dataclass(frozen=True, slots=True)

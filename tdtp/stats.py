@@ -38,6 +38,16 @@ class DropReason(enum.Enum):
     """A control packet of another (earlier) connection: a replay or a stale retransmission."""
     UNEXPECTED_CONTROL = "unexpected_control"
     """A well-formed control packet that makes no sense in this state or role."""
+    UNVALIDATED = "unvalidated"
+    """An OPEN without a valid cookie: answered with a COOKIE, nothing kept (address validation)."""
+    REFUSED = "refused"
+    """An OPEN from a validated address that was answered with REJECT (busy, unknown key, ...)."""
+    RATE_LIMITED = "rate_limited"
+    """An OPEN over its source's rate, or one the slave's reply budget could not answer."""
+    UNAUTHENTICATED = "unauthenticated"
+    """Keyed session: the authentication tag did not verify (forged, corrupted, or another key)."""
+    REPLAYED = "replayed"
+    """Keyed session: a packet number already accepted, or too old to check (replayed)."""
 
 
 @dataclass(slots=True)
@@ -51,6 +61,8 @@ class DirectionStats:
     data_packets: int = 0
     ack_packets: int = 0
     control_packets: int = 0
+    protection_bytes: int = 0
+    """Keyed sessions: bytes of packet numbers and authentication tags (18 per protected datagram)."""
 
 
 @dataclass(slots=True)

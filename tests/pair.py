@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from tdtp import Connection, ConnectionConfig, DataReceived, Event, Role
+from tdtp.protection.keys import KeyInput, KeysInput
 
 MASTER_ADDR = ("192.0.2.1", 40001)
 SLAVE_ADDR = ("192.0.2.2", 40002)
@@ -40,9 +41,11 @@ class Direction:
     dropped: int = 0
     wire: list[bytes] = field(default_factory=list)
     keep_wire: bool = False
+    rewrite: Callable[[int, bytes], bytes] | None = None
+    """An on-path attacker: what datagram ``index`` becomes on its way (after ``wire`` saw it)."""
 
-    def admit(self, datagram: bytes) -> float | None:
-        """The datagram's one-way delay, or None if the rule drops it."""
+    def admit(self, datagram: bytes) -> tuple[float, bytes] | None:
+        """The datagram's one-way delay and what arrives, or None if the rule drops it."""
         index = self.datagrams
         self.datagrams += 1
         if self.keep_wire:
@@ -50,7 +53,9 @@ class Direction:
         if self.drop(index):
             self.dropped += 1
             return None
-        return self.delay + self.extra_delay(index)
+        if self.rewrite is not None:
+            datagram = self.rewrite(index, datagram)
+        return self.delay + self.extra_delay(index), datagram
 
 
 @dataclass
@@ -81,13 +86,18 @@ class Pair:
         ms: Direction | None = None,
         sm: Direction | None = None,
         seed: int = 1,
+        master_key: KeyInput | None = None,
+        slave_keys: KeysInput | None = None,
     ) -> None:
+        """``master_key`` and ``slave_keys`` make a keyed pair (pass the same key to both)."""
         self.now = 0.0
         self.master = Endpoint(
-            Connection(master_config, role=Role.MASTER, rng=random.Random(seed)), MASTER_ADDR
+            Connection(master_config, role=Role.MASTER, rng=random.Random(seed), key=master_key),
+            MASTER_ADDR,
         )
         self.slave = Endpoint(
-            Connection(slave_config, role=Role.SLAVE, rng=random.Random(seed + 1)), SLAVE_ADDR
+            Connection(slave_config, role=Role.SLAVE, rng=random.Random(seed + 1), keys=slave_keys),
+            SLAVE_ADDR,
         )
         self.ms = ms if ms is not None else Direction()
         self.sm = sm if sm is not None else Direction()
@@ -197,10 +207,11 @@ class Pair:
         to_slave = endpoint is self.master
         direction = self.ms if to_slave else self.sm
         for data, _addr in endpoint.conn.datagrams_to_send(now=self.now):
-            delay = direction.admit(data)
-            if delay is not None:
+            admitted = direction.admit(data)
+            if admitted is not None:
+                delay, arriving = admitted
                 self._order += 1
-                heapq.heappush(self._in_flight, (self.now + delay, self._order, data, to_slave))
+                heapq.heappush(self._in_flight, (self.now + delay, self._order, arriving, to_slave))
 
     def inject(self, data: bytes, *, to_slave: bool, source: tuple[str, int]) -> None:
         """Hand a crafted datagram to one side now, as if it came from ``source``."""

@@ -13,15 +13,25 @@ from tdtp.wire import (
     PROTOCOL_VERSION,
     CloseReason,
     ControlCode,
+    OpenAckBody,
+    OpenBody,
     PacketType,
     encode_close,
     encode_header,
     encode_open,
+    encode_open_ack,
 )
 
 from pair import MASTER_ADDR, SLAVE_ADDR, Pair
 
 STRANGER = ("198.51.100.7", 666)
+OTHER_NONCE = bytes(range(16))
+CONTROL_HEADER = encode_header(2, 0, 0, 0, 255)
+
+
+def _open(nonce: bytes = OTHER_NONCE, cookie: bytes = bytes(16), version: int = 2) -> bytes:
+    body = OpenBody(version, 0, 0, 1200, 0, nonce, bytes(8), cookie)
+    return CONTROL_HEADER + encode_open(body)
 
 
 def _established() -> Pair:
@@ -48,19 +58,18 @@ def _drops(pair: Pair) -> dict[str, int]:
         (encode_header(2, 0, 0, 0, 255) + b"\x09", MASTER_ADDR, "bad_control"),
         (encode_header(2, 0, 0, 0, 255) + b"\x04" + bytes(3), MASTER_ADDR, "bad_control"),
         (
-            encode_header(2, 0, 0, 0, 255) + encode_close(ControlCode.CLOSE, 12345, 0),
+            CONTROL_HEADER + encode_close(ControlCode.CLOSE, OTHER_NONCE, 0),
             MASTER_ADDR,
             "nonce_mismatch",
         ),
+        # An OPEN without a cookie: answered with a COOKIE, nothing kept.
+        (_open(), MASTER_ADDR, "unvalidated"),
+        (_open(), STRANGER, "wrong_address"),
         (
-            encode_header(2, 0, 0, 0, 255)
-            + encode_open(ControlCode.OPEN, PROTOCOL_VERSION, 0, 777, 1200),
-            MASTER_ADDR,
-            "nonce_mismatch",
-        ),
-        (
-            encode_header(2, 0, 0, 0, 255)
-            + encode_open(ControlCode.OPEN_ACK, PROTOCOL_VERSION, 0, 777, 1200),
+            CONTROL_HEADER
+            + encode_open_ack(
+                OpenAckBody(PROTOCOL_VERSION, 0, 0, 1200, 0, OTHER_NONCE, OTHER_NONCE)
+            ),
             MASTER_ADDR,
             "unexpected_control",
         ),
@@ -103,18 +112,36 @@ def test_replayed_data_is_a_duplicate() -> None:
     assert _drops(pair).get("stale") == 1
 
 
+def test_open_from_the_masters_address_with_a_valid_cookie_cannot_end_a_live_session() -> None:
+    """A replayed or forged OPEN (another nonce, even with a valid cookie) while the master is
+    talking: dropped. Only a session that has gone quiet is replaced (test_restart_*)."""
+    pair = _established()
+    admission = pair.slave.conn.admission
+    assert admission is not None
+    cookie = admission._cookies.mint(MASTER_ADDR, OTHER_NONCE, pair.now)
+    pair.inject(_open(cookie=cookie), to_slave=True, source=MASTER_ADDR)
+    assert _drops(pair).get("nonce_mismatch") == 1
+    pair.run_for(0.2)
+    assert pair.established
+
+
 def test_unknown_version_open_is_rejected_and_the_master_told() -> None:
     slave = Connection(role=Role.SLAVE, rng=random.Random(1))
-    slave.receive_datagram(
-        encode_header(2, 0, 0, 0, 255) + encode_open(ControlCode.OPEN, 99, 0, 5, 1200),
-        MASTER_ADDR,
-        now=0.0,
-    )
+    slave.receive_datagram(_open(version=99), MASTER_ADDR, now=0.0)
     assert slave.stats.drops == {"unknown_version": 1}
     assert slave.state is State.LISTENING
     ((reply, addr),) = slave.datagrams_to_send(now=0.0)
     assert addr == MASTER_ADDR
     assert reply[5] == ControlCode.REJECT and reply[-1] == CloseReason.VERSION_UNSUPPORTED
+    assert reply[6:22] == OTHER_NONCE
+
+
+def test_a_version_1_open_gets_nothing_larger_than_itself() -> None:
+    """Version 1's OPEN was 18 bytes; a REJECT is 23: no answer at all (no amplification)."""
+    slave = Connection(role=Role.SLAVE, rng=random.Random(1))
+    slave.receive_datagram(CONTROL_HEADER + bytes([1, 1, 0]) + bytes(10), MASTER_ADDR, now=0.0)
+    assert slave.stats.drops == {"unknown_version": 1}
+    assert slave.datagrams_to_send(now=0.0) == []
 
 
 def test_data_before_the_open_and_after_the_close_is_dropped() -> None:

@@ -27,11 +27,17 @@ def _closed(events: list[object]) -> list[ConnectionClosed]:
     return [e for e in events if isinstance(e, ConnectionClosed)]
 
 
-def test_open_establishes_both_sides_in_one_round_trip() -> None:
+def test_open_validates_the_address_then_establishes_both_sides() -> None:
+    """OPEN, COOKIE, OPEN with the cookie, OPEN_ACK: the master is established after two round
+    trips (40 ms); the slave half a round trip later, when the master's first packet of the session
+    confirms it got the OPEN_ACK."""
     pair = Pair()
+    pair.ms.keep_wire = pair.sm.keep_wire = True
     pair.open()
     assert pair.established
-    assert pair.now == pytest.approx(0.020)
+    assert pair.now == pytest.approx(0.050)
+    codes = [d[5] for d in pair.ms.wire] + [d[5] for d in pair.sm.wire]
+    assert codes == [1, 1, 3, 6, 2]  # OPEN, OPEN+cookie, KEEPALIVE; COOKIE, OPEN_ACK
     assert pair.master.events == [ConnectionEstablished(SLAVE_ADDR)]
     assert pair.slave.events == [ConnectionEstablished(MASTER_ADDR)]
     assert pair.slave.conn.peer == MASTER_ADDR
@@ -41,14 +47,15 @@ def test_lost_open_is_retransmitted() -> None:
     pair = Pair(ms=Direction(drop=lambda i: i < 3))
     pair.open()
     assert pair.established
-    assert pair.now == pytest.approx(3 * 0.25 + 0.020)
+    assert pair.now == pytest.approx(3 * 0.25 + 0.050)
 
 
 def test_lost_open_ack_is_answered_again() -> None:
-    pair = Pair(sm=Direction(drop=lambda i: i == 0))
+    pair = Pair(sm=Direction(drop=lambda i: i == 1))  # 0 is the COOKIE, 1 the OPEN_ACK
     pair.open()
     assert pair.established
-    assert pair.slave.conn.stats.received.control_packets == 2  # the OPEN and its retransmission
+    # The OPEN with the cookie, its retransmission, and the master's confirming KEEPALIVE.
+    assert pair.slave.conn.stats.received.control_packets == 3
 
 
 def test_unanswered_open_times_out() -> None:
@@ -67,7 +74,8 @@ def test_keepalives_hold_a_silent_connection_open() -> None:
     pair.run_for(10.0)
     assert pair.established
     for endpoint in (pair.master, pair.slave):
-        assert 35 <= endpoint.conn.stats.sent.control_packets <= 42
+        # One KEEPALIVE per 0.25 s of silence (40), plus the handshake's two or three.
+        assert 40 <= endpoint.conn.stats.sent.control_packets <= 44
 
 
 def test_peer_that_disappears_is_reported_within_the_idle_timeout() -> None:

@@ -10,17 +10,21 @@ from __future__ import annotations
 import asyncio
 import random
 import socket
+from collections import deque
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 
+from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
 from tdtp.aio.endpoint import DataCallback, Endpoint, EndpointClosedError
 from tdtp.aio.impairment import ImpairedTransport
 from tdtp.aio.timer import monotonic
 from tdtp.config import ConnectionConfig, Role
-from tdtp.connection import Connection, State
+from tdtp.connection import Connection
+from tdtp.errors import InvalidKeyError
 from tdtp.events import Address
 from tdtp.netem import NetemSpec
-from tdtp.wire.control import ControlCode
+from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
+from tdtp.wire.control import CloseReason, ControlCode
 from tdtp.wire.header import HEADER_SIZE, PacketType
 
 _CONTROL_TYPE_BITS = int(PacketType.CONTROL) << 6
@@ -61,11 +65,16 @@ async def connect(
     rng: random.Random | None = None,
     netem: NetemSpec | str | None = None,
     netem_seed: int | None = None,
+    key: KeyInput | None = None,
 ) -> Endpoint:
     """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
 
     Use it as ``async with await tdtp.aio.connect(host, port) as ep:``. Raises :class:`ConnectError`
     when the slave does not answer within ``config.open_timeout`` or refuses.
+
+    ``key`` (a :class:`~tdtp.PresharedKey` or its secret bytes) opens a keyed session: every
+    datagram authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must
+    hold the same key.
 
     ``netem`` impairs everything this master sends, in tc-netem's language
     (``"delay 20ms 5ms loss 1%"``), emulated in-process (see :mod:`tdtp.aio.impairment`).
@@ -83,7 +92,7 @@ async def connect(
         local_addr=local_addr,
         family=family,
     )
-    conn = Connection(config, role=Role.MASTER, rng=rng)
+    conn = Connection(config, role=Role.MASTER, rng=rng, key=key)
     sender: asyncio.DatagramTransport | ImpairedTransport = transport
     if netem is not None:
         sender = ImpairedTransport(transport, netem, seed=netem_seed, timer=timer)
@@ -113,12 +122,14 @@ class ServerStats:
     """What the listening socket saw outside any connection."""
 
     datagrams_unattached: int = 0
-    """Datagrams from addresses without a connection that were not a valid OPEN."""
+    """Datagrams from addresses without a connection that were not an OPEN."""
     peers_refused: int = 0
-    """OPENs turned away because ``max_peers`` connections were already open."""
+    """Admitted OPENs answered with REJECT ``BUSY``: ``max_peers`` connections were open, or the
+    accept backlog was full."""
     peers_accepted: int = 0
-    drops: dict[str, int] = field(default_factory=dict)
-    """Drops by connections that were created for an OPEN and never established."""
+    """Connections established (the master confirmed the session)."""
+    admission: AdmissionStats = field(default_factory=AdmissionStats)
+    """The front door: OPENs seen, cookies and rejects sent, drops by reason, bytes in and out."""
 
 
 class _ServerProtocol(asyncio.DatagramProtocol):
@@ -134,28 +145,42 @@ class _ServerProtocol(asyncio.DatagramProtocol):
 
 class Server:
     """A slave's listening socket. Iterate it (``async for endpoint in server``) or call
-    :meth:`accept` to get an endpoint for each master that connects."""
+    :meth:`accept` to get an endpoint for each master that connects.
+
+    Every OPEN goes through one shared :class:`~tdtp.admission.Admission`: no state is kept for a
+    master until it proves it receives at its address (a cookie) and, on a keyed server, holds a key
+    of the ring. A validated master finds the server full (``max_peers`` connections, or ``backlog``
+    established ones nobody accepted yet) is refused at once with REJECT ``BUSY``.
+    """
 
     def __init__(
         self,
         *,
         config: ConnectionConfig | None,
         max_peers: int,
+        backlog: int,
         timer: str,
         on_data: DataCallback | None,
+        keys: KeyRing | None,
     ) -> None:
         if max_peers < 1:
             raise ValueError(f"max_peers must be at least 1, got {max_peers}")
+        if backlog < 1:
+            raise ValueError(f"backlog must be at least 1, got {backlog}")
         self._config = config
         self._max_peers = max_peers
+        self._backlog = backlog
         self._timer = timer
         self._on_data = on_data
+        self._admission = Admission(config, keys)
         self._transport: asyncio.DatagramTransport | None = None
         self._sender: asyncio.DatagramTransport | ImpairedTransport | None = None
         self._peers: dict[tuple[object, object], Endpoint] = {}
-        self._accepted: asyncio.Queue[Endpoint | None] = asyncio.Queue()
+        self._pending: deque[Endpoint] = deque()
+        """Endpoints of admitted masters nobody has accepted yet, opening or established."""
+        self._waiter: asyncio.Future[None] | None = None
         self._closed = False
-        self.stats = ServerStats()
+        self.stats = ServerStats(admission=self._admission.stats)
 
     @property
     def sockname(self) -> Address:
@@ -170,17 +195,38 @@ class Server:
         return int(self.sockname[1])
 
     @property
+    def keyed(self) -> bool:
+        """Whether this server accepts keyed sessions only."""
+        return self._admission.keys is not None
+
+    @property
     def endpoints(self) -> list[Endpoint]:
         """The masters connected (or connecting) now."""
         return list(self._peers.values())
 
     async def accept(self) -> Endpoint:
         """The next master's endpoint, once its connection is established."""
-        endpoint = await self._accepted.get()
-        if endpoint is None:
-            self._accepted.put_nowait(None)
-            raise ConnectionError("the server is closed")
-        return endpoint
+        loop = asyncio.get_running_loop()
+        while True:
+            endpoint = self._next_established()
+            if endpoint is not None:
+                return endpoint
+            if self._closed:
+                raise ConnectionError("the server is closed")
+            waiter = loop.create_future()
+            self._waiter = waiter
+            try:
+                await waiter
+            finally:
+                self._waiter = None
+
+    def _next_established(self) -> Endpoint | None:
+        pending = self._pending
+        for endpoint in pending:
+            if endpoint.established:
+                pending.remove(endpoint)
+                return endpoint
+        return None
 
     def __aiter__(self) -> AsyncIterator[Endpoint]:
         return self._iterate()
@@ -201,7 +247,7 @@ class Server:
             await endpoint.close()
         if self._sender is not None:
             self._sender.close()
-        self._accepted.put_nowait(None)
+        self._wake()
 
     async def __aenter__(self) -> Server:
         return self
@@ -211,23 +257,44 @@ class Server:
 
     # ------------------------------------------------------------------ internals
 
+    def _wake(self) -> None:
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
     def _datagram_received(self, data: bytes, addr: Address) -> None:
         key = _peer_key(addr)
         endpoint = self._peers.get(key)
         if endpoint is not None:
             endpoint.datagram_received(data, addr)
-            return
+            if key in self._peers or not _is_open(data):
+                return
+            # The connection ended on this OPEN: its master restarted and opens anew.
         if self._closed:
             return
-        # Only an OPEN may create state: anything else from an unknown address costs nothing.
-        if len(data) <= HEADER_SIZE or data[0] & 0xC0 != _CONTROL_TYPE_BITS or data[5] != _OPEN:
+        # Only an OPEN may lead to state, and only once admitted: anything else costs nothing.
+        if not _is_open(data):
             self.stats.datagrams_unattached += 1
             return
-        if len(self._peers) >= self._max_peers:
-            self.stats.peers_refused += 1
-            return
         assert self._sender is not None
-        conn = Connection(self._config, role=Role.SLAVE)
+        now = monotonic()
+        verdict = self._admission.admit(data, addr, now)
+        if isinstance(verdict, Reply):
+            self._sender.sendto(verdict.datagram, addr)
+        elif isinstance(verdict, AdmittedOpen):
+            self._open(verdict, key, addr, now)
+
+    def _open(
+        self, admitted: AdmittedOpen, key: tuple[object, object], addr: Address, now: float
+    ) -> None:
+        assert self._sender is not None
+        if len(self._peers) >= self._max_peers or (
+            self._on_data is None and len(self._pending) >= self._backlog
+        ):
+            self.stats.peers_refused += 1
+            self._sender.sendto(self._admission.reject(admitted, CloseReason.BUSY), addr)
+            return
+        conn = Connection(self._config, role=Role.SLAVE, admission=self._admission)
         endpoint = Endpoint(
             conn,
             self._sender,
@@ -235,23 +302,32 @@ class Server:
             timer=self._timer,
             on_data=self._on_data,
             on_closed=self._forget,
+            on_established=self._on_established,
         )
         self._peers[key] = endpoint
-        endpoint.datagram_received(data, addr)
-        if conn.state is State.ESTABLISHED:
-            self.stats.peers_accepted += 1
-            self._accepted.put_nowait(endpoint)
-        elif conn.state is not State.CLOSED:
-            # An OPEN the connection refused (unknown version, malformed): keep no state for it.
-            for reason, count in conn.stats.drops.items():
-                self.stats.drops[reason] = self.stats.drops.get(reason, 0) + count
-            del self._peers[key]
-            endpoint._release()
+        pending = self._pending
+        if len(pending) >= self._backlog:
+            # Callback style (on_data): the session is served either way; accept() sees the
+            # newest ``backlog`` ones.
+            pending.popleft()
+        pending.append(endpoint)
+        conn.accept_open(admitted, addr, now=now)
+        endpoint._flush(now)
+
+    def _on_established(self, endpoint: Endpoint) -> None:
+        self.stats.peers_accepted += 1
+        self._wake()
 
     def _forget(self, endpoint: Endpoint) -> None:
         peer = endpoint.peer
         if peer is not None and self._peers.get(_peer_key(peer)) is endpoint:
             del self._peers[_peer_key(peer)]
+        if endpoint in self._pending:
+            self._pending.remove(endpoint)
+
+
+def _is_open(data: bytes) -> bool:
+    return len(data) > HEADER_SIZE and data[0] & 0xC0 == _CONTROL_TYPE_BITS and data[5] == _OPEN
 
 
 async def listen(
@@ -260,19 +336,41 @@ async def listen(
     *,
     config: ConnectionConfig | None = None,
     max_peers: int = 256,
+    backlog: int = 16,
     timer: str = "auto",
     on_data: DataCallback | None = None,
     netem: NetemSpec | str | None = None,
     netem_seed: int | None = None,
+    key: KeyInput | None = None,
+    keys: KeysInput | None = None,
 ) -> Server:
     """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
 
     Use it as ``async with await tdtp.aio.listen(host, port) as server: async for ep in server: ...``.
-    At most ``max_peers`` masters are served at once; further OPENs are ignored and counted.
+    At most ``max_peers`` masters are served at once, and at most ``backlog`` established ones wait
+    for :meth:`Server.accept` (with ``on_data`` the sessions are served anyway and accept() sees the
+    newest ``backlog``); a master beyond either is refused at once (REJECT ``BUSY``).
+
+    ``key`` (one pre-shared key) or ``keys`` (a :class:`~tdtp.KeyRing`, several keys, or a mapping
+    of master name to secret) makes the server keyed: it accepts only masters holding one of the
+    keys, and every datagram of their sessions is authenticated. Without keys anyone who can reach
+    the port can open a session.
+
     ``netem`` impairs everything the slave sends (all its masters share the one emulated link).
     """
+    if key is not None and keys is not None:
+        raise InvalidKeyError("pass key= (one key) or keys= (several), not both")
+    chosen = keys if keys is not None else key
+    ring = as_key_ring(chosen) if chosen is not None else None
     loop = asyncio.get_running_loop()
-    server = Server(config=config, max_peers=max_peers, timer=timer, on_data=on_data)
+    server = Server(
+        config=config,
+        max_peers=max_peers,
+        backlog=backlog,
+        timer=timer,
+        on_data=on_data,
+        keys=ring,
+    )
     family = socket.AF_INET6 if host is not None and ":" in host else socket.AF_UNSPEC
     transport, _ = await loop.create_datagram_endpoint(
         lambda: _ServerProtocol(server), local_addr=(host or "0.0.0.0", port), family=family

@@ -46,6 +46,7 @@ class Endpoint:
         timer: str = "auto",
         on_data: DataCallback | None = None,
         on_closed: Callable[[Endpoint], None] | None = None,
+        on_established: Callable[[Endpoint], None] | None = None,
     ) -> None:
         self._conn = conn
         self._transport = transport
@@ -55,6 +56,7 @@ class Endpoint:
         self._timer: DeadlineTimer = create_timer(loop, self._on_timer, prefer=timer)
         self._on_data = on_data
         self._on_closed = on_closed
+        self._on_established = on_established
         self._queue: deque[DataReceived] = deque()
         self._max_queue = conn.config.max_pending_events
         self._waiter: asyncio.Future[None] | None = None
@@ -84,6 +86,11 @@ class Endpoint:
     def timer_kind(self) -> str:
         """Which deadline timer paces this endpoint: ``"timerfd"`` or ``"call_at"``."""
         return self._timer.kind
+
+    @property
+    def established(self) -> bool:
+        """Whether the association was established (it may have closed since)."""
+        return self._established.done() and self._established.exception() is None
 
     @property
     def is_closed(self) -> bool:
@@ -212,6 +219,9 @@ class Endpoint:
             elif isinstance(event, ConnectionEstablished):
                 if not self._established.done():
                     self._established.set_result(None)
+                if self._on_established is not None:
+                    callback, self._on_established = self._on_established, None
+                    callback(self)
             else:
                 self._close_event = event
                 if not self._closed.done():

@@ -1,17 +1,26 @@
-"""The TDTP wire format: the 5-byte header, hold-time code, sequence expansion and control bodies."""
+"""The TDTP wire format: the 5-byte header, hold-time code, sequence expansion, control bodies and
+the keyed packet layout's sizes."""
 
 from tdtp.wire.control import (
+    COOKIE_SIZE,
+    KEY_ID_SIZE,
+    NONCE_SIZE,
     PROTOCOL_VERSION,
+    CipherSuite,
     CloseBody,
     CloseReason,
     ControlCode,
+    CookieBody,
     KeepaliveBody,
+    OpenAckBody,
     OpenBody,
     OpenFlags,
     decode_control,
     encode_close,
+    encode_cookie,
     encode_keepalive,
     encode_open,
+    encode_open_ack,
 )
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import (
@@ -23,22 +32,32 @@ from tdtp.wire.header import (
     encode_header,
 )
 from tdtp.wire.hold import HOLD_MAX, HOLD_NO_ACK, HOLD_SATURATED, decode_hold, encode_hold
+from tdtp.wire.protected import PN_SIZE, PROTECTION_OVERHEAD, TAG_SIZE
 from tdtp.wire.seqnum import SEQ_MODULUS, expand_seq, serial_lt
 
 __all__ = [
+    "COOKIE_SIZE",
     "HEADER_SIZE",
     "HOLD_MAX",
     "HOLD_NO_ACK",
     "HOLD_SATURATED",
+    "KEY_ID_SIZE",
+    "NONCE_SIZE",
+    "PN_SIZE",
+    "PROTECTION_OVERHEAD",
     "PROTOCOL_VERSION",
     "RESERVED_TYPE",
     "SEQ_MODULUS",
+    "TAG_SIZE",
+    "CipherSuite",
     "CloseBody",
     "CloseReason",
     "ControlCode",
+    "CookieBody",
     "Header",
     "KeepaliveBody",
     "MalformedPacketError",
+    "OpenAckBody",
     "OpenBody",
     "OpenFlags",
     "PacketType",
@@ -46,10 +65,12 @@ __all__ = [
     "decode_header",
     "decode_hold",
     "encode_close",
+    "encode_cookie",
     "encode_header",
     "encode_hold",
     "encode_keepalive",
     "encode_open",
+    "encode_open_ack",
     "expand_seq",
     "serial_lt",
 ]

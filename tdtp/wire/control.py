@@ -1,44 +1,89 @@
-"""Bodies of CONTROL packets: open, accept, keep-alive, close and reject.
+"""Bodies of CONTROL packets: the opening handshake, keep-alive, close and reject.
 
 A CONTROL datagram is the 5-byte base header (TYPE = CONTROL) followed by a one-byte code and a
-code-specific fixed-size body. Control packets are rare (a handful per connection plus one keep-alive per
-idle interval), so they carry what the data path leaves out: the protocol version and a 64-bit
-connection nonce that ties every control packet to one connection and makes replays from an earlier
-connection on the same addresses detectable.
+code-specific body. Control packets are rare (a handful per connection plus one keep-alive per idle
+interval), so they carry what the data path leaves out: the protocol version, 128-bit nonces that tie
+every control packet to one connection, the address-validation cookie and, in a keyed session, the key
+identifier and the authentication tag.
+
+Two kinds of control packet exist:
+
+* **Handshake messages** (OPEN, COOKIE, OPEN_ACK, REJECT) have fixed layouts with every field in the
+  clear, because the receiver needs them before it has session keys. In a keyed session OPEN and
+  OPEN_ACK end in a 16-byte AEAD tag over everything before it (``KEYED`` flag).
+* **Session control** (KEEPALIVE, CLOSE) uses the session's packet protection when keyed, exactly like
+  DATA and ACK: ``header | code | PN | sealed body | tag`` (``tdtp.protection``). Unkeyed, it is
+  ``header | code | body``.
+
+The code byte is always the sixth byte of a CONTROL datagram, in both modes, so a receiver can tell a
+handshake message from session control before it decides how to read the rest.
 """
 
 from __future__ import annotations
 
 import enum
 import struct
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from tdtp.wire.errors import MalformedPacketError
+from tdtp.wire.protected import TAG_SIZE
 
-PROTOCOL_VERSION = 1
-"""The only version this implementation speaks."""
+PROTOCOL_VERSION: Final = 2
+"""The only version this implementation speaks (version 1 had no cookie and no keyed mode)."""
+
+NONCE_SIZE: Final = 16
+"""Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
+COOKIE_SIZE: Final = 16
+"""Bytes of an address-validation cookie (opaque to the master)."""
+KEY_ID_SIZE: Final = 8
+"""Bytes of a pre-shared key's public identifier (``tdtp.protection.keys``)."""
+NO_COOKIE: Final = bytes(COOKIE_SIZE)
+NO_KEY_ID: Final = bytes(KEY_ID_SIZE)
 
 
 class ControlCode(enum.IntEnum):
     OPEN = 1
-    """master -> slave: version, flags, nonce, maximum payload the master accepts."""
+    """master -> slave: version, flags, cipher suite, max payload, nonce, key id, cookie."""
     OPEN_ACK = 2
-    """slave -> master: the same fields; the nonce echoes the master's."""
+    """slave -> master, once the OPEN carried a valid cookie: both nonces and the slave's max payload."""
     KEEPALIVE = 3
     """either way, only after ``keepalive_interval`` with nothing else sent."""
     CLOSE = 4
-    """either way: nonce and a reason code; the connection is over."""
+    """either way: the connection is over (reason code)."""
     REJECT = 5
-    """slave -> master: nonce and a reason code; the OPEN was refused."""
+    """slave -> master: the OPEN was refused (reason code). Never answers an OPEN without a valid
+    cookie, except for an unsupported version."""
+    COOKIE = 6
+    """slave -> master: echo this cookie in the OPEN to prove you receive at your address. Sent
+    statelessly, and never larger than the OPEN it answers."""
+
+
+HANDSHAKE_CODES: Final = frozenset(
+    {ControlCode.OPEN, ControlCode.OPEN_ACK, ControlCode.REJECT, ControlCode.COOKIE}
+)
+"""Codes whose fields travel in the clear; KEEPALIVE and CLOSE are sealed in a keyed session."""
 
 
 class OpenFlags(enum.IntFlag):
     NONE = 0
     SEPARATE_ACKS = 0x01
     """The connection runs in separate-ACK (Trinomial) mode instead of bidirectional (TDTP) mode."""
+    KEYED = 0x02
+    """Pre-shared-key session: OPEN and OPEN_ACK end in a tag, every later packet is protected."""
+    ENCRYPTED = 0x04
+    """Keyed session whose payloads are encrypted (otherwise only authenticated). Needs KEYED."""
 
 
-KNOWN_FLAGS = int(OpenFlags.SEPARATE_ACKS)
+KNOWN_FLAGS: Final = int(OpenFlags.SEPARATE_ACKS | OpenFlags.KEYED | OpenFlags.ENCRYPTED)
+
+
+class CipherSuite(enum.IntEnum):
+    NONE = 0
+    """Unkeyed session."""
+    AES_128_GCM = 1
+    """AES-128 in GCM mode, 128-bit tag: fastest where the CPU has AES instructions (the default)."""
+    CHACHA20_POLY1305 = 2
+    """ChaCha20-Poly1305 (RFC 8439), 128-bit tag: fast in software on any CPU."""
 
 
 class CloseReason(enum.IntEnum):
@@ -47,19 +92,77 @@ class CloseReason(enum.IntEnum):
     PROTOCOL_ERROR = 2
     VERSION_UNSUPPORTED = 3
     REFUSED = 4
+    BUSY = 5
+    """The slave serves as many masters as it may (``max_peers``) or its accept backlog is full."""
+    KEY_REQUIRED = 6
+    """The slave accepts keyed sessions only and the OPEN had no key."""
+    KEY_UNKNOWN = 7
+    """The OPEN names a key the slave does not hold (or the slave holds no keys at all)."""
+    PAYLOAD_TOO_SMALL = 8
+    """The OPEN's max_payload is below the smallest payload the slave must be able to send."""
+    SUITE_UNSUPPORTED = 9
+    """The OPEN asks for a cipher suite the slave does not implement."""
+    REPLACED = 10
+    """The same master opened a new connection; this older one is over."""
+    KEY_EXHAUSTED = 11
+    """The session sent as many packets as its keys may protect; open a new connection."""
 
 
 class OpenBody(NamedTuple):
-    code: ControlCode
+    """OPEN (master -> slave)."""
+
     version: int
     flags: int
-    nonce: int
+    suite: int
     max_payload: int
+    attempt: int
+    """Counts the master's OPEN transmissions; the AEAD nonce of a keyed OPEN's tag."""
+    nonce: bytes
+    key_id: bytes
+    cookie: bytes
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.OPEN
+
+
+class OpenAckBody(NamedTuple):
+    """OPEN_ACK (slave -> master)."""
+
+    version: int
+    flags: int
+    suite: int
+    max_payload: int
+    packet_number: int
+    """Keyed: the slave's first packet number under the session keys (the tag's AEAD nonce)."""
+    nonce: bytes
+    """The master's nonce, echoed."""
+    slave_nonce: bytes
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.OPEN_ACK
+
+
+class CookieBody(NamedTuple):
+    """COOKIE (slave -> master)."""
+
+    version: int
+    nonce: bytes
+    """The master's nonce, echoed."""
+    cookie: bytes
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.COOKIE
 
 
 class CloseBody(NamedTuple):
+    """CLOSE (either way) and REJECT (slave -> master)."""
+
     code: ControlCode
-    nonce: int
+    nonce: bytes
+    """The master's nonce."""
     reason: int
 
 
@@ -67,20 +170,66 @@ class KeepaliveBody(NamedTuple):
     code: ControlCode
 
 
-ControlBody = OpenBody | CloseBody | KeepaliveBody
+ControlBody = OpenBody | OpenAckBody | CookieBody | CloseBody | KeepaliveBody
 
-_OPEN = struct.Struct(">BBBQH")  # code, version, flags, nonce, max_payload
-_CLOSE = struct.Struct(">BQB")  # code, nonce, reason
-OPEN_BODY_SIZE = _OPEN.size
-CLOSE_BODY_SIZE = _CLOSE.size
-KEEPALIVE_BODY_SIZE = 1
+# Layouts, byte offsets from the code byte (the first byte after the base header).
+_OPEN: Final = struct.Struct(
+    ">BBBBHH16s8s16s"
+)  # code version flags suite max_payload attempt nonce key_id cookie
+_OPEN_ACK: Final = struct.Struct(
+    ">BBBBHH16s16s"
+)  # code version flags suite max_payload pn nonce slave_nonce
+_COOKIE: Final = struct.Struct(">BB16s16s")  # code version nonce cookie
+_CLOSE: Final = struct.Struct(">B16sB")  # code nonce reason
+
+OPEN_BODY_SIZE: Final = _OPEN.size
+"""48 bytes: with the header an unkeyed OPEN is 53 bytes, a keyed one 69."""
+OPEN_ACK_BODY_SIZE: Final = _OPEN_ACK.size
+"""40 bytes: with the header an unkeyed OPEN_ACK is 45 bytes, a keyed one 61."""
+COOKIE_BODY_SIZE: Final = _COOKIE.size
+"""34 bytes: a COOKIE datagram is 39 bytes, smaller than the smallest OPEN (53)."""
+CLOSE_BODY_SIZE: Final = _CLOSE.size
+"""18 bytes: an unkeyed CLOSE or any REJECT is 23 bytes."""
+KEEPALIVE_BODY_SIZE: Final = 1
+CLOSE_FIELDS_SIZE: Final = CLOSE_BODY_SIZE - 1
+"""A CLOSE's body after the code byte (what a keyed session seals)."""
 
 
-def encode_open(code: ControlCode, version: int, flags: int, nonce: int, max_payload: int) -> bytes:
-    return _OPEN.pack(code, version, flags, nonce, max_payload)
+def encode_open(body: OpenBody) -> bytes:
+    """The OPEN body without the tag (a keyed sender appends it over header + body)."""
+    return _OPEN.pack(
+        ControlCode.OPEN,
+        body.version,
+        body.flags,
+        body.suite,
+        body.max_payload,
+        body.attempt,
+        body.nonce,
+        body.key_id,
+        body.cookie,
+    )
 
 
-def encode_close(code: ControlCode, nonce: int, reason: int) -> bytes:
+def encode_open_ack(body: OpenAckBody) -> bytes:
+    """The OPEN_ACK body without the tag (a keyed sender appends it over header + body)."""
+    return _OPEN_ACK.pack(
+        ControlCode.OPEN_ACK,
+        body.version,
+        body.flags,
+        body.suite,
+        body.max_payload,
+        body.packet_number,
+        body.nonce,
+        body.slave_nonce,
+    )
+
+
+def encode_cookie(nonce: bytes, cookie: bytes) -> bytes:
+    return _COOKIE.pack(ControlCode.COOKIE, PROTOCOL_VERSION, nonce, cookie)
+
+
+def encode_close(code: ControlCode, nonce: bytes, reason: int) -> bytes:
+    """A CLOSE or REJECT body (code byte included)."""
     return _CLOSE.pack(code, nonce, reason)
 
 
@@ -88,8 +237,23 @@ def encode_keepalive() -> bytes:
     return bytes((ControlCode.KEEPALIVE,))
 
 
+def _tagged(body: bytes | memoryview, flags: int, size: int, name: str) -> bytes | memoryview:
+    """The fixed part of a handshake body whose KEYED flag says whether a tag follows."""
+    expected = size + (TAG_SIZE if flags & OpenFlags.KEYED else 0)
+    if len(body) != expected:
+        raise MalformedPacketError(
+            "bad_control", f"{name} body is {len(body)} bytes, not {expected}"
+        )
+    return body[:size]
+
+
 def decode_control(body: bytes | memoryview) -> ControlBody:
-    """Decode the body after the base header; raises :class:`MalformedPacketError` on anything else."""
+    """Decode the body after the base header; raises :class:`MalformedPacketError` on anything else.
+
+    Handshake messages are checked in full (a keyed OPEN or OPEN_ACK must carry its tag, which is
+    not verified here). For KEEPALIVE and CLOSE this reads the *unprotected* form: a keyed session
+    removes the packet protection first.
+    """
     if not body:
         raise MalformedPacketError("bad_control", "control packet without a control code")
     raw = body[0]
@@ -97,20 +261,40 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
         code = ControlCode(raw)
     except ValueError:
         raise MalformedPacketError("bad_control", f"unknown control code {raw}") from None
-    if code in (ControlCode.OPEN, ControlCode.OPEN_ACK):
-        if len(body) != OPEN_BODY_SIZE:
+    if code is ControlCode.OPEN:
+        if len(body) < 3:
+            raise MalformedPacketError("bad_control", "OPEN body is too short for its flags")
+        fixed = _tagged(body, body[2], OPEN_BODY_SIZE, "OPEN")
+        _, version, flags, suite, max_payload, attempt, nonce, key_id, cookie = _OPEN.unpack(fixed)
+        return OpenBody(version, flags, suite, max_payload, attempt, nonce, key_id, cookie)
+    if code is ControlCode.OPEN_ACK:
+        if len(body) < 3:
+            raise MalformedPacketError("bad_control", "OPEN_ACK body is too short for its flags")
+        fixed = _tagged(body, body[2], OPEN_ACK_BODY_SIZE, "OPEN_ACK")
+        _, version, flags, suite, max_payload, pn, nonce, slave_nonce = _OPEN_ACK.unpack(fixed)
+        return OpenAckBody(version, flags, suite, max_payload, pn, nonce, slave_nonce)
+    if code is ControlCode.COOKIE:
+        if len(body) != COOKIE_BODY_SIZE:
             raise MalformedPacketError(
-                "bad_control", f"{code.name} body is {len(body)} bytes, not 13"
+                "bad_control", f"COOKIE body is {len(body)} bytes, not {COOKIE_BODY_SIZE}"
             )
-        _, version, flags, nonce, max_payload = _OPEN.unpack(body)
-        return OpenBody(code, version, flags, nonce, max_payload)
+        _, version, nonce, cookie = _COOKIE.unpack(body)
+        return CookieBody(version, nonce, cookie)
     if code in (ControlCode.CLOSE, ControlCode.REJECT):
         if len(body) != CLOSE_BODY_SIZE:
             raise MalformedPacketError(
-                "bad_control", f"{code.name} body is {len(body)} bytes, not 10"
+                "bad_control", f"{code.name} body is {len(body)} bytes, not {CLOSE_BODY_SIZE}"
             )
         _, nonce, reason = _CLOSE.unpack(body)
         return CloseBody(code, nonce, reason)
     if len(body) != KEEPALIVE_BODY_SIZE:
         raise MalformedPacketError("bad_control", f"KEEPALIVE body is {len(body)} bytes, not 1")
     return KeepaliveBody(code)
+
+
+def open_version(body: bytes | memoryview) -> int | None:
+    """The version byte of an OPEN body of any version (``None`` if it has none), so that an OPEN
+    this implementation cannot parse can still be answered with VERSION_UNSUPPORTED."""
+    if len(body) >= 2 and body[0] == ControlCode.OPEN:
+        return body[1]
+    return None

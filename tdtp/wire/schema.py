@@ -1,17 +1,37 @@
 """The TDTP wire format declared once with construct: the schema of record.
 
 This declaration is the readable, checkable statement of the format; the hot path uses the hand-written
-``struct`` codecs in ``header.py`` and ``control.py`` (49x faster to encode, 21x to decode a header: benchmarks/codec.py). The test suite
-proves that the two agree byte for byte on every header value and every control body.
+``struct`` codecs in ``header.py`` and ``control.py`` (49x faster to encode, 21x to decode a header:
+benchmarks/codec.py). The test suite proves that the two agree byte for byte on every header value, every
+control body and the keyed packet layout.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from construct import BitsInteger, BitStruct, Const, Int8ub, Int16ub, Int64ub, Struct, Switch
+from construct import (
+    BitsInteger,
+    BitStruct,
+    Bytes,
+    Const,
+    If,
+    Int8ub,
+    Int16ub,
+    Struct,
+    Switch,
+    this,
+)
+from construct.core import stream_size, stream_tell
 
-from tdtp.wire.control import ControlCode
+from tdtp.wire.control import (
+    COOKIE_SIZE,
+    KEY_ID_SIZE,
+    NONCE_SIZE,
+    ControlCode,
+    OpenFlags,
+)
+from tdtp.wire.protected import TAG_SIZE
 
 Header: Any = BitStruct(
     "ptype" / BitsInteger(2),
@@ -22,13 +42,35 @@ Header: Any = BitStruct(
 )
 """The 5-byte base header, most significant bit first."""
 
+_KEYED = int(OpenFlags.KEYED)
+
 OpenBody: Any = Struct(
     "version" / Int8ub,
     "flags" / Int8ub,
-    "nonce" / Int64ub,
+    "suite" / Int8ub,
     "max_payload" / Int16ub,
+    "attempt" / Int16ub,
+    "nonce" / Bytes(NONCE_SIZE),
+    "key_id" / Bytes(KEY_ID_SIZE),
+    "cookie" / Bytes(COOKIE_SIZE),
+    "tag" / If(this.flags & _KEYED, Bytes(TAG_SIZE)),
 )
-CloseBody: Any = Struct("nonce" / Int64ub, "reason" / Int8ub)
+"""OPEN: a keyed one (flag KEYED) ends in a tag over the header and everything before the tag."""
+
+OpenAckBody: Any = Struct(
+    "version" / Int8ub,
+    "flags" / Int8ub,
+    "suite" / Int8ub,
+    "max_payload" / Int16ub,
+    "packet_number" / Int16ub,
+    "nonce" / Bytes(NONCE_SIZE),
+    "slave_nonce" / Bytes(NONCE_SIZE),
+    "tag" / If(this.flags & _KEYED, Bytes(TAG_SIZE)),
+)
+CookieBody: Any = Struct(
+    "version" / Int8ub, "nonce" / Bytes(NONCE_SIZE), "cookie" / Bytes(COOKIE_SIZE)
+)
+CloseBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "reason" / Int8ub)
 
 ControlBody: Any = Struct(
     "code" / Int8ub,
@@ -37,11 +79,52 @@ ControlBody: Any = Struct(
         lambda ctx: ctx.code,
         {
             int(ControlCode.OPEN): OpenBody,
-            int(ControlCode.OPEN_ACK): OpenBody,
+            int(ControlCode.OPEN_ACK): OpenAckBody,
+            int(ControlCode.COOKIE): CookieBody,
             int(ControlCode.CLOSE): CloseBody,
             int(ControlCode.REJECT): CloseBody,
             int(ControlCode.KEEPALIVE): Const(b""),
         },
     ),
 )
-"""What follows the header in a CONTROL packet: a code byte, then a body that depends on the code."""
+"""What follows the header in an unkeyed CONTROL packet (and in any OPEN, OPEN_ACK, COOKIE or
+REJECT): a code byte, then a body that depends on the code."""
+
+
+def _remaining(ctx: Any) -> int:
+    """Bytes left in the datagram being parsed (when building, the length of the given field)."""
+    if ctx._parsing:
+        stream = ctx._io
+        return int(stream_size(stream) - stream_tell(stream, None))
+    return len(ctx.sealed) + TAG_SIZE
+
+
+ProtectedData: Any = Struct(
+    "header" / Header,
+    "packet_number" / Int16ub,
+    "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
+    "tag" / Bytes(TAG_SIZE),
+)
+"""A keyed session's DATA or ACK datagram: header, the low 16 bits of the packet number, the
+sealed payload (ciphertext, or plaintext when the session does not encrypt), the tag."""
+
+ProtectedControl: Any = Struct(
+    "header" / Header,
+    "code" / Int8ub,
+    "packet_number" / Int16ub,
+    "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
+    "tag" / Bytes(TAG_SIZE),
+)
+"""A keyed session's KEEPALIVE or CLOSE: as ProtectedData, with the control code in the clear
+after the header."""
+
+__all__ = [
+    "CloseBody",
+    "ControlBody",
+    "CookieBody",
+    "Header",
+    "OpenAckBody",
+    "OpenBody",
+    "ProtectedControl",
+    "ProtectedData",
+]

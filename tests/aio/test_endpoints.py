@@ -117,12 +117,15 @@ async def test_one_slave_serves_several_masters() -> None:
 
 
 @pytest.mark.asyncio
-async def test_max_peers_bounds_the_table() -> None:
-    async with await listen("127.0.0.1", 0, max_peers=1, config=FAST_TIMEOUTS) as server:
-        first = await connect("127.0.0.1", server.port, config=FAST_TIMEOUTS)
-        with pytest.raises(ConnectError, match=r"open_timeout"):
-            await connect("127.0.0.1", server.port, config=FAST_TIMEOUTS)
-        assert server.stats.peers_refused >= 1
+async def test_max_peers_bounds_the_table_and_a_full_slave_says_so_at_once() -> None:
+    async with await listen("127.0.0.1", 0, max_peers=1) as server:
+        first = await connect("127.0.0.1", server.port)
+        # Refused with an explicit REJECT BUSY after one cookie round trip, not after open_timeout.
+        with pytest.raises(ConnectError, match=r"max_peers") as refused:
+            await connect("127.0.0.1", server.port)
+        assert "rejected" in str(refused.value)
+        assert server.stats.peers_refused == 1
+        assert len(server.endpoints) == 1
         await first.close()
 
 

@@ -48,7 +48,10 @@ def test_paper_scenario_briefly() -> None:
             assert 0.013 < summary.mean_delay < 0.3  # 12 ms of propagation, up to 15 queued packets
         assert run.tcp["M->S"].goodput_kbps > 200 and run.tcp["S->M"].goodput_kbps > 200
     # Bidirectionality: TDTP's acknowledgements ride on the data, Trinomial sends one ACK per sample.
-    assert tdtp.connection["master"]["ack_packets_sent"] < 20
+    # (A stand-alone ACK goes out only when the master's own rate is held so low that an arrival
+    # waits ack_delay for a reverse packet: a few per cent of arrivals under this congestion.)
+    piggybacked = tdtp.summaries["S->M"]["all"].delivered_packets
+    assert tdtp.connection["master"]["ack_packets_sent"] < 0.05 * piggybacked
     received = trinomial.summaries["S->M"]["all"].delivered_packets
     assert trinomial.connection["master"]["ack_packets_sent"] >= 0.95 * received
     # The headline: with TCP congesting both ways, both controllers settle near eq. 2 in packets,

@@ -9,17 +9,28 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tdtp.wire import (
+    HEADER_SIZE,
+    PN_SIZE,
+    PROTECTION_OVERHEAD,
+    PROTOCOL_VERSION,
+    TAG_SIZE,
     CloseBody,
     ControlCode,
+    CookieBody,
     Header,
     KeepaliveBody,
+    MalformedPacketError,
+    OpenAckBody,
     OpenBody,
+    OpenFlags,
     decode_control,
     decode_header,
     encode_close,
+    encode_cookie,
     encode_header,
     encode_keepalive,
     encode_open,
+    encode_open_ack,
     schema,
 )
 from tdtp.wire.control import CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, OPEN_BODY_SIZE
@@ -35,11 +46,6 @@ headers = st.builds(
     st.integers(0, 0x3F),
     st.integers(0, 0xFF),
 )
-u8 = st.integers(0, 0xFF)
-u16 = st.integers(0, 0xFFFF)
-u64 = st.integers(0, 2**64 - 1)
-open_codes = st.sampled_from([ControlCode.OPEN, ControlCode.OPEN_ACK])
-close_codes = st.sampled_from([ControlCode.CLOSE, ControlCode.REJECT])
 
 
 def schema_header_fields(raw: bytes) -> Header:
@@ -92,25 +98,81 @@ def schema_control_bytes(code: int, body: dict[str, Any] | None) -> bytes:
     return built
 
 
-@given(open_codes, u8, u8, u64, u16)
+u8 = st.integers(0, 0xFF)
+u16 = st.integers(0, 0xFFFF)
+b8 = st.binary(min_size=8, max_size=8)
+b16 = st.binary(min_size=16, max_size=16)
+close_codes = st.sampled_from([ControlCode.CLOSE, ControlCode.REJECT])
+OPEN_FIELDS = ("version", "flags", "suite", "max_payload", "attempt", "nonce", "key_id", "cookie")
+OPEN_ACK_FIELDS = (
+    "version",
+    "flags",
+    "suite",
+    "max_payload",
+    "packet_number",
+    "nonce",
+    "slave_nonce",
+)
+
+
+@given(u8, u8, u8, u16, u16, b16, b8, b16, b16)
 def test_open_body_agreement(
-    code: ControlCode, version: int, flags: int, nonce: int, max_payload: int
+    version: int,
+    flags: int,
+    suite: int,
+    max_payload: int,
+    attempt: int,
+    nonce: bytes,
+    key_id: bytes,
+    cookie: bytes,
+    tag: bytes,
 ) -> None:
-    fields = {"version": version, "flags": flags, "nonce": nonce, "max_payload": max_payload}
-    fast = encode_open(code, version, flags, nonce, max_payload)
-    assert len(fast) == OPEN_BODY_SIZE == 13
-    assert schema_control_bytes(code, fields) == fast
+    body = OpenBody(version, flags, suite, max_payload, attempt, nonce, key_id, cookie)
+    keyed = bool(flags & OpenFlags.KEYED)
+    fast = encode_open(body) + (tag if keyed else b"")
+    assert len(fast) == OPEN_BODY_SIZE + (TAG_SIZE if keyed else 0)
+    fields = dict(zip(OPEN_FIELDS, body, strict=True)) | {"tag": tag if keyed else None}
+    assert schema_control_bytes(ControlCode.OPEN, fields) == fast
     parsed = schema.ControlBody.parse(fast)
-    assert parsed.code == code
+    assert parsed.code == ControlCode.OPEN
     assert {name: parsed.body[name] for name in fields} == fields
-    assert decode_control(fast) == OpenBody(code, version, flags, nonce, max_payload)
+    assert decode_control(fast) == body
 
 
-@given(close_codes, u64, u8)
-def test_close_body_agreement(code: ControlCode, nonce: int, reason: int) -> None:
+@given(u8, u8, u8, u16, u16, b16, b16, b16)
+def test_open_ack_body_agreement(
+    version: int,
+    flags: int,
+    suite: int,
+    max_payload: int,
+    number: int,
+    nonce: bytes,
+    slave_nonce: bytes,
+    tag: bytes,
+) -> None:
+    body = OpenAckBody(version, flags, suite, max_payload, number, nonce, slave_nonce)
+    keyed = bool(flags & OpenFlags.KEYED)
+    fast = encode_open_ack(body) + (tag if keyed else b"")
+    fields = dict(zip(OPEN_ACK_FIELDS, body, strict=True)) | {"tag": tag if keyed else None}
+    assert schema_control_bytes(ControlCode.OPEN_ACK, fields) == fast
+    parsed = schema.ControlBody.parse(fast)
+    assert {name: parsed.body[name] for name in fields} == fields
+    assert decode_control(fast) == body
+
+
+@given(b16, b16)
+def test_cookie_body_agreement(nonce: bytes, cookie: bytes) -> None:
+    fast = encode_cookie(nonce, cookie)
+    fields = {"version": PROTOCOL_VERSION, "nonce": nonce, "cookie": cookie}
+    assert schema_control_bytes(ControlCode.COOKIE, fields) == fast
+    assert decode_control(fast) == CookieBody(PROTOCOL_VERSION, nonce, cookie)
+
+
+@given(close_codes, b16, u8)
+def test_close_body_agreement(code: ControlCode, nonce: bytes, reason: int) -> None:
     fields = {"nonce": nonce, "reason": reason}
     fast = encode_close(code, nonce, reason)
-    assert len(fast) == CLOSE_BODY_SIZE == 10
+    assert len(fast) == CLOSE_BODY_SIZE == 18
     assert schema_control_bytes(code, fields) == fast
     parsed = schema.ControlBody.parse(fast)
     assert parsed.code == code
@@ -126,18 +188,22 @@ def test_keepalive_body_agreement() -> None:
     assert decode_control(fast) == KeepaliveBody(ControlCode.KEEPALIVE)
 
 
-@given(open_codes, st.binary(min_size=12, max_size=12))
-def test_arbitrary_open_bodies_parse_identically(code: ControlCode, rest: bytes) -> None:
-    raw = bytes([code]) + rest
-    fast = decode_control(raw)
+@given(st.binary(min_size=OPEN_BODY_SIZE - 1, max_size=OPEN_BODY_SIZE - 1), st.binary(max_size=16))
+def test_arbitrary_open_bodies_parse_identically(rest: bytes, tail: bytes) -> None:
+    raw = bytes([ControlCode.OPEN]) + rest + tail
+    try:
+        fast = decode_control(raw)
+    except MalformedPacketError:
+        keyed = bool(rest[1] & OpenFlags.KEYED)
+        assert len(tail) != (TAG_SIZE if keyed else 0)
+        return
     assert isinstance(fast, OpenBody)
     parsed = schema.ControlBody.parse(raw)
-    assert (parsed.code, parsed.body.version, parsed.body.flags) == (code, fast.version, fast.flags)
-    assert (parsed.body.nonce, parsed.body.max_payload) == (fast.nonce, fast.max_payload)
-    assert encode_open(*fast) == raw
+    assert tuple(parsed.body[name] for name in OPEN_FIELDS) == tuple(fast)
+    assert encode_open(fast) + tail == raw
 
 
-@given(close_codes, st.binary(min_size=9, max_size=9))
+@given(close_codes, st.binary(min_size=17, max_size=17))
 def test_arbitrary_close_bodies_parse_identically(code: ControlCode, rest: bytes) -> None:
     raw = bytes([code]) + rest
     fast = decode_control(raw)
@@ -145,3 +211,29 @@ def test_arbitrary_close_bodies_parse_identically(code: ControlCode, rest: bytes
     parsed = schema.ControlBody.parse(raw)
     assert (parsed.code, parsed.body.nonce, parsed.body.reason) == (code, fast.nonce, fast.reason)
     assert encode_close(*fast) == raw
+
+
+# The keyed layout ----------------------------------------------------------------------------------
+
+
+@given(headers.map(lambda h: h._replace(ptype=0)), u16, st.binary(max_size=64), b16)
+def test_protected_data_layout_agrees(
+    header: Header, number: int, sealed: bytes, tag: bytes
+) -> None:
+    fast = encode_header(*header) + number.to_bytes(PN_SIZE, "big") + sealed + tag
+    assert len(fast) == HEADER_SIZE + PROTECTION_OVERHEAD + len(sealed)
+    parsed = schema.ProtectedData.parse(fast)
+    assert decode_header(fast) == Header(*(parsed.header[name] for name in HEADER_FIELDS))
+    assert (parsed.packet_number, parsed.sealed, parsed.tag) == (number, sealed, tag)
+    assert schema.ProtectedData.build(parsed) == fast
+
+
+@given(headers.map(lambda h: h._replace(ptype=2)), u16, st.binary(max_size=17), b16)
+def test_protected_control_layout_agrees(
+    header: Header, number: int, sealed: bytes, tag: bytes
+) -> None:
+    fast = encode_header(*header) + bytes([ControlCode.CLOSE]) + number.to_bytes(2, "big")
+    fast += sealed + tag
+    parsed = schema.ProtectedControl.parse(fast)
+    assert (parsed.code, parsed.packet_number, parsed.sealed) == (ControlCode.CLOSE, number, sealed)
+    assert schema.ProtectedControl.build(parsed) == fast

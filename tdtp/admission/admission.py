@@ -1,0 +1,237 @@
+"""A slave's front door: what it does with an OPEN before any per-session state exists.
+
+Sans-IO, like the connection. :meth:`Admission.admit` takes one OPEN datagram and returns one of
+
+* an :class:`AdmittedOpen`: the master proved it receives at its address (a valid cookie) and, for a
+  keyed slave, that it holds a key of the ring (the OPEN's tag verified). Only now may the caller
+  create a connection, answer OPEN_ACK and spend a ``max_peers`` slot;
+* a :class:`Reply`: a datagram to send back to the source, never larger than the OPEN (a COOKIE, or
+  a REJECT that says why the master cannot be served), with the reason the OPEN was not taken;
+* a :class:`~tdtp.stats.DropReason`: nothing is sent.
+
+Checks, in order: the per-source OPEN rate; the version (an unknown one gets REJECT if that is no
+larger than the OPEN); the body; the cookie (none or a stale one: answer COOKIE, within the global
+reply budget); then, with the address validated, the key (REJECT ``KEY_REQUIRED`` / ``KEY_UNKNOWN``
+/ ``SUITE_UNSUPPORTED``; a tag that does not verify is dropped silently, as WireGuard answers nothing
+unauthenticated) and the payload size (REJECT ``PAYLOAD_TOO_SMALL``).
+
+A server with many sessions shares one :class:`Admission` (one cookie secret, one rate table); a
+stand-alone slave :class:`~tdtp.connection.Connection` makes its own.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass, field
+from typing import Final, NamedTuple
+
+from tdtp.admission.cookie import CookieJar
+from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
+from tdtp.config import ConnectionConfig
+from tdtp.events import Address
+from tdtp.protection.derivation import derive_open_secret
+from tdtp.protection.keys import KeyRing, PresharedKey
+from tdtp.protection.packet_protection import Direction
+from tdtp.stats import DropReason
+from tdtp.wire.control import (
+    CLOSE_BODY_SIZE,
+    NO_COOKIE,
+    NO_KEY_ID,
+    NONCE_SIZE,
+    PROTOCOL_VERSION,
+    CipherSuite,
+    CloseReason,
+    ControlCode,
+    OpenBody,
+    OpenFlags,
+    decode_control,
+    encode_close,
+    encode_cookie,
+    open_version,
+)
+from tdtp.wire.errors import MalformedPacketError
+from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header, encode_header
+from tdtp.wire.hold import HOLD_NO_ACK
+from tdtp.wire.protected import TAG_SIZE
+
+_CONTROL: Final = int(PacketType.CONTROL)
+_REJECT_SIZE: Final = HEADER_SIZE + CLOSE_BODY_SIZE
+_NONCE_OFFSET: Final = 8
+"""Where an OPEN body carries the master's nonce (code, version, flags, suite, max_payload, attempt)."""
+
+
+@dataclass(frozen=True, slots=True)
+class AdmittedOpen:
+    """An OPEN from a validated address (and, keyed, an authenticated master)."""
+
+    body: OpenBody
+    initial_seq: int
+    """The master's initial data sequence number (the OPEN header's SEQ, 12 bits)."""
+    key: PresharedKey | None
+    """The master's key, found in the slave's ring; ``None`` for an unkeyed session."""
+    size: int
+    """Bytes of the OPEN datagram."""
+
+
+class Reply(NamedTuple):
+    """An answer to an OPEN that is not admitted."""
+
+    datagram: bytes
+    """COOKIE or REJECT, for the OPEN's source address."""
+    reason: DropReason
+    """``unvalidated`` (a COOKIE), ``refused`` or ``unknown_version`` (a REJECT)."""
+
+
+@dataclass(slots=True)
+class AdmissionStats:
+    """What the front door did with the OPENs it saw."""
+
+    opens: int = 0
+    admitted: int = 0
+    cookies_sent: int = 0
+    rejects_sent: int = 0
+    drops: dict[str, int] = field(default_factory=dict)
+    """OPENs dropped without an answer, by reason (``rate_limited``, ``unauthenticated``, ...)."""
+    bytes_in: int = 0
+    """Bytes of every OPEN seen."""
+    bytes_out: int = 0
+    """Bytes of every COOKIE and REJECT sent back: at most ``bytes_in`` by construction."""
+
+    def count_drop(self, reason: DropReason) -> None:
+        self.drops[reason.value] = self.drops.get(reason.value, 0) + 1
+
+
+def reject_datagram(nonce: bytes, reason: CloseReason) -> bytes:
+    """A REJECT for the master that sent ``nonce`` (23 bytes: smaller than any OPEN)."""
+    return encode_header(_CONTROL, 0, 0, 0, HOLD_NO_ACK) + encode_close(
+        ControlCode.REJECT, nonce, reason
+    )
+
+
+class Admission:
+    """Cookie minting and checking, OPEN rate limits and key checks for one slave socket."""
+
+    def __init__(
+        self,
+        config: ConnectionConfig | None = None,
+        keys: KeyRing | None = None,
+        *,
+        rng: random.Random | None = None,
+    ) -> None:
+        self.config = config if config is not None else ConnectionConfig()
+        self.keys = keys
+        policy = self.config.admission
+        rng = rng if rng is not None else random.SystemRandom()
+        self._cookies = CookieJar(rng.randbytes(32), policy.cookie_lifetime)
+        self._per_source = SourceRateLimiter(
+            policy.opens_per_source, policy.open_burst, policy.max_sources
+        )
+        self._replies = TokenBucket(policy.replies_per_second, policy.replies_per_second)
+        self.stats = AdmissionStats()
+
+    def admit(self, data: bytes, addr: Address, now: float) -> AdmittedOpen | Reply | DropReason:
+        """Judge one datagram that claims to be an OPEN (see the module docstring)."""
+        stats = self.stats
+        stats.opens += 1
+        size = len(data)
+        stats.bytes_in += size
+        verdict = self._judge(data, addr, now)
+        if isinstance(verdict, DropReason):
+            stats.count_drop(verdict)
+        elif isinstance(verdict, Reply):
+            if len(verdict.datagram) > size:  # never amplify: the layouts make this unreachable
+                stats.count_drop(DropReason.OVERSIZED)
+                return DropReason.OVERSIZED
+            if verdict.reason is DropReason.UNVALIDATED:
+                stats.cookies_sent += 1
+            else:
+                stats.rejects_sent += 1
+            stats.bytes_out += len(verdict.datagram)
+        else:
+            stats.admitted += 1
+        return verdict
+
+    def reject(self, admitted: AdmittedOpen, reason: CloseReason) -> bytes:
+        """A REJECT for an admitted master that cannot be served (e.g. ``BUSY``)."""
+        self.stats.rejects_sent += 1
+        datagram = reject_datagram(admitted.body.nonce, reason)
+        self.stats.bytes_out += len(datagram)
+        return datagram
+
+    def _reply(self, datagram: bytes, reason: DropReason, now: float) -> Reply | DropReason:
+        """An answer to a source not validated yet, within the global reply budget."""
+        return Reply(datagram, reason) if self._replies.take(now) else DropReason.RATE_LIMITED
+
+    def _judge(self, data: bytes, addr: Address, now: float) -> AdmittedOpen | Reply | DropReason:
+        if (
+            len(data) <= HEADER_SIZE
+            or data[0] >> 6 != _CONTROL
+            or data[HEADER_SIZE] != ControlCode.OPEN
+        ):
+            return DropReason.UNEXPECTED_CONTROL
+        if not self._per_source.allow(addr[0], now):
+            return DropReason.RATE_LIMITED
+        body_bytes = data[HEADER_SIZE:]
+        version = open_version(body_bytes)
+        if version != PROTOCOL_VERSION:
+            if size_allows_reject(len(data)):
+                # The nonce where version 2 has it: a later version that keeps it there can tell.
+                nonce = bytes(body_bytes[_NONCE_OFFSET : _NONCE_OFFSET + NONCE_SIZE]).ljust(
+                    NONCE_SIZE, b"\0"
+                )
+                return self._reply(
+                    reject_datagram(nonce, CloseReason.VERSION_UNSUPPORTED),
+                    DropReason.UNKNOWN_VERSION,
+                    now,
+                )
+            return DropReason.UNKNOWN_VERSION
+        try:
+            body = decode_control(body_bytes)
+        except MalformedPacketError:
+            return DropReason.BAD_CONTROL
+        assert isinstance(body, OpenBody)  # the code byte said OPEN
+        keyed = bool(body.flags & OpenFlags.KEYED)
+        if (
+            body.max_payload == 0
+            or (body.flags & OpenFlags.ENCRYPTED and not keyed)
+            or keyed != (body.suite != CipherSuite.NONE)
+            or (not keyed and body.key_id != NO_KEY_ID)
+        ):
+            return DropReason.BAD_CONTROL
+        if body.cookie == NO_COOKIE or not self._cookies.check(body.cookie, addr, body.nonce, now):
+            cookie = self._cookies.mint(addr, body.nonce, now)
+            return self._reply(
+                encode_header(_CONTROL, 0, 0, 0, HOLD_NO_ACK) + encode_cookie(body.nonce, cookie),
+                DropReason.UNVALIDATED,
+                now,
+            )
+        # The master receives at this address: answers to it are no longer reflections.
+        key: PresharedKey | None = None
+        keys = self.keys
+        if keys is not None and not keyed:
+            return _refuse(body.nonce, CloseReason.KEY_REQUIRED)
+        if keyed:
+            key = keys.find(body.key_id) if keys is not None else None
+            if key is None:
+                return _refuse(body.nonce, CloseReason.KEY_UNKNOWN)
+            try:
+                suite = CipherSuite(body.suite)
+            except ValueError:
+                return _refuse(body.nonce, CloseReason.SUITE_UNSUPPORTED)
+            if suite is CipherSuite.NONE:
+                return DropReason.BAD_CONTROL
+            verifier = Direction(suite, derive_open_secret(key.secret, body.nonce, suite))
+            if not verifier.verify(body.attempt, data[:-TAG_SIZE], data[-TAG_SIZE:]):
+                return DropReason.UNAUTHENTICATED
+        if body.max_payload < self.config.min_peer_payload:
+            return _refuse(body.nonce, CloseReason.PAYLOAD_TOO_SMALL)
+        return AdmittedOpen(body, decode_header(data).seq, key, len(data))
+
+
+def _refuse(nonce: bytes, reason: CloseReason) -> Reply:
+    return Reply(reject_datagram(nonce, reason), DropReason.REFUSED)
+
+
+def size_allows_reject(open_size: int) -> bool:
+    """A REJECT may answer an unvalidated source only if it is no larger than what it answers."""
+    return open_size >= _REJECT_SIZE

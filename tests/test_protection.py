@@ -1,0 +1,143 @@
+"""Packet protection: pinned key derivation and sealed bytes (docs/PROTOCOL.md section 6), the
+replay window, packet-number expansion, key files."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from tdtp import InvalidKeyError, PresharedKey, load_keys, write_key_file
+from tdtp.protection.derivation import (
+    derive_key_id,
+    derive_open_secret,
+    derive_session_secrets,
+)
+from tdtp.protection.key_file import parse_keys
+from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
+from tdtp.protection.replay_window import ReplayWindow
+from tdtp.wire import (
+    CipherSuite,
+    OpenBody,
+    PacketType,
+    encode_header,
+    encode_hold,
+    encode_open,
+)
+
+PSK = bytes(range(32))
+MASTER_NONCE = bytes.fromhex("00112233445566778899aabbccddeeff")
+SLAVE_NONCE = bytes.fromhex("f0e1d2c3b4a5968778695a4b3c2d1e0f")
+COOKIE = bytes.fromhex("0000abcd") + bytes([0x11] * 12)
+SUITE = CipherSuite.AES_128_GCM
+PROTOCOL_MD = Path(__file__).resolve().parents[1] / "docs" / "PROTOCOL.md"
+
+# The keyed worked example of docs/PROTOCOL.md: the 5-byte header of section 7.1, packet number 1,
+# payload "hello", master to slave.
+HEADER = encode_header(PacketType.DATA, 0x0ABC, 0x0123, 0b101010, encode_hold(250e-6))
+SEALED_DATA = "2a f0 48 ea 1f 00 01 51 93 f9 13 9c 89 52 5a fb 0b 37 64 e9 ef bd 3d 41 9d f9 92 24"
+CLEAR_DATA = "2a f0 48 ea 1f 00 01 68 65 6c 6c 6f 64 e1 dc 5d 25 5e b6 b2 d0 20 f7 ac 2f d9 7d 80"
+KEYED_OPEN = (
+    "96 94 00 00 ff 01 02 06 01 04 b0 00 01 00 11 22 33 44 55 66 77 88 99 aa bb cc dd ee ff "
+    "eb 49 4c 5f a4 4b 9c 55 00 00 ab cd 11 11 11 11 11 11 11 11 11 11 11 11 "
+    "b3 7f 8b 9b 4d 0b 03 ad a8 00 63 c7 17 7a b6 cd"
+)
+
+
+def _in_protocol_md(hexbytes: str) -> bool:
+    return hexbytes in " ".join(PROTOCOL_MD.read_text(encoding="utf-8").split())
+
+
+def test_key_derivation_is_pinned() -> None:
+    assert derive_key_id(PSK).hex() == "eb494c5fa44b9c55"
+    opening = derive_open_secret(PSK, MASTER_NONCE, SUITE)
+    assert (opening.key.hex(), opening.iv.hex()) == (
+        "f3fd4a5e1c64a745933dbf6b23295e64",
+        "c2240f9e3edc19c515928c33",
+    )
+    session = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, SUITE)
+    assert (session.master_to_slave.key.hex(), session.master_to_slave.iv.hex()) == (
+        "86fd1bab9a3507979a17e3f7855bdd38",
+        "202f682cb6f12fedeb42db06",
+    )
+    assert (session.slave_to_master.key.hex(), session.slave_to_master.iv.hex()) == (
+        "c82faedd2d00437763505efb46ae4a8e",
+        "6e98bfd5c8105d40fb9a92c8",
+    )
+    for value in (
+        "eb494c5fa44b9c55",
+        "86fd1bab9a3507979a17e3f7855bdd38",
+        "6e98bfd5c8105d40fb9a92c8",
+    ):
+        assert _in_protocol_md(value)
+
+
+@pytest.mark.parametrize(("encrypt", "expected"), [(True, SEALED_DATA), (False, CLEAR_DATA)])
+def test_sealed_data_is_pinned_and_opens(encrypt: bool, expected: str) -> None:
+    secret = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, SUITE).master_to_slave
+    sealer = PacketSealer(SUITE, secret, encrypt=encrypt)
+    sealer.next_number = 1
+    datagram = sealer.seal(HEADER, b"hello")
+    assert datagram.hex(" ") == expected
+    assert _in_protocol_md(expected)
+    opener = PacketOpener(SUITE, secret, encrypt=encrypt)
+    assert opener.open(datagram, len(HEADER)) == b"hello"
+    assert opener.open(datagram, len(HEADER)) is None and opener.failure == "replayed"
+
+
+def test_keyed_open_is_pinned() -> None:
+    body = OpenBody(2, 0x06, 1, 1200, 1, MASTER_NONCE, derive_key_id(PSK), COOKIE)
+    datagram = encode_header(PacketType.CONTROL, 0x5A5, 0, 0, 255) + encode_open(body)
+    tagger = Direction(SUITE, derive_open_secret(PSK, MASTER_NONCE, SUITE))
+    datagram += tagger.tag(1, datagram)
+    assert datagram.hex(" ") == KEYED_OPEN
+    assert _in_protocol_md(KEYED_OPEN)
+
+
+@given(st.integers(0, 2**40), st.integers(-30000, 30000))
+def test_packet_numbers_expand_within_half_the_16_bit_space(highest: int, offset: int) -> None:
+    secret = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, SUITE).master_to_slave
+    opener = PacketOpener(SUITE, secret, encrypt=True)
+    opener.window.accept(highest)
+    number = highest + 1 + offset
+    if number >= 0:
+        assert opener.expand(number & 0xFFFF) == number
+
+
+def test_replay_window() -> None:
+    window = ReplayWindow()
+    assert not window.seen(0)
+    window.accept(0)
+    assert window.seen(0)
+    window.accept(10)
+    assert [n for n in range(12) if not window.seen(n)] == [1, 2, 3, 4, 5, 6, 7, 8, 9, 11]
+    window.accept(5)  # late but within the window
+    assert window.seen(5)
+    window.accept(200)
+    assert window.seen(200 - 64) and not window.seen(200 - 63)  # older than 64: refused
+    window.accept(1000)
+    assert not window.seen(1000 - 63) and window.seen(1000 - 64) and window.seen(200)
+
+
+def test_key_files_round_trip_and_refuse_bad_ones(tmp_path: Path) -> None:
+    keys = [PresharedKey.generate("station-1"), PresharedKey.generate()]
+    path = tmp_path / "keys"
+    write_key_file(path, keys)
+    assert os.stat(path).st_mode & 0o777 == 0o600
+    assert load_keys(path) == keys
+    with pytest.raises(InvalidKeyError, match="exists"):
+        write_key_file(path, keys)
+    os.chmod(path, 0o644)
+    with pytest.raises(InvalidKeyError, match="chmod 600"):
+        load_keys(path)
+    with pytest.raises(InvalidKeyError, match="line 2: the key is not hexadecimal"):
+        parse_keys("# comment\nmaster zz\n")
+    with pytest.raises(InvalidKeyError, match=r"line 1: .*16\.\.64 random bytes"):
+        parse_keys("abcd\n")
+    with pytest.raises(InvalidKeyError, match="no key"):
+        parse_keys("# nothing\n\n")
+    with pytest.raises(InvalidKeyError, match="cannot read"):
+        load_keys(tmp_path / "missing")
