@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
 from _common import Json, Row, Stat
 
-from tdtp import ConnectionConfig, DataReceived
+from tdtp import ConnectionConfig, DataReceived, PresharedKey
 from tdtp.aio.api import connect, listen
 from tdtp.control.fixed import FixedConfig
 
@@ -51,6 +51,8 @@ LOSS_TIMEOUT = 0.05
 UNLIMITED = ConnectionConfig(controller="fixed", controller_config=FixedConfig(rate=math.inf))
 VARIANTS = {"raw-uvloop": "raw uvloop", "tdtp-uvloop": "tdtp uvloop"}
 _COUNTER = struct.Struct("!Q")
+BENCH_KEY = PresharedKey(bytes(range(32)), "bench")
+"""The pre-shared key of the ``keyed`` implementation (benchmarks/keyed.py runs it)."""
 
 
 # ---------------------------------------------------------------------------- echo side
@@ -74,7 +76,9 @@ async def _echo(control: Any, impl: str) -> Json:
             await asyncio.sleep(0.02)
         transport.close()
         return report
-    server = await listen("127.0.0.1", 0, config=UNLIMITED)
+    server = await listen(
+        "127.0.0.1", 0, config=UNLIMITED, key=BENCH_KEY if impl == "keyed" else None
+    )
     control.send({"port": server.port})
     ep = await server.accept()
 
@@ -169,7 +173,11 @@ async def _client(impl: str, port: int, seconds: float) -> Json:
         pinger.send = transport.sendto
     else:
         ep = await connect(
-            "127.0.0.1", port, config=UNLIMITED, on_data=lambda s: pinger.received(s.payload)
+            "127.0.0.1",
+            port,
+            config=UNLIMITED,
+            on_data=lambda s: pinger.received(s.payload),
+            key=BENCH_KEY if impl == "keyed" else None,
         )
         pinger.send = ep.send
     cpu0, t0 = common.cpu_seconds(), time.monotonic()

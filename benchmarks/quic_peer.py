@@ -491,7 +491,9 @@ def main(argv: list[str] | None = None) -> int:
         f"| {t['udp_per_payload_byte']:.4f} |",
         "",
         f"QUIC's handshake before that: {q['handshake_datagrams']} datagrams, "
-        f"{q['handshake_wire_bytes']:,} bytes on the wire (tdtp's: OPEN + OPEN_ACK, 2 x 46 bytes).",
+        f"{q['handshake_wire_bytes']:,} bytes on the wire "
+        "(tdtp's: OPEN, COOKIE, OPEN, OPEN_ACK and a KEEPALIVE, 5 datagrams of 336 bytes unkeyed with "
+        "UDP/IPv4; 402 keyed).",
     ]
     details = {
         "throughput": {"quic": quic_runs, "tdtp": tdtp_runs},

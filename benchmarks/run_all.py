@@ -56,6 +56,11 @@ SUITE = (
         ("--seconds", "0.1", "--repeat", "1"),
     ),
     Bench(
+        "keyed",
+        ("--seconds", "1", "--repeat", "5"),
+        ("--seconds", "0.1", "--repeat", "1"),
+    ),
+    Bench(
         "throughput",
         ("--seconds", "1", "--repeat", "5", "--both", "--profile"),
         ("--seconds", "0.1", "--repeat", "1"),

@@ -72,6 +72,15 @@ def test_wire_efficiency() -> None:
     assert rep["udp"]["bytes_per_sample"] == 128
 
 
+def test_keyed() -> None:
+    report = _run("keyed.py")
+    figures = {row["figure"] for row in report["rows"]}
+    assert any("bytes per 100 B sample" in f for f in figures)
+    sizes = report["details"]["bytes_per_sample"]
+    # Exact: 18 bytes of protection per datagram (the handshake amortised over 2000 samples).
+    assert 18.0 <= sizes["keyed"] - sizes["unkeyed"] <= 18.1
+
+
 @needs_uvloop
 def test_scale() -> None:
     report = _run("scale.py", "--ramp", "2")
