@@ -21,6 +21,14 @@ from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
+from tdtp.cli_keys import (
+    KeyArgumentError,
+    SessionKeys,
+    add_key_arguments,
+    keygen_main,
+    session_keys,
+    warn_if_exposed,
+)
 from tdtp.config import AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
 from tdtp.control.registry import available_controllers
@@ -119,12 +127,15 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", parents=[common], help="master and slave on localhost, live statistics"
     )
     demo.set_defaults(duration=None)
+    add_key_arguments(demo, demo=True)
     slave = commands.add_parser("slave", parents=[common], help="serve masters on a UDP port")
     slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
     slave.add_argument("--port", type=int, required=True, help="UDP port")
     slave.add_argument("--max-peers", type=int, default=256, help="masters served at once")
+    add_key_arguments(slave)
     master = commands.add_parser("master", parents=[common], help="connect to a slave")
     master.add_argument("address", type=_host_port, help="the slave, HOST:PORT")
+    add_key_arguments(master)
     relay = commands.add_parser(
         "netem-relay",
         help="an impairing UDP relay for any application",
@@ -141,6 +152,11 @@ def build_parser() -> argparse.ArgumentParser:
     relay.add_argument("--max-clients", type=int, default=256)
     relay.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     relay.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
+    commands.add_parser(
+        "keygen",
+        add_help=False,
+        help="write new pre-shared keys to a file (tdtp keygen --help)",
+    ).add_argument("arguments", nargs=argparse.REMAINDER)
     simulate = commands.add_parser(
         "simulate",
         add_help=False,
@@ -159,6 +175,9 @@ def _config(args: argparse.Namespace) -> ConnectionConfig:
         ack_size=args.ack_size,
         controller=args.controller,
         controller_config=controller_config,
+        # A peer that cannot take our samples is refused at the open, not on the first send.
+        min_peer_payload=args.size,
+        encrypt=not getattr(args, "no_encrypt", False),
     )
 
 
@@ -219,14 +238,22 @@ async def _every_second(until: float, tick: Callable[[float], None]) -> None:
 def _header(args: argparse.Namespace, ep: Endpoint) -> str:
     mode = "separate ACKs" if args.separate_acks else "piggybacked ACKs"
     loop = type(asyncio.get_running_loop()).__module__.split(".")[0]
+    conn = ep.connection
+    security = "unkeyed"
+    if conn.keyed:
+        key = conn.key
+        security = f"keyed ({key.label if key else '?'}, {conn.config.cipher_suite.name}, " + (
+            "encrypted)" if conn.encrypted else "authenticated only)"
+        )
     return (
         f"tdtp {args.command}: {args.rate:g} samples/s of {args.size} B each way, "
-        f"{args.controller}, {mode}, loop {loop}, timer {ep.timer_kind}"
+        f"{args.controller}, {mode}, {security}, loop {loop}, timer {ep.timer_kind}"
     )
 
 
 async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     config = _config(args)
+    keys: SessionKeys = args.session_keys
     duration = args.duration if args.duration is not None else 5.0
     master_side, slave_side = Side("master"), Side("slave")
     ms_spec, sm_spec = _directions(args)
@@ -238,6 +265,7 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
             on_data=slave_side.on_data,
             netem=sm_spec,
             netem_seed=_seed(args, 1),
+            keys=keys.slave,
         ) as server,
         await connect(
             "127.0.0.1",
@@ -246,6 +274,7 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
             on_data=master_side.on_data,
             netem=ms_spec,
             netem_seed=_seed(args, 0),
+            key=keys.master,
         ) as master,
     ):
         slave = await server.accept()
@@ -321,6 +350,8 @@ def _settings(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
         "ack_mode": "separate" if args.separate_acks else "bidirectional",
         "loop": type(asyncio.get_running_loop()).__module__.split(".")[0],
         "timer": ep.timer_kind,
+        "keyed": ep.connection.keyed,
+        "encrypted": ep.connection.encrypted,
         "netem_ms": None if ms is None else str(ms),
         "netem_sm": None if sm is None else str(sm),
     }
@@ -338,6 +369,7 @@ async def run_master(args: argparse.Namespace) -> dict[str, Any]:
         on_data=side.on_data,
         netem=ms_spec,
         netem_seed=_seed(args, 0),
+        key=args.session_keys.master,
     ) as ep:
         start = monotonic()
         until = min(until, start + (args.duration or math.inf))
@@ -384,6 +416,8 @@ async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
     until = math.inf if args.duration is None else monotonic() + args.duration
     sides: dict[int, Side] = {}
     _, sm_spec = _directions(args)
+    keys: SessionKeys = args.session_keys
+    warn_if_exposed(args.host, keys)
     async with await listen(
         args.host,
         args.port,
@@ -391,10 +425,12 @@ async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
         max_peers=args.max_peers,
         netem=sm_spec,
         netem_seed=_seed(args, 1),
+        keys=keys.slave,
     ) as server:
         display = None if args.json else LiveDisplay()
         if display is not None:
-            display.message(f"tdtp slave listening on {args.host}:{server.port}")
+            keyed = f", keyed ({len(keys.slave)} key(s))" if keys.slave is not None else ", unkeyed"
+            display.message(f"tdtp slave listening on {args.host}:{server.port}{keyed}")
         tasks: set[asyncio.Task[None]] = set()
         acceptor = asyncio.create_task(_accept_loop(server, sides, args, until, tasks))
         try:
@@ -510,7 +546,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if arguments[:1] == ["simulate"]:
         # Its own parser (tdtp.sim.cli); the subcommand below only lists it in --help.
         return simulate_main(arguments[1:])
+    if arguments[:1] == ["keygen"]:
+        return keygen_main(arguments[1:])
     args = build_parser().parse_args(arguments)
+    if args.command in ("demo", "master", "slave"):
+        try:
+            args.session_keys = session_keys(args)
+        except KeyArgumentError as exc:
+            print(f"tdtp: {exc}", file=sys.stderr)
+            return 2
     if getattr(args, "size", SAMPLE_SIZE) < SAMPLE_SIZE:
         print(f"tdtp: --size must be at least {SAMPLE_SIZE} bytes", file=sys.stderr)
         return 2

@@ -282,3 +282,35 @@ async def test_a_restarted_master_is_taken_back_without_waiting_for_the_old_sess
         assert closed.cause is CloseCause.REPLACED
         assert server.endpoints == [new] and server.stats.peers_accepted == 2
         await second.close()
+
+
+@pytest.mark.asyncio
+async def test_a_master_with_a_tiny_max_payload_is_refused_by_the_cli_slave() -> None:
+    """An OPEN with max_payload 1 made `tdtp slave` log "Task exception was never retrieved ...
+    PayloadTooLargeError". The slave now refuses it at the open, and the master hears why."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    slave = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "tdtp", "slave", "--host", "127.0.0.1", "--port", str(port),
+        "--duration", "3", "--json",
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        refused = None
+        for _ in range(50):  # until the slave has bound its port
+            try:
+                await connect("127.0.0.1", port, config=ConnectionConfig(max_payload=1))
+            except ConnectError as exc:
+                if "max_payload" in str(exc):
+                    refused = exc
+                    break
+            await asyncio.sleep(0.1)
+        assert refused is not None and "max_payload (1)" in str(refused)
+        out, err = await asyncio.wait_for(slave.communicate(), 30)
+    finally:
+        if slave.returncode is None:
+            slave.kill()
+    assert slave.returncode == 0
+    assert b"Traceback" not in err and b"exception" not in err.lower()
+    assert json.loads(out)["admission"]["rejects_sent"] >= 1
