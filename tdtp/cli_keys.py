@@ -42,7 +42,9 @@ def add_key_arguments(parser: argparse.ArgumentParser, *, demo: bool = False) ->
     )
     if demo:
         group.add_argument(
-            "--keyed", action="store_true", help="pair master and slave with a key made for this run"
+            "--keyed",
+            action="store_true",
+            help="pair master and slave with a key made for this run",
         )
 
 
