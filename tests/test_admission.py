@@ -230,3 +230,32 @@ def test_a_replayed_open_for_a_dead_session_gets_one_open_ack_and_nothing_more()
         events.append(event)
     assert [type(e) for e in events] == [ConnectionClosed]
     assert slave.datagrams_to_send(now=timer) == []
+
+
+def test_a_master_opens_in_one_cookie_round_trip_while_forged_opens_flood_the_slave() -> None:
+    """1,000 forged OPENs per second from random sources, interleaved with a real handshake: the
+    master is established after exactly OPEN, COOKIE, OPEN, OPEN_ACK (2 round trips of 20 ms)."""
+    pair = Pair()
+    rng = random.Random(11)
+    flood_until = 1.0
+
+    def flood() -> None:
+        while pair.now < flood_until and rng.random() < 0.5:
+            source = (f"198.18.{rng.randrange(256)}.{rng.randrange(256)}", rng.randrange(1, 65536))
+            pair.slave.conn.receive_datagram(_open(rng.randbytes(16)), source, now=pair.now)
+            pair.slave.conn.datagrams_to_send(now=pair.now)  # COOKIEs to the forged sources
+
+    for step in range(500):  # the flood starts half a second before the master
+        pair.now = step * 0.001
+        flood()
+    start = pair.now
+    pair.master.conn.connect(SLAVE_ADDR, now=start)
+    pair._flush(pair.master)
+    while pair.master.conn.state is not State.ESTABLISHED and pair.now < start + 1.0:
+        pair.run_for(0.001)
+        flood()
+    assert pair.master.conn.state is State.ESTABLISHED
+    assert pair.now - start == pytest.approx(0.040, abs=0.0011)
+    assert pair.master.conn._open_attempt == 2
+    admission = pair.slave.conn.admission
+    assert admission is not None and admission.stats.cookies_sent > 400
