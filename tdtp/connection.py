@@ -175,6 +175,7 @@ class Connection:
         self._sealer: PacketSealer | None = None
         self._opener: PacketOpener | None = None
         self._overhead = 0  # bytes packet protection adds to each session datagram, once keyed
+        self._confirming = False  # a slave that answered OPEN_ACK and waits for the master's packet
         self._open_tagger: Direction | None = None  # a keyed master's OPEN key
         self._open_attempt = 0
         self._cookie = NO_COOKIE
@@ -182,6 +183,7 @@ class Connection:
         self._ack_mode = self.config.ack_mode
         self._send_limit = self.config.max_payload
         self._size_limit = HEADER_SIZE + max(self.config.max_payload, _LARGEST_CONTROL)
+        self._data_limit = HEADER_SIZE + self.config.max_payload  # a DATA datagram, unprotected
         self._controller: RateController = create_controller(
             self.config.controller, self.config.controller_config
         )
@@ -378,8 +380,12 @@ class Connection:
         if ptype > _CONTROL:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
             return
-        opener = self._opener
-        if opener is not None:
+        if self._keyed:
+            opener = self._opener
+            if opener is None:
+                # A keyed master before the OPEN_ACK has no keys to read session packets with.
+                stats.count_drop(DropReason.NOT_ESTABLISHED)
+                return
             prefix = HEADER_SIZE + 1 if ptype == _CONTROL else HEADER_SIZE
             if size < prefix + PROTECTION_OVERHEAD:
                 stats.count_drop(DropReason.TRUNCATED)
@@ -389,11 +395,7 @@ class Connection:
                 self._on_unopened(opener, now)
                 return
             data = data[:prefix] + body
-        elif self._keyed:
-            # A keyed master before the OPEN_ACK has no keys to read session packets with.
-            stats.count_drop(DropReason.NOT_ESTABLISHED)
-            return
-        if self._state is State.OPENING and self.role is Role.SLAVE:
+        if self._confirming:
             # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
             self._establish(now)
         _, seq, ack, sack, hold = decode_header(data)
@@ -431,7 +433,7 @@ class Connection:
         if self._state is not State.ESTABLISHED or window is None:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
-        if len(data) - HEADER_SIZE > self.config.max_payload:
+        if len(data) > self._data_limit:
             stats.count_drop(DropReason.OVERSIZED)
             return
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
@@ -667,6 +669,7 @@ class Connection:
             self._start_protection()
         self._accept_handshake(admitted.size, now, self._tag_size())
         self._state = State.OPENING
+        self._confirming = True
         self._open_deadline = now + self.config.open_timeout
         self._last_send = now
         self._queue_open_ack()
@@ -764,6 +767,7 @@ class Connection:
 
     def _establish(self, now: float) -> None:
         self._state = State.ESTABLISHED
+        self._confirming = False
         self._last_receive = now
         self._last_send = now
         self._push_other_event(ConnectionEstablished(self._peer_address()))
@@ -846,7 +850,8 @@ class Connection:
             self._control_out.clear()
         if state is not State.ESTABLISHED or self._state is not State.ESTABLISHED:
             return out
-        peer = self._peer_address()
+        peer = self._peer
+        assert peer is not None  # ESTABLISHED implies it
         window = self._window
         assert window is not None
         bidirectional = self._ack_mode is AckMode.BIDIRECTIONAL
@@ -854,9 +859,9 @@ class Connection:
         if payload is not None and now >= self._controller.next_send_time():
             self._pending = None
             ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
-            datagram = self._protect(
-                encode_header(_DATA, self._sent.next_seq, ack, sack, hold), payload
-            )
+            header = encode_header(_DATA, self._sent.next_seq, ack, sack, hold)
+            sealer = self._sealer
+            datagram = header + payload if sealer is None else sealer.seal(header, payload)
             size = len(datagram)
             self._sent.on_sent(now, size, self._lost)
             if self._lost:
@@ -894,7 +899,8 @@ class Connection:
                 now,
                 self._overhead,
             )
-        if self._sealer is not None and self._sealer.next_number >= PACKET_LIMIT:
+        sealer = self._sealer
+        if sealer is not None and sealer.next_number >= PACKET_LIMIT:
             self._terminate(
                 CloseCause.KEY_EXHAUSTED,
                 "the session protected as many packets as its keys may; open a new connection",
@@ -1011,6 +1017,7 @@ class Connection:
 
     def _terminate(self, cause: CloseCause, detail: str) -> None:
         self._state = State.CLOSED
+        self._confirming = False
         self._pending = None
         self._separate_acks.clear()
         self._push_other_event(ConnectionClosed(cause, detail))
