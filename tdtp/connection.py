@@ -395,6 +395,7 @@ class Connection:
                 self._on_unopened(opener, now)
                 return
             data = data[:prefix] + body
+            size = len(data)  # from here on, sizes are without the protection (_accept adds it)
         if self._confirming:
             # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
             self._establish(now)

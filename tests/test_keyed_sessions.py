@@ -308,3 +308,38 @@ def test_a_tampered_open_ack_is_dropped_and_the_master_keeps_trying() -> None:
     assert pair.established  # the retransmitted OPEN got a fresh OPEN_ACK
     assert _drops(pair.master.conn) == {"unauthenticated": 1}
     assert pair.now == pytest.approx(0.25 + 0.05)
+
+
+@pytest.mark.parametrize("keyed", [False, True])
+@pytest.mark.parametrize("mode", ["bidirectional", "separate"])
+def test_what_one_side_sends_the_other_counts_received_byte_for_byte(
+    keyed: bool, mode: str
+) -> None:
+    """On a lossless path every datagram, byte and protection byte one side sent is counted by
+    the other, except the master's first OPEN (answered with a COOKIE, counted as a drop)."""
+    from tdtp import AckMode
+
+    config = ConnectionConfig(
+        ack_mode=AckMode.SEPARATE if mode == "separate" else AckMode.BIDIRECTIONAL, ack_size=12
+    )
+    pair = Pair(
+        config, config, master_key=KEY if keyed else None, slave_keys=[KEY] if keyed else None
+    )
+    pair.ms.keep_wire = True
+    pair.open()
+    pair.start_samples(1000, 300)
+    pair.run_for(0.5)
+    pair.drain(0.06)  # what was sent has arrived; the next keep-alive is 0.19 s away
+    assert not pair._in_flight
+    master, slave = pair.master.conn.stats, pair.slave.conn.stats
+    first_open = len(pair.ms.wire[0])
+    assert slave.drops == {"unvalidated": 1} and master.dropped == 0
+    assert master.sent.datagrams - 1 == slave.received.datagrams
+    assert master.sent.bytes - first_open == slave.received.bytes
+    assert slave.sent.datagrams == master.received.datagrams
+    assert slave.sent.bytes == master.received.bytes
+    for field in ("data_packets", "ack_packets", "payload_bytes", "header_bytes"):
+        assert getattr(slave.sent, field) == getattr(master.received, field), field
+    tag = 16 if keyed else 0
+    assert master.sent.protection_bytes - tag == slave.received.protection_bytes
+    assert slave.sent.protection_bytes == master.received.protection_bytes
