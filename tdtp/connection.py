@@ -658,7 +658,9 @@ class Connection:
             AckMode.SEPARATE if body.flags & OpenFlags.SEPARATE_ACKS else AckMode.BIDIRECTIONAL
         )
         self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = ReceiveWindow(admitted.initial_seq)
+        self._window = ReceiveWindow(
+            admitted.initial_seq, coverage=self._ack_mode is AckMode.BIDIRECTIONAL
+        )
         if admitted.key is not None:
             self._key = admitted.key
             self._keyed = True
@@ -728,7 +730,9 @@ class Connection:
             )
             return
         self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = ReceiveWindow(decode_header(data).seq)
+        self._window = ReceiveWindow(
+            decode_header(data).seq, coverage=self._ack_mode is AckMode.BIDIRECTIONAL
+        )
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out.
@@ -790,6 +794,8 @@ class Connection:
         if self._ack_mode is AckMode.BIDIRECTIONAL:
             if window is not None and window.unreported_since is not None:
                 deadline = min(deadline, window.unreported_since + config.ack_delay)
+            if window is not None and window.held:
+                deadline = min(deadline, window.highest_arrival)  # due since the jump
         elif self._separate_acks:
             deadline = min(deadline, self._separate_acks[0][1])
         loss_deadline = self._sent.loss_deadline(self._loss_delay())
@@ -850,6 +856,10 @@ class Connection:
         window = self._window
         assert window is not None
         bidirectional = self._ack_mode is AckMode.BIDIRECTIONAL
+        if bidirectional and window.held:
+            # The jump rule (section 3.2): report what a newer packet put out of reach, first.
+            for held in window.take_held():
+                self._emit_ack(out, held.ack, held.sack, encode_hold(now - held.arrival), peer, now)
         payload = self._pending
         if payload is not None and now >= self._controller.next_send_time():
             self._pending = None

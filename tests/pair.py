@@ -43,6 +43,8 @@ class Direction:
     keep_wire: bool = False
     rewrite: Callable[[int, bytes], bytes] | None = None
     """An on-path attacker: what datagram ``index`` becomes on its way (after ``wire`` saw it)."""
+    drop_datagram: Callable[[bytes], bool] | None = None
+    """Drop by content (e.g. a DATA packet's sequence number), besides ``drop`` by index."""
 
     def admit(self, datagram: bytes) -> tuple[float, bytes] | None:
         """The datagram's one-way delay and what arrives, or None if the rule drops it."""
@@ -50,7 +52,7 @@ class Direction:
         self.datagrams += 1
         if self.keep_wire:
             self.wire.append(datagram)
-        if self.drop(index):
+        if self.drop(index) or (self.drop_datagram is not None and self.drop_datagram(datagram)):
             self.dropped += 1
             return None
         if self.rewrite is not None:
