@@ -25,6 +25,7 @@ from tdtp.control.registry import create_controller
 from tdtp.errors import (
     ConnectionClosedError,
     ConnectionStateError,
+    EmptyPayloadError,
     InvalidKeyError,
     PayloadTooLargeError,
 )
@@ -307,6 +308,11 @@ class Connection:
             raise ConnectionStateError(
                 f"cannot send while {state.value}: wait for the ConnectionEstablished event"
             )
+        if not payload:
+            raise EmptyPayloadError(
+                "a sample must have at least one byte (TDTP sends no empty DATA packet; the "
+                "connection acknowledges and keeps itself alive on its own)"
+            )
         if len(payload) > self._send_limit:
             raise PayloadTooLargeError(
                 f"payload of {len(payload)} bytes exceeds the connection's maximum of "
@@ -431,8 +437,12 @@ class Connection:
         if self._state is not State.ESTABLISHED or window is None:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
-        if len(data) - HEADER_SIZE > self.config.max_payload:
+        payload_size = len(data) - HEADER_SIZE
+        if payload_size > self.config.max_payload:
             stats.count_drop(DropReason.OVERSIZED)
+            return
+        if not payload_size:
+            stats.count_drop(DropReason.EMPTY_DATA)  # senders MUST NOT send one (section 4.1)
             return
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)

@@ -18,6 +18,8 @@ class DropReason(enum.Enum):
     """An OPEN for a protocol version this implementation does not speak."""
     OVERSIZED = "oversized"
     """Longer than the header plus the maximum payload."""
+    EMPTY_DATA = "empty_data"
+    """A DATA packet without payload: senders never send one (a sample has at least one byte)."""
     WRONG_ADDRESS = "wrong_address"
     """Not from the connection's peer (off-path)."""
     OPTIMISTIC_ACK = "optimistic_ack"

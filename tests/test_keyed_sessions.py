@@ -308,3 +308,18 @@ def test_a_tampered_open_ack_is_dropped_and_the_master_keeps_trying() -> None:
     assert pair.established  # the retransmitted OPEN got a fresh OPEN_ACK
     assert _drops(pair.master.conn) == {"unauthenticated": 1}
     assert pair.now == pytest.approx(0.25 + 0.05)
+
+
+def test_an_empty_sealed_data_packet_is_dropped_after_it_authenticates() -> None:
+    """A keyed peer that seals an empty DATA (a sender MUST NOT) gets it dropped as empty_data:
+    the check is on the opened body, after the tag."""
+    pair = _keyed()
+    sealer = pair.master.conn._sealer
+    assert sealer is not None
+    datagram = sealer.seal(
+        encode_header(PacketType.DATA, pair.master.conn._sent.next_seq, 0, 0, 255), b""
+    )
+    assert len(datagram) == HEADER_SIZE + PROTECTION_OVERHEAD
+    pair.inject(datagram, to_slave=True, source=MASTER_ADDR)
+    assert _drops(pair.slave.conn).get("empty_data") == 1
+    assert _refused(pair.slave.conn) == 0
