@@ -199,8 +199,9 @@ class Connection:
         self._window: ReceiveWindow | None = None
         self._pending: bytes | None = None
         self._pending_paced = False  # the pending sample had to wait for the pacer
-        self._control_out: list[tuple[bytes, Address, int]] = []
-        """Control datagrams queued for the next flush: datagram, destination, protection bytes."""
+        self._control_out: list[tuple[bytes, Address, int, bool]] = []
+        """Control datagrams queued for the next flush: datagram, destination, protection bytes,
+        and whether it is session traffic (not: admission's COOKIE or REJECT answering an OPEN)."""
         self._separate_acks: deque[tuple[int, float]] = deque()
         self._event_seq = 0
         self._data_events: deque[tuple[int, Event]] = deque()
@@ -581,9 +582,10 @@ class Connection:
         self._accept(size, size - HEADER_SIZE, now)
         self._stats.received.control_packets += 1
 
-    def _accept_handshake(self, size: int, now: float, tag: int = 0) -> None:
+    def _accept_handshake(self, size: int, now: float, tag: int = 0, *, alive: bool = True) -> None:
         """Count a handshake message taken in; ``tag`` is the bytes of its tag (keyed OPEN and
-        OPEN_ACK), counted as protection."""
+        OPEN_ACK), counted as protection. ``alive``: it shows the peer is there (refreshes the idle
+        timer)."""
         received = self._stats.received
         received.datagrams += 1
         received.bytes += size
@@ -591,7 +593,8 @@ class Connection:
         received.payload_bytes += size - HEADER_SIZE - tag
         received.protection_bytes += tag
         received.control_packets += 1
-        self._last_receive = now
+        if alive:
+            self._last_receive = now
 
     # ------------------------------------------------------------------ opening
 
@@ -639,13 +642,15 @@ class Connection:
             return
         if isinstance(verdict, Reply):
             stats.count_drop(verdict.reason)
-            self._control_out.append((verdict.datagram, addr, 0))
+            self._control_out.append((verdict.datagram, addr, 0, False))
             return
         if self._state is State.LISTENING:
             self._open_session(verdict, addr, now)
         elif verdict.body.nonce == self._master_nonce:
-            # The master did not hear our OPEN_ACK: answer its retransmission again.
-            self._accept_handshake(verdict.size, now, self._tag_size())
+            # The master did not hear our OPEN_ACK: answer its retransmission again. Not a sign
+            # of life: a master sends OPENs only until it is established, so once the session is
+            # established this is a delayed duplicate or a replay (PROTOCOL.md 5.2).
+            self._accept_handshake(verdict.size, now, self._tag_size(), alive=False)
             self._queue_open_ack()
         elif now - self._last_receive > self.config.keepalive_interval + 2.0 * self._rtt.srtt:
             # The same address opens anew and this session has been silent longer than a live
@@ -857,8 +862,8 @@ class Connection:
             self._open_next = now + self.config.open_retry_interval
             self._emit_open(out, now)
         if self._control_out:
-            for datagram, addr, protection in self._control_out:
-                self._emit_control(out, datagram, addr, now, protection)
+            for datagram, addr, protection, session in self._control_out:
+                self._emit_control(out, datagram, addr, now, protection, session)
             self._control_out.clear()
         if state is not State.ESTABLISHED or self._state is not State.ESTABLISHED:
             return out
@@ -985,20 +990,25 @@ class Connection:
         addr: Address,
         now: float,
         protection: int,
+        session: bool = True,
     ) -> None:
         sent = self._stats.sent
         sent.control_packets += 1
         sent.payload_bytes += len(datagram) - HEADER_SIZE - protection
-        self._count_sent(len(datagram), now, protection)
+        self._count_sent(len(datagram), now, protection, session)
         out.append((datagram, addr))
 
-    def _count_sent(self, size: int, now: float, protection: int) -> None:
+    def _count_sent(self, size: int, now: float, protection: int, session: bool = True) -> None:
         sent = self._stats.sent
         sent.datagrams += 1
         sent.bytes += size
         sent.header_bytes += HEADER_SIZE
         sent.protection_bytes += protection
-        self._last_send = now
+        if session:
+            # The peer hears from us: no KEEPALIVE needed for a while. A COOKIE or REJECT to
+            # whoever sent an OPEN says nothing to the peer (it may be a forgery or a replay),
+            # so it must not hold back our KEEPALIVEs (PROTOCOL.md 5.2).
+            self._last_send = now
 
     # ------------------------------------------------------------------ helpers
 
@@ -1020,14 +1030,14 @@ class Connection:
         )
         if sealer is not None:
             datagram += sealer.tag(number, datagram)
-        self._control_out.append((datagram, self._peer_address(), self._tag_size()))
+        self._control_out.append((datagram, self._peer_address(), self._tag_size(), True))
 
     def _queue_close(self, reason: CloseReason, addr: Address) -> None:
         datagram = self._protect(
             encode_header(_CONTROL, self._sent.next_seq, 0, 0, HOLD_NO_ACK) + _CLOSE_PREFIX,
             encode_close(ControlCode.CLOSE, self._master_nonce, reason)[1:],
         )
-        self._control_out.append((datagram, addr, self._overhead))
+        self._control_out.append((datagram, addr, self._overhead, True))
 
     def _terminate(self, cause: CloseCause, detail: str) -> None:
         self._state = State.CLOSED
