@@ -182,7 +182,10 @@ class Connection:
         self._cookie_answered_at = -math.inf
         self._ack_mode = self.config.ack_mode
         self._send_limit = self.config.max_payload
-        self._size_limit = HEADER_SIZE + max(self.config.max_payload, _LARGEST_CONTROL)
+        # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
+        self._size_limit = (
+            HEADER_SIZE + max(self.config.max_payload, _LARGEST_CONTROL) + PROTECTION_OVERHEAD
+        )
         self._controller: RateController = create_controller(
             self.config.controller, self.config.controller_config
         )
