@@ -753,8 +753,9 @@ class Connection:
         )
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
-        # datagrams_to_send sends a KEEPALIVE unless a sample goes out.
-        self._last_send = now - self.config.keepalive_interval
+        # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
+        # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
+        self._last_send = now - 2.0 * self.config.keepalive_interval
 
     def _on_duplicate_open_ack(self, body: OpenAckBody, data: bytes, now: float) -> None:
         """The slave answered a retransmitted OPEN again; our open is already done. In a keyed
