@@ -55,6 +55,7 @@ from tdtp.wire.errors import MalformedPacketError  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "tests" / "vectors"))
 from endpoint_scripts import all_scripts  # noqa: E402  (beside this file)
+
 from tdtp_adapter import ADDRESSES, ScriptRunner  # noqa: E402  (tests/vectors/)
 
 FORMAT = "tdtp-conformance-vectors"
