@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from tdtp import Connection, ConnectionConfig, DataReceived, Event, Role
+from tdtp.pcap import PcapWriter
 from tdtp.protection.keys import KeyInput, KeysInput
 
 MASTER_ADDR = ("192.0.2.1", 40001)
@@ -105,6 +106,11 @@ class Pair:
         self.sm = sm if sm is not None else Direction()
         self._in_flight: list[tuple[float, int, bytes, bool]] = []  # (time, order, data, to_slave)
         self._order = 0
+        self.capture: PcapWriter | None = None
+        """Records every datagram sent (before the fake network's loss) and injected."""
+        self.capture_epoch = 1_700_000_000.0
+        self.addresses = (MASTER_ADDR, SLAVE_ADDR)
+        """What the capture names the master and the slave (the connections use the defaults)."""
 
     # ----------------------------------------------------------------- driving
 
@@ -209,6 +215,9 @@ class Pair:
         to_slave = endpoint is self.master
         direction = self.ms if to_slave else self.sm
         for data, _addr in endpoint.conn.datagrams_to_send(now=self.now):
+            if self.capture is not None:
+                source, target = self.addresses if to_slave else self.addresses[::-1]
+                self.capture.write_udp(source, target, data, self.capture_epoch + self.now)
             admitted = direction.admit(data)
             if admitted is not None:
                 delay, arriving = admitted
@@ -218,6 +227,12 @@ class Pair:
     def inject(self, data: bytes, *, to_slave: bool, source: tuple[str, int]) -> None:
         """Hand a crafted datagram to one side now, as if it came from ``source``."""
         target = self.slave if to_slave else self.master
+        if self.capture is not None:
+            alias = {MASTER_ADDR: self.addresses[0], SLAVE_ADDR: self.addresses[1]}
+            destination = self.addresses[1] if to_slave else self.addresses[0]
+            self.capture.write_udp(
+                alias.get(source, source), destination, data, self.capture_epoch + self.now
+            )
         target.conn.receive_datagram(data, source, now=self.now)
         self._drain(target)
         self._flush(target)
