@@ -57,8 +57,11 @@ def test_paper_scenario_briefly() -> None:
     assert trinomial.connection["master"]["ack_packets_sent"] >= 0.95 * received
     # The headline: with TCP congesting both ways, both controllers settle near eq. 2 in packets,
     # so TDTP's piggybacking does not double the samples delivered (the paper reports about 2x).
+    # A 12 s run is noisy: over seeds 1-8 the ratios spread from 0.46 to 1.29 (mean 0.88-0.89,
+    # the same before and after the jump rule of PROTOCOL.md 3.2); the lower bound only catches
+    # a TDTP that starves.
     ratios = result.ratios["tdtp/trinomial"]["congested"]
-    assert 0.5 < ratios["M->S"] < 1.6 and 0.5 < ratios["S->M"] < 1.6
+    assert 0.4 < ratios["M->S"] < 1.6 and 0.4 < ratios["S->M"] < 1.6
     data = json.loads(result.to_json())
     assert data["scenario"] == "paper" and set(data["runs"]) == {"tdtp", "trinomial"}
     assert data["headline"]["tdtp"]["M->S"]["goodput_kbps"] > 0
