@@ -105,19 +105,22 @@ class ReceiveWindow:
             distance = seq - highest
         if distance > 0:
             if self._coverage:
+                reach = seq - 6  # the lowest sequence number an ACK of ``seq`` describes
                 low = self.pending_low
-                if low is not None and seq - SACK_SPAN > low:
+                if low is None:
+                    # What the next ACK must describe: all after the last report that it reaches.
+                    low = self.last_reported + 1
+                    self.pending_low = low if low > reach else reach
+                elif reach > low:
                     # Jump rule: an ACK of ``seq`` would no longer reach ``low``; report the
                     # highest as it stands first (it reaches ``low``: the full rule saw to it).
                     self.held.append(
-                        HeldAck(highest, self.sack_below(highest), self.highest_arrival)
+                        HeldAck(highest, (self._mask >> 1) & 0x3F, self.highest_arrival)
                     )
                     self.last_reported = highest
                     self.unreported_since = None
-                    low = None
-                if low is None:
-                    # What the next ACK must describe: all after the last report that it reaches.
-                    self.pending_low = max(self.last_reported + 1, seq - SACK_SPAN)
+                    low = highest + 1
+                    self.pending_low = low if low > reach else reach
             self._mask = ((self._mask << distance) | 1) & _WINDOW_MASK if distance < WINDOW else 1
             self.highest = seq
             self.highest_arrival = now

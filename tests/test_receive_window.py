@@ -114,7 +114,7 @@ def _reports(arrivals: list[int]) -> list[tuple[int, int]]:
     return sent
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.lists(st.booleans(), min_size=1, max_size=300), st.integers(0, 4095))
 def test_every_received_packet_is_acknowledged_and_every_short_gap_reported(
     lost: list[bool], first: int

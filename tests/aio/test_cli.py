@@ -122,7 +122,9 @@ def test_master_and_slave_json_tell_each_direction_from_their_end(tmp_path: Path
     assert back["packets_received"] <= seen_out["packets_sent"]
     assert seen_out["packets_acked"] <= back["packets_received"]
     assert seen_in["drops_at_receiver"] == {}
-    assert served["pcap"]["packets"] > 2 * out["packets_sent"] and served["pcap"]["error"] is None
+    # The slave's socket carried at least every DATA it received and sent (plus control and ACKs).
+    carried = seen_in["packets_received"] + seen_out["packets_sent"]
+    assert served["pcap"]["packets"] >= carried and served["pcap"]["error"] is None
 
 
 def test_an_unwritable_capture_is_one_line_and_status_2(capsys: pytest.CaptureFixture[str]) -> None:
