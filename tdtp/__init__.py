@@ -14,6 +14,7 @@ from tdtp.connection import Connection, State
 from tdtp.errors import (
     ConnectionClosedError,
     ConnectionStateError,
+    EmptyPayloadError,
     InvalidKeyError,
     PayloadTooLargeError,
     TdtpError,
@@ -51,6 +52,7 @@ __all__ = [
     "DataReceived",
     "DirectionStats",
     "DropReason",
+    "EmptyPayloadError",
     "Endpoint",
     "EndpointClosedError",
     "Event",

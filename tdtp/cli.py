@@ -29,6 +29,7 @@ from tdtp.cli_keys import (
     session_keys,
     warn_if_exposed,
 )
+from tdtp.cli_summary import LatencyCounts, capture_report, direction_report
 from tdtp.config import AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
 from tdtp.control.registry import available_controllers
@@ -38,14 +39,16 @@ from tdtp.live_stats import (
     DirectionMeter,
     LatencyRecorder,
     LiveDisplay,
-    direction_summary,
     receive_line,
 )
 from tdtp.netem import NetemSpec, parse_netem
+from tdtp.pcap import CaptureError, PcapWriter
 from tdtp.sim.cli import simulate_main
 
 MAX_LATENCY = 10.0
 """Latencies above this are not recorded (the clocks of two hosts are not comparable)."""
+MAX_SESSIONS_REPORTED = 1024
+"""Sessions a slave keeps for its summary (the oldest are forgotten first)."""
 
 
 # ---------------------------------------------------------------------------- arguments
@@ -105,6 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--ack-size", type=int, default=5, help="bytes of a stand-alone ACK datagram (5)"
     )
     common.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    common.add_argument(
+        "--pcap",
+        metavar="FILE",
+        help="write what the socket sends and receives to FILE, a pcap for Wireshark "
+        "(the demo captures the master's socket; tools/wireshark/tdtp.lua decodes it)",
+    )
     common.add_argument(
         "--loop", choices=("auto", "uvloop", "asyncio"), default="auto", help="event loop"
     )
@@ -192,16 +201,26 @@ class Side:
     latency: LatencyRecorder = field(default_factory=LatencyRecorder)
     received: int = 0
     last_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    not_haptic: int = 0
+    clock_mismatch: int = 0
+    endpoint: Endpoint | None = None
+    started: float = 0.0
 
     def on_data(self, event: DataReceived) -> None:
         self.received += 1
         sample = HapticSample.decode(event.payload)
         if sample is None:
+            self.not_haptic += 1
             return
         self.last_position = sample.position
         latency = event.received_at - sample.sent_at
         if 0.0 <= latency < MAX_LATENCY:
             self.latency.add(latency)
+        else:
+            self.clock_mismatch += 1
+
+    def latency_counts(self) -> LatencyCounts:
+        return LatencyCounts(self.latency, self.not_haptic, self.clock_mismatch)
 
 
 async def _send_loop(
@@ -257,6 +276,7 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     duration = args.duration if args.duration is not None else 5.0
     master_side, slave_side = Side("master"), Side("slave")
     ms_spec, sm_spec = _directions(args)
+    capture = PcapWriter(args.pcap) if args.pcap is not None else None
     async with (
         await listen(
             "127.0.0.1",
@@ -275,6 +295,7 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
             netem=ms_spec,
             netem_seed=_seed(args, 0),
             key=keys.master,
+            pcap=capture,
         ) as master,
     ):
         slave = await server.accept()
@@ -314,17 +335,29 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
         await asyncio.gather(*tasks)
         elapsed = monotonic() - start  # the sending window: rates are per second of it
         await asyncio.sleep(0.05)  # let the last samples land before counting
+        both = ["master", "slave"]
         summary = {
             "command": "demo",
             "duration_s": round(elapsed, 3),
             **_settings(args, master),
-            "master_to_slave": direction_summary(
-                master.stats, slave.stats, elapsed, slave_side.latency
+            "master_to_slave": direction_report(
+                sender=master.stats,
+                receiver=slave.stats,
+                observed_at=both,
+                duration=elapsed,
+                latency=slave_side.latency_counts(),
             ),
-            "slave_to_master": direction_summary(
-                slave.stats, master.stats, elapsed, master_side.latency
+            "slave_to_master": direction_report(
+                sender=slave.stats,
+                receiver=master.stats,
+                observed_at=both,
+                duration=elapsed,
+                latency=master_side.latency_counts(),
             ),
         }
+    if capture is not None:
+        capture.close()
+        summary["pcap"] = capture_report(capture)
     return summary
 
 
@@ -362,6 +395,7 @@ async def run_master(args: argparse.Namespace) -> dict[str, Any]:
     side = Side("master")
     until = math.inf if args.duration is None else monotonic() + args.duration
     ms_spec, _ = _directions(args)
+    capture = PcapWriter(args.pcap) if args.pcap is not None else None
     async with await connect(
         host,
         port,
@@ -370,6 +404,7 @@ async def run_master(args: argparse.Namespace) -> dict[str, Any]:
         netem=ms_spec,
         netem_seed=_seed(args, 0),
         key=args.session_keys.master,
+        pcap=capture,
     ) as ep:
         start = monotonic()
         until = min(until, start + (args.duration or math.inf))
@@ -394,18 +429,30 @@ async def run_master(args: argparse.Namespace) -> dict[str, Any]:
             tasks.append(_every_second(until, show))
         await asyncio.gather(*tasks)
         elapsed = monotonic() - start
-        return {
+        summary = {
             "command": "master",
             "duration_s": round(elapsed, 3),
             **_settings(args, ep),
-            "master_to_slave": direction_summary(ep.stats, None, elapsed),
-            "slave_to_master": {
-                "packets_received": side.received,
-                "mean_rate": round(side.received / elapsed, 2) if elapsed else 0.0,
-                "latency_ms": side.latency.summary_ms(),
-            },
+            "master_to_slave": direction_report(
+                sender=ep.stats,
+                receiver=None,
+                observed_at=["master"],
+                duration=elapsed,
+                latency=None,
+            ),
+            "slave_to_master": direction_report(
+                sender=None,
+                receiver=ep.stats,
+                observed_at=["master"],
+                duration=elapsed,
+                latency=side.latency_counts(),
+            ),
             "close": None if not ep.is_closed else "closed by the slave",
         }
+    if capture is not None:
+        capture.close()
+        summary["pcap"] = capture_report(capture)
+    return summary
 
 
 async def _serve_one(ep: Endpoint, side: Side, args: argparse.Namespace, until: float) -> None:
@@ -418,6 +465,7 @@ async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
     _, sm_spec = _directions(args)
     keys: SessionKeys = args.session_keys
     warn_if_exposed(args.host, keys)
+    capture = PcapWriter(args.pcap) if args.pcap is not None else None
     async with await listen(
         args.host,
         args.port,
@@ -426,6 +474,7 @@ async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
         netem=sm_spec,
         netem_seed=_seed(args, 1),
         keys=keys.slave,
+        pcap=capture,
     ) as server:
         display = None if args.json else LiveDisplay()
         if display is not None:
@@ -439,13 +488,41 @@ async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
             acceptor.cancel()
             for task in tasks:
                 task.cancel()
-        return {
+        summary = {
             "command": "slave",
             "masters_served": server.stats.peers_accepted,
             "masters_refused": server.stats.peers_refused,
             "datagrams_unattached": server.stats.datagrams_unattached,
             "admission": asdict(server.stats.admission),
+            "sessions": [_session_report(side) for side in sides.values()],
         }
+    if capture is not None:
+        capture.close()
+        summary["pcap"] = capture_report(capture)
+    return summary
+
+
+def _session_report(side: Side) -> dict[str, Any]:
+    """One master's session as the slave saw it: both directions from this end."""
+    ep = side.endpoint
+    assert ep is not None
+    duration = monotonic() - side.started
+    peer = ep.peer
+    return {
+        "master": None if peer is None else f"{peer[0]}:{peer[1]}",
+        "duration_s": round(duration, 3),
+        "closed": ep.is_closed,
+        "master_to_slave": direction_report(
+            sender=None,
+            receiver=ep.stats,
+            observed_at=["slave"],
+            duration=duration,
+            latency=side.latency_counts(),
+        ),
+        "slave_to_master": direction_report(
+            sender=ep.stats, receiver=None, observed_at=["slave"], duration=duration, latency=None
+        ),
+    }
 
 
 async def _accept_loop(
@@ -456,7 +533,10 @@ async def _accept_loop(
     tasks: set[asyncio.Task[None]],
 ) -> None:
     async for ep in server:
-        side = Side(f"master {ep.peer}")
+        side = Side(f"master {ep.peer}", endpoint=ep, started=monotonic())
+        if len(sides) >= MAX_SESSIONS_REPORTED:  # a churning peer must not grow this forever
+            oldest = next(iter(sides))
+            del sides[oldest]
         sides[id(ep)] = side
         ep.set_data_callback(side.on_data)
         task = asyncio.create_task(_serve_one(ep, side, args, until))
@@ -570,6 +650,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConnectError as exc:
         print(f"tdtp: {exc}", file=sys.stderr)
         return 1
+    except CaptureError as exc:
+        print(f"tdtp: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         return 130
     if args.json:

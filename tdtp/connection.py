@@ -25,6 +25,7 @@ from tdtp.control.registry import create_controller
 from tdtp.errors import (
     ConnectionClosedError,
     ConnectionStateError,
+    EmptyPayloadError,
     InvalidKeyError,
     PayloadTooLargeError,
 )
@@ -182,8 +183,10 @@ class Connection:
         self._cookie_answered_at = -math.inf
         self._ack_mode = self.config.ack_mode
         self._send_limit = self.config.max_payload
-        self._size_limit = HEADER_SIZE + max(self.config.max_payload, _LARGEST_CONTROL)
-        self._data_limit = HEADER_SIZE + self.config.max_payload  # a DATA datagram, unprotected
+        # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
+        self._size_limit = (
+            HEADER_SIZE + max(self.config.max_payload, _LARGEST_CONTROL) + PROTECTION_OVERHEAD
+        )
         self._controller: RateController = create_controller(
             self.config.controller, self.config.controller_config
         )
@@ -200,8 +203,9 @@ class Connection:
         self._window: ReceiveWindow | None = None
         self._pending: bytes | None = None
         self._pending_paced = False  # the pending sample had to wait for the pacer
-        self._control_out: list[tuple[bytes, Address, int]] = []
-        """Control datagrams queued for the next flush: datagram, destination, protection bytes."""
+        self._control_out: list[tuple[bytes, Address, int, bool]] = []
+        """Control datagrams queued for the next flush: datagram, destination, protection bytes,
+        and whether it is session traffic (not: admission's COOKIE or REJECT answering an OPEN)."""
         self._separate_acks: deque[tuple[int, float]] = deque()
         self._event_seq = 0
         self._data_events: deque[tuple[int, Event]] = deque()
@@ -308,6 +312,11 @@ class Connection:
                 )
             raise ConnectionStateError(
                 f"cannot send while {state.value}: wait for the ConnectionEstablished event"
+            )
+        if not payload:
+            raise EmptyPayloadError(
+                "a sample must have at least one byte (TDTP sends no empty DATA packet; the "
+                "connection acknowledges and keeps itself alive on its own)"
             )
         if len(payload) > self._send_limit:
             raise PayloadTooLargeError(
@@ -434,8 +443,12 @@ class Connection:
         if self._state is not State.ESTABLISHED or window is None:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
-        if len(data) > self._data_limit:
+        payload_size = len(data) - HEADER_SIZE
+        if payload_size > self.config.max_payload:
             stats.count_drop(DropReason.OVERSIZED)
+            return
+        if not payload_size:
+            stats.count_drop(DropReason.EMPTY_DATA)  # senders MUST NOT send one (section 4.1)
             return
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)
@@ -574,9 +587,10 @@ class Connection:
         self._accept(size, size - HEADER_SIZE, now)
         self._stats.received.control_packets += 1
 
-    def _accept_handshake(self, size: int, now: float, tag: int = 0) -> None:
+    def _accept_handshake(self, size: int, now: float, tag: int = 0, *, alive: bool = True) -> None:
         """Count a handshake message taken in; ``tag`` is the bytes of its tag (keyed OPEN and
-        OPEN_ACK), counted as protection."""
+        OPEN_ACK), counted as protection. ``alive``: it shows the peer is there (refreshes the idle
+        timer)."""
         received = self._stats.received
         received.datagrams += 1
         received.bytes += size
@@ -584,7 +598,8 @@ class Connection:
         received.payload_bytes += size - HEADER_SIZE - tag
         received.protection_bytes += tag
         received.control_packets += 1
-        self._last_receive = now
+        if alive:
+            self._last_receive = now
 
     # ------------------------------------------------------------------ opening
 
@@ -632,13 +647,15 @@ class Connection:
             return
         if isinstance(verdict, Reply):
             stats.count_drop(verdict.reason)
-            self._control_out.append((verdict.datagram, addr, 0))
+            self._control_out.append((verdict.datagram, addr, 0, False))
             return
         if self._state is State.LISTENING:
             self._open_session(verdict, addr, now)
         elif verdict.body.nonce == self._master_nonce:
-            # The master did not hear our OPEN_ACK: answer its retransmission again.
-            self._accept_handshake(verdict.size, now, self._tag_size())
+            # The master did not hear our OPEN_ACK: answer its retransmission again. Not a sign
+            # of life: a master sends OPENs only until it is established, so once the session is
+            # established this is a delayed duplicate or a replay (PROTOCOL.md 5.2).
+            self._accept_handshake(verdict.size, now, self._tag_size(), alive=False)
             self._queue_open_ack()
         elif now - self._last_receive > self.config.keepalive_interval + 2.0 * self._rtt.srtt:
             # The same address opens anew and this session has been silent longer than a live
@@ -661,7 +678,9 @@ class Connection:
             AckMode.SEPARATE if body.flags & OpenFlags.SEPARATE_ACKS else AckMode.BIDIRECTIONAL
         )
         self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = ReceiveWindow(admitted.initial_seq)
+        self._window = ReceiveWindow(
+            admitted.initial_seq, coverage=self._ack_mode is AckMode.BIDIRECTIONAL
+        )
         if admitted.key is not None:
             self._key = admitted.key
             self._keyed = True
@@ -732,11 +751,14 @@ class Connection:
             )
             return
         self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = ReceiveWindow(decode_header(data).seq)
+        self._window = ReceiveWindow(
+            decode_header(data).seq, coverage=self._ack_mode is AckMode.BIDIRECTIONAL
+        )
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
-        # datagrams_to_send sends a KEEPALIVE unless a sample goes out.
-        self._last_send = now - self.config.keepalive_interval
+        # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
+        # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
+        self._last_send = now - 2.0 * self.config.keepalive_interval
 
     def _on_duplicate_open_ack(self, body: OpenAckBody, data: bytes, now: float) -> None:
         """The slave answered a retransmitted OPEN again; our open is already done. In a keyed
@@ -795,6 +817,8 @@ class Connection:
         if self._ack_mode is AckMode.BIDIRECTIONAL:
             if window is not None and window.unreported_since is not None:
                 deadline = min(deadline, window.unreported_since + config.ack_delay)
+            if window is not None and window.held:
+                deadline = min(deadline, window.highest_arrival)  # due since the jump
         elif self._separate_acks:
             deadline = min(deadline, self._separate_acks[0][1])
         loss_deadline = self._sent.loss_deadline(self._loss_delay())
@@ -846,8 +870,8 @@ class Connection:
             self._open_next = now + self.config.open_retry_interval
             self._emit_open(out, now)
         if self._control_out:
-            for datagram, addr, protection in self._control_out:
-                self._emit_control(out, datagram, addr, now, protection)
+            for datagram, addr, protection, session in self._control_out:
+                self._emit_control(out, datagram, addr, now, protection, session)
             self._control_out.clear()
         if state is not State.ESTABLISHED or self._state is not State.ESTABLISHED:
             return out
@@ -856,6 +880,10 @@ class Connection:
         window = self._window
         assert window is not None
         bidirectional = self._ack_mode is AckMode.BIDIRECTIONAL
+        if bidirectional and window.held:
+            # The jump rule (section 3.2): report what a newer packet put out of reach, first.
+            for held in window.take_held():
+                self._emit_ack(out, held.ack, held.sack, encode_hold(now - held.arrival), peer, now)
         payload = self._pending
         if payload is not None and now >= self._controller.next_send_time():
             self._pending = None
@@ -972,20 +1000,25 @@ class Connection:
         addr: Address,
         now: float,
         protection: int,
+        session: bool = True,
     ) -> None:
         sent = self._stats.sent
         sent.control_packets += 1
         sent.payload_bytes += len(datagram) - HEADER_SIZE - protection
-        self._count_sent(len(datagram), now, protection)
+        self._count_sent(len(datagram), now, protection, session)
         out.append((datagram, addr))
 
-    def _count_sent(self, size: int, now: float, protection: int) -> None:
+    def _count_sent(self, size: int, now: float, protection: int, session: bool = True) -> None:
         sent = self._stats.sent
         sent.datagrams += 1
         sent.bytes += size
         sent.header_bytes += HEADER_SIZE
         sent.protection_bytes += protection
-        self._last_send = now
+        if session:
+            # The peer hears from us: no KEEPALIVE needed for a while. A COOKIE or REJECT to
+            # whoever sent an OPEN says nothing to the peer (it may be a forgery or a replay),
+            # so it must not hold back our KEEPALIVEs (PROTOCOL.md 5.2).
+            self._last_send = now
 
     # ------------------------------------------------------------------ helpers
 
@@ -1007,14 +1040,14 @@ class Connection:
         )
         if sealer is not None:
             datagram += sealer.tag(number, datagram)
-        self._control_out.append((datagram, self._peer_address(), self._tag_size()))
+        self._control_out.append((datagram, self._peer_address(), self._tag_size(), True))
 
     def _queue_close(self, reason: CloseReason, addr: Address) -> None:
         datagram = self._protect(
             encode_header(_CONTROL, self._sent.next_seq, 0, 0, HOLD_NO_ACK) + _CLOSE_PREFIX,
             encode_close(ControlCode.CLOSE, self._master_nonce, reason)[1:],
         )
-        self._control_out.append((datagram, addr, self._overhead))
+        self._control_out.append((datagram, addr, self._overhead, True))
 
     def _terminate(self, cause: CloseCause, detail: str) -> None:
         self._state = State.CLOSED

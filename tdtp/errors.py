@@ -19,5 +19,9 @@ class PayloadTooLargeError(TdtpError, ValueError):
     """A payload exceeds the connection's maximum; split it or raise ``max_payload`` on both ends."""
 
 
+class EmptyPayloadError(TdtpError, ValueError):
+    """A sample must have at least one byte: TDTP never sends an empty DATA packet."""
+
+
 class InvalidKeyError(TdtpError, ValueError):
     """Key material or a key argument is unusable: too short, malformed, or given to the wrong role."""

@@ -2,23 +2,45 @@
 
 A 64-bit mask remembers which of the last 64 sequence numbers arrived (bit 0 = the highest). The
 ACK a packet carries is the highest sequence number received; its SACK bits are mask bits 1..6.
+
+In bidirectional mode the window also keeps the promise of docs/PROTOCOL.md section 3.2: every
+sequence number after the last one reported is described by some ACK (received, or absent) as long as
+an ACK can still reach it. Two rules do that. *Full*: once the highest received is 6 above the oldest
+sequence number still to be described, the next ACK must go out now (:meth:`coverage_exhausted`).
+*Jump*: a new packet more than 6 above that oldest number would push it out of every later ACK, so
+the ACK of the highest *before* the jump is held for sending first (:meth:`take_held`).
 """
 
 from __future__ import annotations
 
 import enum
+from collections import deque
+from typing import NamedTuple
 
 from tdtp.wire.seqnum import SEQ_MODULUS, expand_seq
 
 WINDOW = 64
 _WINDOW_MASK = (1 << WINDOW) - 1
-SACK_COVERAGE = 7
-"""One ACK reports the ACK value and the 6 below it; a stand-alone ACK is due before a packet would
-be left unreported."""
+SACK_SPAN = 6
+"""Sequence numbers below ACK that the SACK bits describe."""
+SACK_COVERAGE = SACK_SPAN + 1
+"""One ACK reports the ACK value and the 6 below it."""
 RESYNC_RUN = 3
 """Consecutive sequence numbers that all look older than the window: the peer's numbering has moved on by
 more than half the 12-bit space (a loss burst of over 2047 packets), so the window re-anchors one wrap
 ahead instead of discarding a live flow as stale."""
+MAX_HELD = 8
+"""Jump ACKs kept for the next flush. The caller flushes after every input, so one is the most ever
+waiting; the bound only protects against a caller that does not (the oldest is then forgotten)."""
+
+
+class HeldAck(NamedTuple):
+    """An acknowledgement the jump rule decided must go out, frozen as it was before the jump."""
+
+    ack: int
+    sack: int
+    arrival: float
+    """When the packet named by ``ack`` arrived (its hold is measured from here)."""
 
 
 class Arrival(enum.Enum):
@@ -33,16 +55,21 @@ class Arrival(enum.Enum):
 
 class ReceiveWindow:
     __slots__ = (
+        "_coverage",
         "_mask",
         "_stale_next",
         "_stale_run",
+        "held",
         "highest",
         "highest_arrival",
         "last_reported",
+        "pending_low",
         "unreported_since",
     )
 
-    def __init__(self, initial_seq: int) -> None:
+    def __init__(self, initial_seq: int, *, coverage: bool = True) -> None:
+        """``coverage`` enables the reporting rules of bidirectional mode (separate-ACK mode answers
+        every packet with its own ACK and needs none)."""
         self.highest = initial_seq - 1
         """Full sequence number of the newest data received (initial - 1 before any)."""
         self.highest_arrival = 0.0
@@ -51,6 +78,11 @@ class ReceiveWindow:
         """The highest ACK value already sent to the peer."""
         self.unreported_since: float | None = None
         """Arrival time of the oldest packet not yet reported in an outgoing ACK."""
+        self.pending_low: int | None = None
+        """The oldest sequence number no ACK has described yet (received or absent), if any."""
+        self.held: deque[HeldAck] = deque(maxlen=MAX_HELD)
+        """ACKs the jump rule requires, oldest first, for the next flush."""
+        self._coverage = coverage
         self._stale_next = 0
         self._stale_run = 0
 
@@ -72,6 +104,23 @@ class ReceiveWindow:
             seq += SEQ_MODULUS  # now ahead of highest: expand_seq put it at most 2048 behind
             distance = seq - highest
         if distance > 0:
+            if self._coverage:
+                reach = seq - 6  # the lowest sequence number an ACK of ``seq`` describes
+                low = self.pending_low
+                if low is None:
+                    # What the next ACK must describe: all after the last report that it reaches.
+                    low = self.last_reported + 1
+                    self.pending_low = low if low > reach else reach
+                elif reach > low:
+                    # Jump rule: an ACK of ``seq`` would no longer reach ``low``; report the
+                    # highest as it stands first (it reaches ``low``: the full rule saw to it).
+                    self.held.append(
+                        HeldAck(highest, (self._mask >> 1) & 0x3F, self.highest_arrival)
+                    )
+                    self.last_reported = highest
+                    self.unreported_since = None
+                    low = highest + 1
+                    self.pending_low = low if low > reach else reach
             self._mask = ((self._mask << distance) | 1) & _WINDOW_MASK if distance < WINDOW else 1
             self.highest = seq
             self.highest_arrival = now
@@ -83,6 +132,12 @@ class ReceiveWindow:
         if self._mask & bit:
             return Arrival.DUPLICATE, seq, 0
         self._mask |= bit
+        if self._coverage and behind <= SACK_SPAN:
+            # Within reach of an ACK of the highest: the next one must report it. (A packet
+            # reordered further than that can no longer be reported: the sender decided already.)
+            low = self.pending_low
+            if low is None or seq < low:
+                self.pending_low = seq
         if self.unreported_since is None:
             self.unreported_since = now
         return Arrival.LATE, seq, 0
@@ -92,9 +147,18 @@ class ReceiveWindow:
         return (self._mask >> (self.highest - seq + 1)) & 0x3F
 
     def coverage_exhausted(self) -> bool:
-        """True when the next ACK could no longer report every packet since the last one sent."""
-        return self.highest - self.last_reported >= SACK_COVERAGE
+        """Full rule: an ACK of the highest just reaches the oldest sequence number not described
+        yet, so it must go out before another packet arrives."""
+        low = self.pending_low
+        return low is not None and self.highest - low >= SACK_SPAN
+
+    def take_held(self) -> list[HeldAck]:
+        """The ACKs the jump rule requires (oldest first), now owed to the caller."""
+        held = list(self.held)
+        self.held.clear()
+        return held
 
     def mark_reported(self) -> None:
         self.last_reported = self.highest
+        self.pending_low = None
         self.unreported_since = None

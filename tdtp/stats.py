@@ -18,6 +18,8 @@ class DropReason(enum.Enum):
     """An OPEN for a protocol version this implementation does not speak."""
     OVERSIZED = "oversized"
     """Longer than the header plus the maximum payload."""
+    EMPTY_DATA = "empty_data"
+    """A DATA packet without payload: senders never send one (a sample has at least one byte)."""
     WRONG_ADDRESS = "wrong_address"
     """Not from the connection's peer (off-path)."""
     OPTIMISTIC_ACK = "optimistic_ack"
@@ -85,8 +87,9 @@ class ConnectionStats:
     packets_acked: int = 0
     """Own data packets the peer reported received."""
     packets_lost: int = 0
-    """Own data packets declared lost: an ACK reported them absent and a packet 3 later was acknowledged,
-    or they stayed absent for 9/8 of an RTT while later ones were acknowledged."""
+    """Own data packets declared lost: an ACK reported them absent and the largest ACK field is 3 or
+    more above them, or ``1.2 srtt + max(4 rttvar, 1 ms) + ack_delay`` has passed since they were sent
+    while a later one is acknowledged (docs/PROTOCOL.md section 5.4)."""
     packets_unreported: int = 0
     """Own data packets whose fate is unknown: every ACK that could have reported them was lost on the
     way back. Counted neither as acknowledged nor as lost (they are no evidence of congestion)."""

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from tdtp import Connection, ConnectionConfig, DataReceived, Event, Role
+from tdtp.pcap import PcapWriter
 from tdtp.protection.keys import KeyInput, KeysInput
 
 MASTER_ADDR = ("192.0.2.1", 40001)
@@ -43,6 +44,8 @@ class Direction:
     keep_wire: bool = False
     rewrite: Callable[[int, bytes], bytes] | None = None
     """An on-path attacker: what datagram ``index`` becomes on its way (after ``wire`` saw it)."""
+    drop_datagram: Callable[[bytes], bool] | None = None
+    """Drop by content (e.g. a DATA packet's sequence number), besides ``drop`` by index."""
 
     def admit(self, datagram: bytes) -> tuple[float, bytes] | None:
         """The datagram's one-way delay and what arrives, or None if the rule drops it."""
@@ -50,7 +53,7 @@ class Direction:
         self.datagrams += 1
         if self.keep_wire:
             self.wire.append(datagram)
-        if self.drop(index):
+        if self.drop(index) or (self.drop_datagram is not None and self.drop_datagram(datagram)):
             self.dropped += 1
             return None
         if self.rewrite is not None:
@@ -103,6 +106,11 @@ class Pair:
         self.sm = sm if sm is not None else Direction()
         self._in_flight: list[tuple[float, int, bytes, bool]] = []  # (time, order, data, to_slave)
         self._order = 0
+        self.capture: PcapWriter | None = None
+        """Records every datagram sent (before the fake network's loss) and injected."""
+        self.capture_epoch = 1_700_000_000.0
+        self.addresses = (MASTER_ADDR, SLAVE_ADDR)
+        """What the capture names the master and the slave (the connections use the defaults)."""
 
     # ----------------------------------------------------------------- driving
 
@@ -207,6 +215,9 @@ class Pair:
         to_slave = endpoint is self.master
         direction = self.ms if to_slave else self.sm
         for data, _addr in endpoint.conn.datagrams_to_send(now=self.now):
+            if self.capture is not None:
+                source, target = self.addresses if to_slave else self.addresses[::-1]
+                self.capture.write_udp(source, target, data, self.capture_epoch + self.now)
             admitted = direction.admit(data)
             if admitted is not None:
                 delay, arriving = admitted
@@ -216,6 +227,12 @@ class Pair:
     def inject(self, data: bytes, *, to_slave: bool, source: tuple[str, int]) -> None:
         """Hand a crafted datagram to one side now, as if it came from ``source``."""
         target = self.slave if to_slave else self.master
+        if self.capture is not None:
+            alias = {MASTER_ADDR: self.addresses[0], SLAVE_ADDR: self.addresses[1]}
+            destination = self.addresses[1] if to_slave else self.addresses[0]
+            self.capture.write_udp(
+                alias.get(source, source), destination, data, self.capture_epoch + self.now
+            )
         target.conn.receive_datagram(data, source, now=self.now)
         self._drain(target)
         self._flush(target)

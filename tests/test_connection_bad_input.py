@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tdtp import Connection, ConnectionConfig, Role, State
+from tdtp import Connection, ConnectionConfig, EmptyPayloadError, Role, State
 from tdtp.wire import (
     PROTOCOL_VERSION,
     CloseReason,
@@ -53,6 +53,7 @@ def _drops(pair: Pair) -> dict[str, int]:
         (b"\x00\x01\x02\x03", MASTER_ADDR, "truncated"),
         (encode_header(3, 0, 0, 0, 255) + b"x", MASTER_ADDR, "unknown_type"),
         (encode_header(0, 0, 0, 0, 255) + bytes(1201), MASTER_ADDR, "oversized"),
+        (encode_header(0, 0, 0, 0, 255), MASTER_ADDR, "empty_data"),
         (encode_header(0, 0, 0, 0, 255) + b"x", STRANGER, "wrong_address"),
         (encode_header(2, 0, 0, 0, 255), MASTER_ADDR, "bad_control"),
         (encode_header(2, 0, 0, 0, 255) + b"\x09", MASTER_ADDR, "bad_control"),
@@ -229,3 +230,22 @@ def test_config_is_validated_with_messages() -> None:
         ConnectionConfig(reorder_threshold=7)
     with pytest.raises(ValueError, match="unknown controller"):
         Connection(ConnectionConfig(controller="bbr"), role=Role.MASTER)
+
+
+def test_an_empty_data_packet_is_never_sent_and_dropped_on_arrival() -> None:
+    """PROTOCOL.md 4.1: a DATA payload is 1..max_payload bytes. A sender MUST NOT send an empty
+    one (send() refuses it); a receiver drops one as empty_data, delivers nothing, and takes
+    nothing from the acknowledgement it carries."""
+    pair = _established()
+    slave = pair.slave.conn
+    with pytest.raises(EmptyPayloadError, match="at least one byte"):
+        pair.master.conn.send(b"", now=pair.now)
+    delivered = slave.stats.samples_delivered
+    highest = slave._window.highest if slave._window is not None else None
+    # The next sequence number, acknowledging something the slave really sent: looks legitimate.
+    master = pair.master.conn
+    datagram = encode_header(PacketType.DATA, master._sent.next_seq, 0, 0, 255)
+    pair.inject(datagram, to_slave=True, source=MASTER_ADDR)
+    assert _drops(pair).get("empty_data") == 1
+    assert slave.stats.samples_delivered == delivered
+    assert slave._window is not None and slave._window.highest == highest  # no sequence consumed

@@ -19,6 +19,7 @@ from tdtp import (
     Role,
     State,
 )
+from tdtp.wire import ControlCode, PacketType
 
 from pair import MASTER_ADDR, SLAVE_ADDR, Direction, Pair
 
@@ -183,3 +184,24 @@ def test_unread_events_are_bounded() -> None:
     while (event := pair.slave.conn.next_event()) is not None:
         events.append(event)
     assert len(events) == 50
+
+
+@pytest.mark.parametrize("now", [0.001, 0.003, 0.1, 1234.567])
+def test_the_master_confirms_in_the_same_instant_as_the_open_ack(now: float) -> None:
+    """PROTOCOL.md 5.1, rule 6: the master sends its first packet at once. (The deadline used to be
+    now - 0.25 + 0.25, which rounds above now for some values, e.g. 0.001.)"""
+    pair = Pair()
+    master = pair.master.conn
+    master.connect(SLAVE_ADDR, now=now)
+    opens = [d for d, _ in master.datagrams_to_send(now=now)]
+    slave = pair.slave.conn
+    slave.receive_datagram(opens[0], MASTER_ADDR, now=now)
+    ((cookie, _),) = slave.datagrams_to_send(now=now)
+    master.receive_datagram(cookie, SLAVE_ADDR, now=now)
+    ((second, _),) = master.datagrams_to_send(now=now)
+    slave.receive_datagram(second, MASTER_ADDR, now=now)
+    ((open_ack, _),) = slave.datagrams_to_send(now=now)
+    master.receive_datagram(open_ack, SLAVE_ADDR, now=now)
+    assert master.state is State.ESTABLISHED
+    ((confirm, _),) = master.datagrams_to_send(now=now)
+    assert confirm[0] >> 6 == PacketType.CONTROL and confirm[5] == ControlCode.KEEPALIVE

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import itertools
+import random
 
 import pytest
 
 from tdtp import ConnectionConfig
 from tdtp.control.fixed import FixedConfig
+from tdtp.wire import PacketType, decode_header
 
 from pair import Direction, Pair
 
@@ -156,3 +158,33 @@ def test_lost_reports_are_not_mistaken_for_lost_packets() -> None:
     assert master.packets_lost == 0 and master.loss_events == 0
     assert master.packets_unreported > 0
     assert master.packets_acked + master.packets_unreported == master.sent.data_packets
+
+
+def _every_eighth_data_packet(datagram: bytes) -> bool:
+    """Drops the DATA packet 7 after each stand-alone ACK of the old rule (which fired on the 7th
+    packet after the last report, and so reported every 8th here)."""
+    header = decode_header(datagram)
+    return header.ptype == PacketType.DATA and header.seq % 8 == 7
+
+
+@pytest.mark.parametrize(
+    "drop",
+    [
+        pytest.param(Direction(drop_datagram=_every_eighth_data_packet), id="L+7 lost"),
+        pytest.param(Direction(drop=lambda i: random.Random(i).random() < 0.05), id="5% random"),
+    ],
+)
+def test_every_packet_gets_a_verdict_when_the_reverse_flow_is_idle(drop: Direction) -> None:
+    """PROTOCOL.md 3.2: with no reverse data, stand-alone ACKs must still describe every packet.
+    The old rule (highest >= last reported + 7) skipped the packets before a lost L+7."""
+    pair = Pair(UNLIMITED, UNLIMITED, ms=drop)
+    pair.open()
+    pair.start_samples(1000, 0)  # the slave sends no data: every ACK is a stand-alone one
+    pair.run_for(3.0)
+    pair.drain(0.5)
+    master, slave = pair.master.conn.stats, pair.slave.conn.stats
+    assert drop.dropped > 100
+    assert slave.sent.ack_packets > 300
+    assert master.packets_acked == slave.received.data_packets  # every delivered sample
+    assert master.packets_lost == drop.dropped  # every lost one (no burst longer than 6 here)
+    assert master.packets_unreported == 0

@@ -343,3 +343,37 @@ def test_what_one_side_sends_the_other_counts_received_byte_for_byte(
     tag = 16 if keyed else 0
     assert master.sent.protection_bytes - tag == slave.received.protection_bytes
     assert slave.sent.protection_bytes == master.received.protection_bytes
+
+
+def test_an_empty_sealed_data_packet_is_dropped_after_it_authenticates() -> None:
+    """A keyed peer that seals an empty DATA (a sender MUST NOT) gets it dropped as empty_data:
+    the check is on the opened body, after the tag."""
+    pair = _keyed()
+    sealer = pair.master.conn._sealer
+    assert sealer is not None
+    datagram = sealer.seal(
+        encode_header(PacketType.DATA, pair.master.conn._sent.next_seq, 0, 0, 255), b""
+    )
+    assert len(datagram) == HEADER_SIZE + PROTECTION_OVERHEAD
+    pair.inject(datagram, to_slave=True, source=MASTER_ADDR)
+    assert _drops(pair.slave.conn).get("empty_data") == 1
+    assert _refused(pair.slave.conn) == 0
+
+
+def test_a_sample_of_max_payload_bytes_arrives_in_a_keyed_session() -> None:
+    """The size check allows the 18 bytes of protection on top of max_payload (PROTOCOL.md 5.5);
+    it once refused every keyed sample longer than max_payload - 18 as oversized."""
+    config = ConnectionConfig(max_payload=300)
+    pair = Pair(config, config, master_key=KEY, slave_keys=[KEY])
+    pair.open()
+    pair.start_samples(100, 100, size=300)
+    pair.run_for(0.5)
+    assert "oversized" not in _drops(pair.slave.conn)
+    assert len(pair.slave.received) >= 45 and len(pair.master.received) >= 45
+    assert {len(event.payload) for event in pair.slave.received} == {300}
+    # One byte more than max_payload is still refused (by the datagram size, before the tag).
+    sealer = pair.master.conn._sealer
+    assert sealer is not None
+    header = encode_header(PacketType.DATA, pair.master.conn._sent.next_seq, 0, 0, 255)
+    pair.inject(sealer.seal(header, bytes(301)), to_slave=True, source=MASTER_ADDR)
+    assert _drops(pair.slave.conn).get("oversized") == 1

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from tdtp.receive_window import RESYNC_RUN, Arrival, ReceiveWindow
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tdtp.receive_window import RESYNC_RUN, Arrival, HeldAck, ReceiveWindow
 
 
 def test_in_order_gap_late_duplicate_and_stale() -> None:
@@ -59,3 +62,79 @@ def test_scattered_replays_of_old_packets_do_not_resync() -> None:
     for old in (10, 50, 90, 130, 170):
         assert window.on_data(old, 1.0)[0] is Arrival.STALE
     assert window.highest == 499
+
+
+def test_jump_rule_reports_the_packets_a_lost_seventh_would_orphan() -> None:
+    """PROTOCOL.md 3.2: after a report at L, L+1..L+6 arrive, L+7 is lost, L+8 arrives. An ACK of
+    L+8 reaches down to L+2 only, so the ACK of L+6 must go out first (L = -1 here)."""
+    window = ReceiveWindow(0)
+    for seq in range(6):
+        window.on_data(seq, 0.001 * seq)
+        assert not window.coverage_exhausted() and not window.held
+    window.on_data(7, 0.007)
+    # 5 with 4..0 received below it (bit 6, for -1, was never sent)
+    assert window.take_held() == [HeldAck(5, 0b011111, 0.005)]
+    assert window.last_reported == 5 and window.pending_low == 6
+    assert window.unreported_since == 0.007
+    assert window.take_held() == []
+
+
+def test_a_late_packet_within_reach_is_reported_again() -> None:
+    window = ReceiveWindow(0)
+    for seq in (0, 1, 3, 4):
+        window.on_data(seq, 0.0)
+    window.mark_reported()  # ACK 4 said: 2 absent
+    assert window.pending_low is None
+    assert window.on_data(2, 0.1)[0] is Arrival.LATE
+    assert window.pending_low == 2  # the next ACK must tell the sender it arrived after all
+    window.on_data(9, 0.2)  # an ACK of 9 would reach 3 only: hold the ACK of 4 first
+    assert window.take_held() == [HeldAck(4, 0b001111, 0.0)]
+
+
+def test_without_coverage_rules_nothing_is_held() -> None:
+    window = ReceiveWindow(0, coverage=False)  # separate-ACK mode: every packet is ACKed anyway
+    for seq in (0, 1, 2, 3, 4, 5, 20):
+        window.on_data(seq, 0.0)
+    assert not window.held and not window.coverage_exhausted()
+
+
+def _reports(arrivals: list[int]) -> list[tuple[int, int]]:
+    """Run a receiver that flushes after every arrival, as the connection does with no reverse
+    data: the ACKs (value, SACK) it sends, the last one when ack_delay runs out."""
+    window = ReceiveWindow(arrivals[0])
+    sent: list[tuple[int, int]] = []
+    for seq in arrivals:
+        window.on_data(seq & 0xFFF, 0.0)
+        sent += [(held.ack, held.sack) for held in window.take_held()]
+        if window.coverage_exhausted():
+            sent.append((window.highest, window.sack_below(window.highest)))
+            window.mark_reported()
+    if window.pending_low is not None:
+        sent.append((window.highest, window.sack_below(window.highest)))
+    return sent
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.booleans(), min_size=1, max_size=300), st.integers(0, 4095))
+def test_every_received_packet_is_acknowledged_and_every_short_gap_reported(
+    lost: list[bool], first: int
+) -> None:
+    """The section 3.2 promise for an in-order flow with any loss pattern: every packet that
+    arrived is named by some ACK (value or SACK bit), and every lost packet with an arrival at
+    most 6 above it is described as absent by some ACK."""
+    received = [first + i for i, gone in enumerate(lost) if not gone]
+    if not received:
+        return
+    described: dict[int, bool] = {}
+    for ack, sack in _reports(received):
+        described[ack] = True
+        for i in range(1, 7):
+            described.setdefault(ack - i, bool(sack >> (i - 1) & 1))
+            if sack >> (i - 1) & 1:
+                described[ack - i] = True
+    arrived = set(received)
+    for seq in arrived:
+        assert described.get(seq) is True, seq
+    for seq in range(received[0], received[-1]):
+        if seq not in arrived and any(seq < r <= seq + 6 for r in arrived):
+            assert described.get(seq) is False, seq

@@ -93,3 +93,38 @@ def test_many_candidates_in_flight_are_told_apart_by_rtt() -> None:
     log.on_ack(9000, 0, 0.0, now)
     # Later ACKs are matched the same way, against the send time the RTT points at.
     assert log.expand_ack(9100 & 0xFFF, 0.0, now + 0.001, rtt) == 9100
+
+
+def test_3_or_more_later_means_the_largest_ack_field() -> None:
+    """PROTOCOL.md 5.4: a packet reported absent is lost once LA (the largest ACK *field*) is 3 or
+    more above it. SACK bits lie below their ACK field, so they never move LA."""
+    log = _log(0, 12)
+    lost: list[LostPacket] = []
+    log.on_ack(5, 0b111110, 0.0, 0.02)  # 4 absent; 3..0 present
+    log.detect_losses(0.02, 1.0, lost)
+    assert lost == [] and log.largest_acked == 5  # 4 is 1 below LA: not yet
+    log.on_ack(6, 0b111101, 0.0, 0.02)  # still absent, LA 6: 2 below
+    log.detect_losses(0.02, 1.0, lost)
+    assert lost == []
+    log.on_ack(7, 0b111011, 0.0, 0.02)  # LA 7 = 4 + 3
+    log.detect_losses(0.02, 1.0, lost)
+    assert [p.seq for p in lost] == [4]
+
+
+def test_the_time_threshold_runs_from_the_send_time() -> None:
+    """PROTOCOL.md 5.4: lost when P < LA and now >= send_time(P) + loss_delay; the clock starts at
+    the send time, not at the report. A packet first reported absent after loss_delay is lost at
+    once; one reported earlier waits until send_time + loss_delay exactly."""
+    log = _log(0, 3, gap=0.001)  # sent at 0, 1 and 2 ms
+    lost: list[LostPacket] = []
+    log.on_ack(1, 0b000000, 0.0, 0.5)  # 0 absent, reported at 0.5 s, 1 below LA
+    log.detect_losses(0.5, 0.3, lost)  # 0.3 s after its send time already: lost now
+    assert [p.seq for p in lost] == [0]
+    log = _log(0, 3, gap=0.001)
+    lost = []
+    log.on_ack(1, 0b000000, 0.0, 0.1)  # reported at 0.1 s
+    assert log.loss_deadline(0.3) == pytest.approx(0.3)  # send time 0 + 0.3, not 0.1 + 0.3
+    log.detect_losses(0.2999, 0.3, lost)
+    assert lost == []
+    log.detect_losses(0.3, 0.3, lost)
+    assert [p.seq for p in lost] == [0]

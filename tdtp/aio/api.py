@@ -15,6 +15,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
+from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.endpoint import DataCallback, Endpoint, EndpointClosedError
 from tdtp.aio.impairment import ImpairedTransport
 from tdtp.aio.timer import monotonic
@@ -54,6 +55,17 @@ class _MasterProtocol(asyncio.DatagramProtocol):
             self.endpoint.send_errors += 1
 
 
+class _CapturingMasterProtocol(_MasterProtocol):
+    """Records each datagram into the pcap capture first (used only with ``pcap=``)."""
+
+    capture: CapturingTransport | None = None
+
+    def datagram_received(self, data: bytes, addr: Address) -> None:
+        if self.capture is not None:
+            self.capture.received(data, addr)
+        super().datagram_received(data, addr)
+
+
 async def connect(
     host: str,
     port: int,
@@ -66,6 +78,7 @@ async def connect(
     netem: NetemSpec | str | None = None,
     netem_seed: int | None = None,
     key: KeyInput | None = None,
+    pcap: CaptureTarget | None = None,
 ) -> Endpoint:
     """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
 
@@ -78,24 +91,38 @@ async def connect(
 
     ``netem`` impairs everything this master sends, in tc-netem's language
     (``"delay 20ms 5ms loss 1%"``), emulated in-process (see :mod:`tdtp.aio.impairment`).
+
+    ``pcap`` (a path, or a shared :class:`~tdtp.pcap.PcapWriter`) records every datagram the socket
+    sends and receives, with UDP/IP headers, for Wireshark (``tools/wireshark/tdtp.lua``).
     """
     loop = asyncio.get_running_loop()
     infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
     if not infos:
         raise ConnectError(f"cannot resolve {host!r}")
     family, _, _, _, remote = infos[0]
+    capture = open_capture(pcap) if pcap is not None else None
     # Both loops want (host, port) here and resolve it again themselves; the core compares only
     # host and port, so an IPv6 peer's 4-tuple source address still matches ``remote``.
-    transport, protocol = await loop.create_datagram_endpoint(
-        _MasterProtocol,
-        remote_addr=(str(remote[0]), int(remote[1])),
-        local_addr=local_addr,
-        family=family,
-    )
+    try:
+        transport, protocol = await loop.create_datagram_endpoint(
+            _MasterProtocol if capture is None else _CapturingMasterProtocol,
+            remote_addr=(str(remote[0]), int(remote[1])),
+            local_addr=local_addr,
+            family=family,
+        )
+    except BaseException:
+        if capture is not None and capture[1]:
+            capture[0].close()
+        raise
     conn = Connection(config, role=Role.MASTER, rng=rng, key=key)
-    sender: asyncio.DatagramTransport | ImpairedTransport = transport
+    socket_side: asyncio.DatagramTransport = transport
+    if capture is not None:
+        socket_side = CapturingTransport(transport, capture[0], owned=capture[1])
+        assert isinstance(protocol, _CapturingMasterProtocol)
+        protocol.capture = socket_side
+    sender: asyncio.DatagramTransport | ImpairedTransport = socket_side
     if netem is not None:
-        sender = ImpairedTransport(transport, netem, seed=netem_seed, timer=timer)
+        sender = ImpairedTransport(socket_side, netem, seed=netem_seed, timer=timer)
 
     def _close_transport(_: Endpoint) -> None:
         sender.close()  # an impaired one lets the datagrams inside its link out first
@@ -109,7 +136,7 @@ async def connect(
     try:
         await endpoint.wait_established()
     except EndpointClosedError as exc:
-        transport.close()
+        sender.close()
         raise ConnectError(f"could not open a TDTP connection to {host}:{port}: {exc}") from exc
     except BaseException:
         await endpoint.close()
@@ -141,6 +168,17 @@ class _ServerProtocol(asyncio.DatagramProtocol):
 
     def error_received(self, exc: Exception) -> None:
         pass  # an ICMP error about one master says nothing about the others
+
+
+class _CapturingServerProtocol(_ServerProtocol):
+    """Records each datagram into the pcap capture first (used only with ``pcap=``)."""
+
+    capture: CapturingTransport | None = None
+
+    def datagram_received(self, data: bytes, addr: Address) -> None:
+        if self.capture is not None:
+            self.capture.received(data, addr)
+        super().datagram_received(data, addr)
 
 
 class Server:
@@ -343,6 +381,7 @@ async def listen(
     netem_seed: int | None = None,
     key: KeyInput | None = None,
     keys: KeysInput | None = None,
+    pcap: CaptureTarget | None = None,
 ) -> Server:
     """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
 
@@ -357,6 +396,9 @@ async def listen(
     the port can open a session.
 
     ``netem`` impairs everything the slave sends (all its masters share the one emulated link).
+
+    ``pcap`` (a path, or a shared :class:`~tdtp.pcap.PcapWriter`) records every datagram the
+    socket sends and receives, every master's and the strangers' alike, until the server closes.
     """
     if key is not None and keys is not None:
         raise InvalidKeyError("pass key= (one key) or keys= (several), not both")
@@ -372,13 +414,25 @@ async def listen(
         keys=ring,
     )
     family = socket.AF_INET6 if host is not None and ":" in host else socket.AF_UNSPEC
-    transport, _ = await loop.create_datagram_endpoint(
-        lambda: _ServerProtocol(server), local_addr=(host or "0.0.0.0", port), family=family
-    )
+    capture = open_capture(pcap) if pcap is not None else None
+    protocol_class = _ServerProtocol if capture is None else _CapturingServerProtocol
+    try:
+        transport, protocol = await loop.create_datagram_endpoint(
+            lambda: protocol_class(server), local_addr=(host or "0.0.0.0", port), family=family
+        )
+    except BaseException:
+        if capture is not None and capture[1]:
+            capture[0].close()
+        raise
     server._transport = transport
+    socket_side: asyncio.DatagramTransport = transport
+    if capture is not None:
+        socket_side = CapturingTransport(transport, capture[0], owned=capture[1])
+        assert isinstance(protocol, _CapturingServerProtocol)
+        protocol.capture = socket_side
     server._sender = (
-        transport
+        socket_side
         if netem is None
-        else ImpairedTransport(transport, netem, seed=netem_seed, timer=timer)
+        else ImpairedTransport(socket_side, netem, seed=netem_seed, timer=timer)
     )
     return server

@@ -1,7 +1,7 @@
 """The receiver's replay window over full (64-bit) packet numbers, as SRTP and DTLS keep one.
 
 A packet number is accepted once: the highest authenticated number and a 64-bit mask of the ones
-below it are remembered. A number more than 64 below the highest can no longer be checked and is
+below it are remembered. A number 64 or more below the highest can no longer be checked and is
 refused like a replay. The window only moves after a packet authenticated, so a forged packet cannot
 push it.
 """

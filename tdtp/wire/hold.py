@@ -7,10 +7,13 @@ receiver sat on the ACK waiting for its next reverse packet. The code is a float
     e == 0:  hold = m * 8 us                       (0 .. 248 us, exact to 8 us)
     e >= 1:  hold = (32 + m) << (e - 1) * 8 us     (256 us .. 31.232 ms, within 1/32 below the truth)
 
-Encoding rounds down, so a decoded hold is never longer than the real one and RTT samples err on the
-long (conservative) side. Two codes are reserved:
+Encoding rounds down to the largest code not above the true hold, everywhere: a decoded hold is never
+longer than the real one, so RTT samples err on the long (conservative) side, and never by more than
+one step. Holds from 31.232 ms up to (not including) 31.744 ms, where code 254 would sit if the
+exponent went on, are therefore code 253. Two codes are reserved:
 
-* ``HOLD_SATURATED`` (254): the ACK is valid but was held longer than the code can say; no RTT sample.
+* ``HOLD_SATURATED`` (254): the ACK is valid but was held 31.744 ms or longer (beyond one step above
+  the largest code); no RTT sample.
 * ``HOLD_NO_ACK`` (255): the packet carries no acknowledgement at all (ACK and SACK are ignored).
 """
 
@@ -33,13 +36,17 @@ _DECODE_TABLE: tuple[float, ...] = tuple(_decode(code) for code in range(HOLD_MA
 
 HOLD_MAX = _DECODE_TABLE[HOLD_MAX_CODE]
 """The longest hold a code can express (31.232 ms)."""
+HOLD_SATURATES_AT = ((32 + (HOLD_SATURATED & 0x1F)) << ((HOLD_SATURATED >> 5) - 1)) * HOLD_UNIT
+"""The shortest hold that encodes as :data:`HOLD_SATURATED`: 31.744 ms, the value code 254 would have
+if it were not reserved. Anything shorter rounds down to a code (253 from 31.232 ms)."""
 
 
 def encode_hold(seconds: float) -> int:
-    """Encode a hold time, rounding down; longer than :data:`HOLD_MAX` gives :data:`HOLD_SATURATED`."""
+    """Encode a hold time, rounding down; :data:`HOLD_SATURATES_AT` or longer gives
+    :data:`HOLD_SATURATED`."""
     if not seconds > 0.0:  # zero, negative or NaN
         return 0
-    if seconds > HOLD_MAX:  # as documented (also keeps int() away from infinity)
+    if seconds >= HOLD_SATURATES_AT:  # as documented (also keeps int() away from infinity)
         return HOLD_SATURATED
     # The largest whole number of units not above ``seconds``, judged with the same float products
     # the decode table holds (the division alone can land one unit off either way when ``seconds``

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -71,3 +73,61 @@ def test_host_port_forms() -> None:
     assert _host_port("127.0.0.1:7000") == ("127.0.0.1", 7000)
     assert _host_port("[::1]:7000") == ("::1", 7000)
     assert _host_port("fe80::1:7000") == ("fe80::1", 7000)
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port: int = probe.getsockname()[1]
+        return port
+
+
+def test_master_and_slave_json_tell_each_direction_from_their_end(tmp_path: Path) -> None:
+    port = _free_udp_port()
+    slave = subprocess.Popen(
+        [sys.executable, "-m", "tdtp", "slave", "--host", "127.0.0.1", "--port", str(port),
+         "--duration", "3", "--json", "--pcap", str(tmp_path / "slave.pcap")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        master_run = subprocess.run(
+            [sys.executable, "-m", "tdtp", "master", f"127.0.0.1:{port}", "--duration", "1",
+             "--json"],
+            capture_output=True, text=True, timeout=60, check=False,
+        )  # fmt: skip
+        slave_out, slave_err = slave.communicate(timeout=60)
+    finally:
+        slave.kill()
+    assert master_run.returncode == 0, master_run.stderr
+    assert slave.returncode == 0, slave_err
+    master, served = json.loads(master_run.stdout), json.loads(slave_out)
+    out, back = master["master_to_slave"], master["slave_to_master"]
+    assert out["observed_at"] == back["observed_at"] == ["master"]
+    # The master's own direction: every packet it sent has exactly one fate so far.
+    assert out["packets_sent"] > 0
+    assert out["packets_sent"] == (
+        out["packets_acked"] + out["losses"] + out["packets_unreported"] + out["packets_in_flight"]
+    )
+    assert out["packets_received"] is None  # the slave's count is in the slave's output
+    assert back["packets_received"] > 0 and back["srtt_ms"] is None
+    assert back["latency_ms"] is not None  # same host, haptic samples: measurable
+    assert out["latency_ms"] is None and "another process" in out["latency_note"]
+    (session,) = served["sessions"]
+    assert session["closed"] and session["master"].startswith("127.0.0.1:")
+    seen_in, seen_out = session["master_to_slave"], session["slave_to_master"]
+    assert seen_in["observed_at"] == ["slave"]
+    # Loopback: what the master sent, the slave received, and the other way round at most what
+    # the slave sent (its last samples may arrive after the master closed).
+    assert seen_in["packets_received"] == out["packets_sent"]
+    assert back["packets_received"] <= seen_out["packets_sent"]
+    assert seen_out["packets_acked"] <= back["packets_received"]
+    assert seen_in["drops_at_receiver"] == {}
+    # The slave's socket carried at least every DATA it received and sent (plus control and ACKs).
+    carried = seen_in["packets_received"] + seen_out["packets_sent"]
+    assert served["pcap"]["packets"] >= carried and served["pcap"]["error"] is None
+
+
+def test_an_unwritable_capture_is_one_line_and_status_2(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["demo", "--duration", "0.5", "--pcap", "/nonexistent/dir/x.pcap"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tdtp: cannot write the capture file") and err.count("\n") == 1

@@ -49,15 +49,19 @@ def test_paper_scenario_briefly() -> None:
         assert run.tcp["M->S"].goodput_kbps > 200 and run.tcp["S->M"].goodput_kbps > 200
     # Bidirectionality: TDTP's acknowledgements ride on the data, Trinomial sends one ACK per sample.
     # (A stand-alone ACK goes out only when the master's own rate is held so low that an arrival
-    # waits ack_delay for a reverse packet: a few per cent of arrivals under this congestion.)
+    # waits ack_delay for a reverse packet, or when a loss burst between two of its packets would
+    # leave an arrival unreported (PROTOCOL.md 3.2, jump rule): a few per cent of arrivals here.)
     piggybacked = tdtp.summaries["S->M"]["all"].delivered_packets
-    assert tdtp.connection["master"]["ack_packets_sent"] < 0.05 * piggybacked
+    assert tdtp.connection["master"]["ack_packets_sent"] < 0.08 * piggybacked
     received = trinomial.summaries["S->M"]["all"].delivered_packets
     assert trinomial.connection["master"]["ack_packets_sent"] >= 0.95 * received
     # The headline: with TCP congesting both ways, both controllers settle near eq. 2 in packets,
     # so TDTP's piggybacking does not double the samples delivered (the paper reports about 2x).
+    # A 12 s run is noisy: over seeds 1-8 the ratios spread from 0.46 to 1.29 (mean 0.88-0.89,
+    # the same before and after the jump rule of PROTOCOL.md 3.2); the lower bound only catches
+    # a TDTP that starves.
     ratios = result.ratios["tdtp/trinomial"]["congested"]
-    assert 0.5 < ratios["M->S"] < 1.6 and 0.5 < ratios["S->M"] < 1.6
+    assert 0.4 < ratios["M->S"] < 1.6 and 0.4 < ratios["S->M"] < 1.6
     data = json.loads(result.to_json())
     assert data["scenario"] == "paper" and set(data["runs"]) == {"tdtp", "trinomial"}
     assert data["headline"]["tdtp"]["M->S"]["goodput_kbps"] > 0

@@ -10,7 +10,7 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 
 from tdtp.wire import HOLD_MAX, HOLD_NO_ACK, HOLD_SATURATED, decode_hold, encode_hold
-from tdtp.wire.hold import HOLD_MAX_CODE, HOLD_UNIT
+from tdtp.wire.hold import HOLD_MAX_CODE, HOLD_SATURATES_AT, HOLD_UNIT
 
 US = 1e-6
 CODES = range(HOLD_MAX_CODE + 1)
@@ -99,7 +99,7 @@ def test_encode_inverts_decode(code: int) -> None:
     assert encode_hold(value(code)) == code
 
 
-@given(st.floats(min_value=0.0, max_value=HOLD_MAX))
+@given(st.floats(min_value=0.0, max_value=HOLD_SATURATES_AT, exclude_max=True))
 @example(math.nextafter(24 * US, 0.0))  # a division that used to round up to a whole unit
 @example(123 * HOLD_UNIT)  # a division that used to round down by a whole unit
 @example(HOLD_MAX)
@@ -125,12 +125,30 @@ def test_below_one_millisecond_the_step_is_at_most_16us(seconds: float) -> None:
     assert seconds - value(encode_hold(seconds)) < 16 * US + EPS
 
 
-@given(st.floats(min_value=HOLD_MAX, exclude_min=True))
+@given(st.floats(min_value=HOLD_MAX, max_value=HOLD_SATURATES_AT, exclude_max=True))
 @example(math.nextafter(HOLD_MAX, 1.0))
-@example(31.5e-3)  # between the largest code and the next power of the mini-float
+@example(31.5e-3)
+@example(math.nextafter(HOLD_SATURATES_AT, 0.0))
+def test_between_the_largest_code_and_one_step_above_rounds_down(seconds: float) -> None:
+    """PROTOCOL.md 3.4: one rule, rounding down, everywhere. 31.232 <= hold < 31.744 ms is 253
+    (the error stays below one step, 1/32); 254 only from where code 254 would decode."""
+    assert encode_hold(seconds) == HOLD_MAX_CODE
+
+
+def test_the_saturation_boundary() -> None:
+    assert pytest.approx(31.744e-3, rel=1e-12) == HOLD_SATURATES_AT
+    assert HOLD_SATURATES_AT == 3968 * HOLD_UNIT  # (32 + 30) << 6 units: where 254 would decode
+    assert encode_hold(HOLD_MAX) == HOLD_MAX_CODE
+    assert encode_hold(31.5e-3) == HOLD_MAX_CODE
+    assert encode_hold(math.nextafter(HOLD_SATURATES_AT, 0.0)) == HOLD_MAX_CODE
+    assert encode_hold(HOLD_SATURATES_AT) == HOLD_SATURATED
+
+
+@given(st.floats(min_value=HOLD_SATURATES_AT))
+@example(HOLD_SATURATES_AT)
 @example(1.0)
 @example(math.inf)
-def test_longer_than_max_saturates(seconds: float) -> None:
+def test_from_one_step_above_max_saturates(seconds: float) -> None:
     assert encode_hold(seconds) == HOLD_SATURATED
 
 

@@ -1,0 +1,458 @@
+"""The inputs of tdtp-v2-endpoint.json: what each script feeds an endpoint (generate.py records the
+expected outcomes by running tdtp). Every drop reason of PROTOCOL.md section 5.5 appears."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from tdtp.protection.derivation import derive_session_secrets
+from tdtp.protection.keys import PresharedKey
+from tdtp.protection.packet_protection import Direction, PacketSealer
+from tdtp.wire import (
+    CipherSuite,
+    CloseReason,
+    ControlCode,
+    OpenAckBody,
+    OpenBody,
+    encode_close,
+    encode_cookie,
+    encode_header,
+    encode_keepalive,
+    encode_open,
+    encode_open_ack,
+)
+
+MASTER_NONCE = bytes.fromhex("00112233445566778899aabbccddeeff")
+SLAVE_NONCE = bytes.fromhex("f0e1d2c3b4a5968778695a4b3c2d1e0f")
+OTHER_NONCE = bytes(range(16))
+MASTER_ISN = 0x5A5
+SLAVE_ISN = 0x0C3
+PSK = bytes(range(32))
+COOKIE = "{cookie}"
+COOKIE_BYTES = b"\x00\x00\xab\xcd" + b"\x11" * 12
+
+
+def _hex(data: bytes) -> str:
+    return data.hex()
+
+
+def _open(
+    nonce: bytes = MASTER_NONCE,
+    *,
+    cookie: bool = False,
+    max_payload: int = 1200,
+    version: int = 2,
+    flags: int = 0,
+    suite: int = 0,
+    key_id: bytes = bytes(8),
+    attempt: int = 0,
+    tag: bytes = b"",
+) -> str:
+    """An OPEN from the master (hex); ``cookie`` puts the placeholder where the cookie goes."""
+    body = encode_open(
+        OpenBody(version, flags, suite, max_payload, attempt, nonce, key_id, bytes(16))
+    )
+    text = _hex(encode_header(2, MASTER_ISN, 0, 0, 255) + body[:-16])
+    return text + (COOKIE if cookie else bytes(16).hex()) + tag.hex()
+
+
+def _data(seq: int, payload: bytes, ack: tuple[int, int, int] = (0, 0, 255)) -> str:
+    return _hex(encode_header(0, seq, *ack) + payload)
+
+
+def _step(at: float, source: str, datagram: str, **extra: Any) -> dict[str, Any]:
+    return {"at": at, "from": source, "datagram": datagram, **extra}
+
+
+def _action(at: float, action: str, **extra: Any) -> dict[str, Any]:
+    return {"at": at, "action": action, **extra}
+
+
+def _slave_random() -> dict[str, Any]:
+    return {"nonce": SLAVE_NONCE.hex(), "initial_seq": SLAVE_ISN}
+
+
+def _master_random() -> dict[str, Any]:
+    return {"nonce": MASTER_NONCE.hex(), "initial_seq": MASTER_ISN}
+
+
+def _opening(start: float = 0.0) -> list[dict[str, Any]]:
+    """The master's side of an unkeyed opening, fed to a slave: OPEN, OPEN with the cookie, and the
+    first packet of the session (a KEEPALIVE)."""
+    return [
+        _step(start, "master", _open()),
+        _step(start + 0.010, "master", _open(cookie=True, attempt=1), exact=True),
+        _step(
+            start + 0.020,
+            "master",
+            _hex(encode_header(2, MASTER_ISN, 0, 0, 255) + encode_keepalive()),
+            note="the master's first packet of the session",
+        ),
+    ]
+
+
+def slave_session() -> dict[str, Any]:
+    s = MASTER_ISN
+    header_close = encode_header(2, s, 0, 0, 255)
+    steps = [
+        *_opening(),
+        _step(0.021, "master", _data(s, b"s1")),
+        _step(0.022, "master", _data(s, b"s1"), note="the same packet again"),
+        _step(0.023, "master", _data(s + 2, b"s3"), note="s + 1 is missing"),
+        _step(0.024, "master", _data(s + 1, b"s2"), note="arrives after s + 2"),
+        _step(0.025, "stranger", _data(s + 3, b"s4")),
+        _step(0.026, "master", "00010203"),
+        _step(0.027, "master", _hex(encode_header(3, s, 0, 0, 255) + b"x")),
+        _step(0.028, "master", _data(s + 3, bytes(1201)), note="payload over max_payload"),
+        _step(0.029, "master", _data(s + 3, bytes(1300)), note="datagram over 5 + 1200 + 18"),
+        _step(0.030, "master", _data(s + 3, b""), note="no payload"),
+        _step(
+            0.031,
+            "master",
+            _data(s + 3, b"s4", ack=(SLAVE_ISN + 5, 0, 0)),
+            note="acknowledges a packet the slave never sent",
+        ),
+        _step(0.032, "master", _hex(encode_header(2, s, 0, 0, 255) + b"\x09")),
+        _step(0.033, "master", _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive() + b"\x00")),
+        _step(
+            0.034,
+            "master",
+            _hex(header_close + encode_close(ControlCode.CLOSE, OTHER_NONCE, CloseReason.NORMAL)),
+        ),
+        _step(
+            0.035,
+            "master",
+            _hex(
+                encode_header(2, s, 0, 0, 255)
+                + encode_open_ack(OpenAckBody(2, 0, 0, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
+            ),
+            note="an OPEN_ACK sent to a slave",
+        ),
+        _step(0.036, "master", _open(version=99), note="answered REJECT VERSION_UNSUPPORTED"),
+        _step(0.037, "master", _open(cookie=True, max_payload=0, attempt=2)),
+        _step(
+            0.038,
+            "master",
+            _open(cookie=True, attempt=3),
+            note="a late retransmission: answered, but no sign of life",
+        ),
+        _step(0.039, "master", _open(OTHER_NONCE), note="another nonce: a COOKIE for it"),
+        _step(
+            0.040,
+            "master",
+            _open(OTHER_NONCE, cookie=True, attempt=1),
+            note="another nonce, valid cookie, session alive: a replay",
+        ),
+        _step(0.041, "master", _data(s + 100, b"far ahead")),
+        _step(0.042, "master", _data(s + 36, b"64 below the highest")),
+        _step(0.043, "master", _data(s + 37, b"63 below: late")),
+        _step(
+            0.050,
+            "master",
+            _hex(header_close + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
+        ),
+        _step(0.051, "master", _data(s + 101, b"after the close")),
+    ]
+    return {
+        "name": "slave: opening, a session's bad input, closing",
+        "role": "slave",
+        "config": {"max_payload": 1200},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
+def slave_before_the_open() -> dict[str, Any]:
+    s = MASTER_ISN
+    steps = [
+        _step(0.0, "master", _data(s, b"too early")),
+        _step(0.001, "master", _hex(encode_header(1, s, 0, 0, 255))),
+        _step(0.002, "master", _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive())),
+        _step(
+            0.003,
+            "master",
+            _hex(encode_header(2, 0, 0, 0, 255) + b"\x01\x01\x00") + "00" * 10,
+            note="a version 1 OPEN (18 bytes): smaller than a REJECT, so no answer",
+        ),
+        *[
+            _step(0.010, "master", _open(), note=f"OPEN {i + 1} within one instant")
+            for i in range(41)
+        ],
+        _step(0.011, "stranger", _open(OTHER_NONCE), note="another host has its own budget"),
+    ]
+    return {
+        "name": "slave: before any session, and the per-source OPEN rate",
+        "role": "slave",
+        "config": {},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
+def slave_refusals() -> dict[str, Any]:
+    key_id = PresharedKey(PSK).key_id
+    keyed = {"flags": 6, "suite": 1, "key_id": key_id, "tag": bytes(16)}
+    steps = [
+        _step(0.0, "master", _open(**keyed)),  # type: ignore[arg-type]
+        _step(
+            0.001, "master", _open(cookie=True, attempt=1, **keyed), note="this slave has no keys"
+        ),  # type: ignore[arg-type]
+        _step(0.002, "master", _open(flags=4), note="ENCRYPTED without KEYED"),
+        _step(0.003, "master", _open(suite=1), note="a suite without KEYED"),
+        _step(0.004, "master", _open(key_id=key_id), note="a key id without KEYED"),
+        _step(0.005, "master", _open(max_payload=100)),
+        _step(
+            0.006,
+            "master",
+            _open(cookie=True, max_payload=100, attempt=1),
+            note="below this slave's min_peer_payload (200)",
+        ),
+    ]
+    return {
+        "name": "slave: refused OPENs",
+        "role": "slave",
+        "config": {"min_peer_payload": 200},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
+def keyed_slave_refusals() -> dict[str, Any]:
+    key_id = PresharedKey(PSK).key_id
+    steps = [
+        _step(0.0, "master", _open(flags=6, suite=1, key_id=key_id, tag=bytes(16))),
+        _step(
+            0.001,
+            "master",
+            _open(cookie=True, flags=6, suite=1, key_id=key_id, attempt=1, tag=bytes(16)),
+            note="the right key id, a tag that does not verify: no answer",
+        ),
+        _step(0.002, "master", _open(OTHER_NONCE)),
+        _step(
+            0.003,
+            "master",
+            _open(OTHER_NONCE, cookie=True, attempt=1),
+            note="unkeyed OPEN to a keyed slave",
+        ),
+        _step(
+            0.004,
+            "master",
+            _open(OTHER_NONCE, flags=6, suite=1, key_id=bytes(range(8)), tag=bytes(16)),
+        ),
+        _step(
+            0.005,
+            "master",
+            _open(
+                OTHER_NONCE,
+                cookie=True,
+                flags=6,
+                suite=1,
+                key_id=bytes(range(8)),
+                attempt=1,
+                tag=bytes(16),
+            ),
+            note="a key id this slave does not hold",
+        ),
+    ]
+    return {
+        "name": "slave with a key: refused and unauthenticated OPENs",
+        "role": "slave",
+        "config": {"psk": PSK.hex()},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
+def keyed_master_session() -> dict[str, Any]:
+    suite = CipherSuite.AES_128_GCM
+    session = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, suite)
+    to_master = Direction(suite, session.slave_to_master)
+    sealer = PacketSealer(suite, session.slave_to_master, encrypt=True)
+
+    def open_ack(number: int, flags: int = 6, forge: bool = False) -> str:
+        datagram = encode_header(2, SLAVE_ISN, 0, 0, 255) + encode_open_ack(
+            OpenAckBody(2, flags, int(suite), 1200, number, MASTER_NONCE, SLAVE_NONCE)
+        )
+        if flags & 2:
+            tag = to_master.tag(number, datagram)
+            if forge:
+                tag = bytes([tag[0] ^ 0x80]) + tag[1:]
+            datagram += tag
+        return _hex(datagram)
+
+    def sealed(number: int, prefix: bytes, body: bytes) -> bytes:
+        sealer.next_number = number
+        return sealer.seal(prefix, body)
+
+    data1 = sealed(1, encode_header(0, SLAVE_ISN, 0, 0, 255), b"hi")
+    data2 = sealed(2, encode_header(0, SLAVE_ISN + 1, 0, 0, 255), b"there")
+    tampered = data2[:-3] + bytes([data2[-3] ^ 1]) + data2[-2:]
+    data3 = sealed(3, encode_header(0, SLAVE_ISN + 1, 0, 0, 255), b"there")
+    close = sealed(
+        4,
+        encode_header(2, SLAVE_ISN + 2, 0, 0, 255) + bytes((ControlCode.CLOSE,)),
+        encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)[1:],
+    )
+    steps = [
+        _action(0.0, "connect", exact=True),
+        _step(0.001, "slave", _data(SLAVE_ISN, b"too early"), note="no session keys yet"),
+        _step(
+            0.002,
+            "slave",
+            _hex(encode_header(2, 0, 0, 0, 255) + encode_cookie(MASTER_NONCE, COOKIE_BYTES)),
+            exact=True,
+            note="the OPEN that answers a COOKIE carries it, attempt 1, a fresh tag",
+        ),
+        _step(
+            0.003,
+            "slave",
+            _hex(encode_header(2, 0, 0, 0, 255) + encode_cookie(OTHER_NONCE, COOKIE_BYTES)),
+        ),
+        _step(0.004, "slave", open_ack(0, flags=0), note="flags differ from the OPEN's"),
+        _step(
+            0.005,
+            "slave",
+            _hex(
+                encode_header(2, SLAVE_ISN, 0, 0, 255)
+                + encode_open_ack(OpenAckBody(3, 6, 1, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
+                + bytes(16)
+            ),
+            note="version 3",
+        ),
+        _step(0.006, "slave", open_ack(0, forge=True)),
+        _step(0.007, "slave", open_ack(0), exact=True),
+        _step(0.008, "slave", open_ack(0), note="the same OPEN_ACK again: its PN is spent"),
+        _step(0.009, "slave", _open(), note="an OPEN sent to a master"),
+        _step(0.010, "slave", _hex(data1)),
+        _step(0.011, "slave", _hex(data1)),
+        _step(0.012, "slave", _hex(tampered)),
+        _step(0.013, "slave", _hex(data3)),
+        _step(0.014, "slave", _hex(data2[:10])),
+        _step(0.015, "slave", _hex(close)),
+        _step(0.016, "slave", _hex(data3)),
+    ]
+    return {
+        "name": "master with a key: opening, then protected packets",
+        "role": "master",
+        "config": {"psk": PSK.hex(), "suite": int(suite), "encrypt": True},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def master_rejected() -> dict[str, Any]:
+    steps = [
+        _action(0.0, "connect", exact=True),
+        _step(
+            0.001,
+            "slave",
+            _hex(encode_header(2, 0, 0, 0, 255) + encode_close(ControlCode.REJECT, OTHER_NONCE, 5)),
+        ),
+        _step(
+            0.002,
+            "slave",
+            _hex(
+                encode_header(2, 0, 0, 0, 255) + encode_close(ControlCode.REJECT, MASTER_NONCE, 5)
+            ),
+        ),
+        _step(
+            0.003,
+            "slave",
+            _hex(
+                encode_header(2, SLAVE_ISN, 0, 0, 255)
+                + encode_open_ack(OpenAckBody(2, 0, 0, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
+            ),
+        ),
+    ]
+    return {
+        "name": "master: refused with REJECT BUSY",
+        "role": "master",
+        "config": {},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def master_payload_too_small() -> dict[str, Any]:
+    steps = [
+        _action(0.0, "connect"),
+        _step(
+            0.001,
+            "slave",
+            _hex(
+                encode_header(2, SLAVE_ISN, 0, 0, 255)
+                + encode_open_ack(OpenAckBody(2, 0, 0, 0, 0, MASTER_NONCE, SLAVE_NONCE))
+            ),
+            note="max_payload 0",
+        ),
+        _step(
+            0.002,
+            "slave",
+            _hex(
+                encode_header(2, SLAVE_ISN, 0, 0, 255)
+                + encode_open_ack(OpenAckBody(2, 0, 0, 50, 0, MASTER_NONCE, SLAVE_NONCE))
+            ),
+            note="below this master's min_peer_payload (100)",
+        ),
+    ]
+    return {
+        "name": "master: an OPEN_ACK whose max_payload is too small",
+        "role": "master",
+        "config": {"min_peer_payload": 100},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def master_session() -> dict[str, Any]:
+    open_ack = _hex(
+        encode_header(2, SLAVE_ISN, 0, 0, 255)
+        + encode_open_ack(OpenAckBody(2, 0, 0, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
+    )
+    steps = [
+        _action(0.0, "connect"),
+        _step(0.001, "slave", open_ack, exact=True),
+        _step(0.002, "slave", open_ack, note="a duplicate: absorbed"),
+        _step(
+            0.003,
+            "slave",
+            _hex(encode_header(2, 0, 0, 0, 255) + encode_cookie(MASTER_NONCE, COOKIE_BYTES)),
+            note="a COOKIE once established",
+        ),
+        _step(
+            0.004,
+            "slave",
+            _data(SLAVE_ISN, b"one", ack=(MASTER_ISN, 0, 0)),
+            note="acknowledges the master's first DATA, which it never sent",
+        ),
+        _step(0.005, "slave", _data(SLAVE_ISN, b"one")),
+        _step(
+            0.006,
+            "slave",
+            _hex(encode_header(1, SLAVE_ISN + 1, MASTER_ISN - 1, 0, 0)),
+            note="a stand-alone ACK of a packet before the first: optimistic",
+        ),
+        _step(0.007, "slave", _hex(encode_header(1, SLAVE_ISN + 1, 0, 0, 255))),
+        _action(0.008, "close", exact=True),
+        _step(0.009, "slave", _data(SLAVE_ISN + 1, b"two")),
+    ]
+    return {
+        "name": "master: an unkeyed session and its close",
+        "role": "master",
+        "config": {},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def all_scripts() -> list[dict[str, Any]]:
+    return [
+        slave_session(),
+        slave_before_the_open(),
+        slave_refusals(),
+        keyed_slave_refusals(),
+        master_session(),
+        master_rejected(),
+        master_payload_too_small(),
+        keyed_master_session(),
+    ]

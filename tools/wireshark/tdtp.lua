@@ -1,0 +1,467 @@
+-- Wireshark dissector for TDTP, the Teleoperation Data Transport Protocol, version 2
+-- (docs/PROTOCOL.md in the tdtp repository).
+--
+-- Load it for one run:   tshark -X lua_script:tools/wireshark/tdtp.lua -r capture.pcap
+--                        wireshark -X lua_script:tools/wireshark/tdtp.lua capture.pcap
+-- or for good: copy it into Wireshark's personal Lua plugins folder (Help > About > Folders).
+--
+-- What it decodes: the 5-byte base header (TYPE, SEQ, ACK, SACK, HOLD with the hold time in
+-- microseconds, and which peer packets the ACK/SACK fields report received or absent), DATA
+-- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT), and
+-- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
+-- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
+-- expert info (Analyze > Expert Information; tshark: -z expert).
+--
+-- How it finds TDTP: TDTP has no port of its own (UDP 47000, which tdtp's examples use, belongs to
+-- HCrt in Wireshark). A heuristic claims any UDP datagram that is a well-formed TDTP handshake
+-- message (code, exact size, version 2), and then every datagram of that address pair. For a
+-- capture that starts mid-session, list the slave's port in the preference "tdtp.ports"
+-- (tshark -o tdtp.ports:47000), or let heuristics run first (-o udp.try_heuristic_first:TRUE).
+-- Whether a session is keyed is learnt from its OPEN or OPEN_ACK; preference "tdtp.keyed" forces it.
+
+local tdtp = Proto("tdtp", "Teleoperation Data Transport Protocol")
+
+local TYPE_NAMES = { [0] = "DATA", [1] = "ACK", [2] = "CONTROL", [3] = "reserved" }
+local CODE_NAMES = {
+    [1] = "OPEN", [2] = "OPEN_ACK", [3] = "KEEPALIVE", [4] = "CLOSE", [5] = "REJECT", [6] = "COOKIE",
+}
+local SUITE_NAMES = { [0] = "none", [1] = "AES-128-GCM", [2] = "ChaCha20-Poly1305" }
+local REASON_NAMES = {
+    [0] = "NORMAL", [1] = "IDLE_TIMEOUT", [2] = "PROTOCOL_ERROR", [3] = "VERSION_UNSUPPORTED",
+    [4] = "REFUSED", [5] = "BUSY", [6] = "KEY_REQUIRED", [7] = "KEY_UNKNOWN",
+    [8] = "PAYLOAD_TOO_SMALL", [9] = "SUITE_UNSUPPORTED", [10] = "REPLACED", [11] = "KEY_EXHAUSTED",
+}
+local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknowledgement" }
+
+local HEADER = 5
+local PN = 2
+local TAG = 16
+local VERSION = 2
+-- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
+local CONTROL_SIZES = {
+    [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 6, 24 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
+}
+
+local f = tdtp.fields
+f.type = ProtoField.uint8("tdtp.type", "Type", base.DEC, TYPE_NAMES, 0xC0)
+f.seq = ProtoField.uint16("tdtp.seq", "SEQ", base.DEC_HEX, nil, 0x3FFC)
+f.ack = ProtoField.uint24("tdtp.ack", "ACK", base.DEC_HEX, nil, 0x03FFC0)
+f.sack = ProtoField.uint8("tdtp.sack", "SACK", base.HEX, nil, 0x3F)
+f.hold = ProtoField.uint8("tdtp.hold", "HOLD code", base.DEC, HOLD_NAMES)
+f.hold_us = ProtoField.uint32("tdtp.hold_us", "Hold (us)", base.DEC)
+f.acked = ProtoField.uint16("tdtp.acked", "Reports received", base.DEC_HEX)
+f.absent = ProtoField.uint16("tdtp.absent", "Reports absent", base.DEC_HEX)
+f.payload = ProtoField.bytes("tdtp.payload", "Payload")
+f.payload_len = ProtoField.uint16("tdtp.payload_len", "Payload length", base.DEC)
+f.padding = ProtoField.bytes("tdtp.padding", "Padding")
+f.code = ProtoField.uint8("tdtp.code", "Control code", base.DEC, CODE_NAMES)
+f.version = ProtoField.uint8("tdtp.version", "Version", base.DEC)
+f.flags = ProtoField.uint8("tdtp.flags", "Flags", base.HEX)
+f.flag_separate = ProtoField.bool("tdtp.flags.separate_acks", "SEPARATE_ACKS", 8, nil, 0x01)
+f.flag_keyed = ProtoField.bool("tdtp.flags.keyed", "KEYED", 8, nil, 0x02)
+f.flag_encrypted = ProtoField.bool("tdtp.flags.encrypted", "ENCRYPTED", 8, nil, 0x04)
+f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0xF8)
+f.suite = ProtoField.uint8("tdtp.suite", "Cipher suite", base.DEC, SUITE_NAMES)
+f.max_payload = ProtoField.uint16("tdtp.max_payload", "Max payload", base.DEC)
+f.attempt = ProtoField.uint16("tdtp.attempt", "Attempt", base.DEC)
+f.nonce = ProtoField.bytes("tdtp.nonce", "Nonce")
+f.key_id = ProtoField.bytes("tdtp.key_id", "Key id")
+f.cookie = ProtoField.bytes("tdtp.cookie", "Cookie")
+f.open_ack_pn = ProtoField.uint16("tdtp.open_ack.pn", "Packet number", base.DEC)
+f.slave_nonce = ProtoField.bytes("tdtp.slave_nonce", "Slave nonce")
+f.reason = ProtoField.uint8("tdtp.reason", "Reason", base.DEC, REASON_NAMES)
+f.tag = ProtoField.bytes("tdtp.tag", "Authentication tag")
+f.pn = ProtoField.uint16("tdtp.pn", "Packet number (low 16 bits)", base.DEC)
+f.sealed = ProtoField.bytes("tdtp.sealed", "Sealed body")
+f.sealed_len = ProtoField.uint16("tdtp.sealed_len", "Sealed body length", base.DEC)
+f.keyed = ProtoField.bool("tdtp.keyed", "Keyed session")
+
+local e = tdtp.experts
+e.truncated = ProtoExpert.new("tdtp.truncated", "Truncated: shorter than the 5-byte header",
+    expert.group.MALFORMED, expert.severity.ERROR)
+e.reserved_type = ProtoExpert.new("tdtp.reserved_type", "TYPE 3 is reserved (dropped as unknown_type)",
+    expert.group.MALFORMED, expert.severity.ERROR)
+e.empty_data = ProtoExpert.new("tdtp.empty_data", "DATA without payload (dropped as empty_data)",
+    expert.group.MALFORMED, expert.severity.ERROR)
+e.no_ack_fields = ProtoExpert.new("tdtp.no_ack_fields", "HOLD 255 (no acknowledgement) with ACK or SACK not zero",
+    expert.group.PROTOCOL, expert.severity.WARN)
+e.padding = ProtoExpert.new("tdtp.padding_nonzero", "ACK padding is not zero",
+    expert.group.PROTOCOL, expert.severity.WARN)
+e.bad_control = ProtoExpert.new("tdtp.bad_control", "Malformed control packet (dropped as bad_control)",
+    expert.group.MALFORMED, expert.severity.ERROR)
+e.unknown_code = ProtoExpert.new("tdtp.unknown_code", "Unknown control code (dropped as bad_control)",
+    expert.group.MALFORMED, expert.severity.ERROR)
+e.version = ProtoExpert.new("tdtp.unknown_version", "Not protocol version 2",
+    expert.group.PROTOCOL, expert.severity.WARN)
+e.flags = ProtoExpert.new("tdtp.bad_flags", "Inconsistent flags, suite or key id (dropped as bad_control)",
+    expert.group.MALFORMED, expert.severity.ERROR)
+e.reserved_flags = ProtoExpert.new("tdtp.reserved_flags", "Reserved flag bits set",
+    expert.group.PROTOCOL, expert.severity.WARN)
+e.zero_payload = ProtoExpert.new("tdtp.max_payload_zero", "max_payload 0 (dropped as bad_control)",
+    expert.group.MALFORMED, expert.severity.ERROR)
+e.hold_control = ProtoExpert.new("tdtp.control_hold", "This control packet must carry HOLD 255",
+    expert.group.PROTOCOL, expert.severity.WARN)
+e.keyed_short = ProtoExpert.new("tdtp.keyed_truncated", "Too short for packet number and tag (dropped as truncated)",
+    expert.group.MALFORMED, expert.severity.ERROR)
+e.sealed = ProtoExpert.new("tdtp.sealed_note", "Keyed session: body sealed, tag not verified (no keys)",
+    expert.group.DECRYPTION, expert.severity.NOTE)
+e.unverified_tag = ProtoExpert.new("tdtp.tag_note", "Authentication tag not verified (no keys)",
+    expert.group.DECRYPTION, expert.severity.CHAT)
+
+tdtp.prefs.ports = Pref.range("UDP ports", "", "UDP ports always decoded as TDTP (e.g. a slave's port)", 65535)
+tdtp.prefs.keyed = Pref.enum("Keyed sessions", 0, "Whether DATA, ACK, KEEPALIVE and CLOSE carry the keyed layout",
+    { { 1, "Learn from the OPEN or OPEN_ACK", 0 }, { 2, "Always keyed", 1 }, { 3, "Never keyed", 2 } }, false)
+tdtp.prefs.heuristic = Pref.bool("Find TDTP by its handshake", true,
+    "Claim UDP address pairs whose first TDTP packet seen is a well-formed handshake message")
+
+-- Address pairs known to carry TDTP: key -> list of {frame, keyed} changes in frame order.
+local sessions = {}
+
+local function rshift(value, bits) return math.floor(value / 2 ^ bits) end
+local function low_bits(value, bits) return value % 2 ^ bits end
+
+local function pair_key(pinfo)
+    local a = tostring(pinfo.src) .. "/" .. pinfo.src_port
+    local b = tostring(pinfo.dst) .. "/" .. pinfo.dst_port
+    if a < b then return a .. "|" .. b end
+    return b .. "|" .. a
+end
+
+local function note_session(pinfo, keyed)
+    if pinfo.visited then return end
+    local key = pair_key(pinfo)
+    local changes = sessions[key]
+    if changes == nil then
+        changes = {}
+        sessions[key] = changes
+    end
+    local last = changes[#changes]
+    if last == nil or (keyed ~= nil and last.keyed ~= keyed) then
+        changes[#changes + 1] = { frame = pinfo.number, keyed = keyed }
+    end
+end
+
+local function session_keyed(pinfo)
+    local mode = tdtp.prefs.keyed
+    if mode == 1 then return true end
+    if mode == 2 then return false end
+    local changes = sessions[pair_key(pinfo)]
+    local keyed = false
+    if changes ~= nil then
+        for _, change in ipairs(changes) do
+            if change.frame < pinfo.number and change.keyed ~= nil then keyed = change.keyed end
+        end
+    end
+    return keyed
+end
+
+local function known_session(pinfo)
+    local changes = sessions[pair_key(pinfo)]
+    return changes ~= nil and changes[1].frame <= pinfo.number
+end
+
+-- HOLD code -> microseconds (section 3.4), nil for the reserved codes.
+local function hold_us(code)
+    if code > 253 then return nil end
+    local exponent, mantissa = rshift(code, 5), low_bits(code, 5)
+    local units = mantissa
+    if exponent > 0 then units = (32 + mantissa) * 2 ^ (exponent - 1) end
+    return units * 8
+end
+
+local function size_allowed(code, length)
+    local sizes = CONTROL_SIZES[code]
+    if sizes == nil then return false end
+    for _, size in ipairs(sizes) do
+        if size == length then return true end
+    end
+    return false
+end
+
+local function add_header(tree, tvb)
+    local range = tvb(0, HEADER)
+    local header = tree:add(tdtp, range, "Base header")
+    header:add(f.type, tvb(0, 1))
+    header:add(f.seq, tvb(0, 2))
+    header:add(f.ack, tvb(1, 3))
+    local sack_item = header:add(f.sack, tvb(3, 1))
+    local hold_item = header:add(f.hold, tvb(4, 1))
+    local ptype = range:bitfield(0, 2)
+    local seq = range:bitfield(2, 12)
+    local ack = range:bitfield(14, 12)
+    local sack = range:bitfield(26, 6)
+    local hold = range:bitfield(32, 8)
+    local us = hold_us(hold)
+    if us ~= nil then
+        header:add(f.hold_us, tvb(4, 1), us):set_generated()
+        hold_item:append_text(string.format(" (%d us)", us))
+    end
+    if hold == 255 then
+        if ack ~= 0 or sack ~= 0 then header:add_proto_expert_info(e.no_ack_fields) end
+    else
+        header:add(f.acked, tvb(1, 3), ack):set_generated()
+        local received, absent = {}, {}
+        for i = 1, 6 do
+            local number = (ack - i) % 4096
+            if low_bits(rshift(sack, i - 1), 1) == 1 then
+                header:add(f.acked, tvb(3, 1), number):set_generated()
+                received[#received + 1] = string.format("ACK-%d", i)
+            else
+                header:add(f.absent, tvb(3, 1), number):set_generated()
+                absent[#absent + 1] = string.format("ACK-%d", i)
+            end
+        end
+        if #received > 0 then sack_item:append_text(" (received: " .. table.concat(received, " ") .. ")") end
+    end
+    return ptype, seq, ack, sack, hold, us
+end
+
+local function ack_text(ack, sack, hold, us)
+    if hold == 255 then return "" end
+    local text = string.format(" ack=%d sack=0x%02x", ack, sack)
+    if us ~= nil then return text .. string.format(" hold=%dus", us) end
+    return text .. " hold=saturated"
+end
+
+local function add_flags(tree, tvb, offset)
+    local item = tree:add(f.flags, tvb(offset, 1))
+    item:add(f.flag_separate, tvb(offset, 1))
+    item:add(f.flag_keyed, tvb(offset, 1))
+    item:add(f.flag_encrypted, tvb(offset, 1))
+    item:add(f.flag_reserved, tvb(offset, 1))
+    local flags = tvb(offset, 1):uint()
+    if flags >= 8 then item:add_proto_expert_info(e.reserved_flags) end
+    return flags, item
+end
+
+local function flag_bit(flags, mask) return low_bits(math.floor(flags / mask), 1) == 1 end
+
+local function add_sealed(tree, tvb, offset, length)
+    -- prefix | PN | sealed body | tag (section 4.4)
+    tree:add(f.pn, tvb(offset, PN))
+    local body = length - offset - PN - TAG
+    if body > 0 then
+        tree:add(f.sealed, tvb(offset + PN, body))
+    end
+    tree:add(f.sealed_len, body):set_generated()
+    tree:add(f.tag, tvb(length - TAG, TAG))
+    tree:add_proto_expert_info(e.sealed)
+    return tvb(offset, PN):uint(), body
+end
+
+local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
+    local code = tvb(HEADER, 1):uint()
+    local name = CODE_NAMES[code]
+    tree:add(f.code, tvb(HEADER, 1))
+    if name == nil then
+        tree:add_proto_expert_info(e.unknown_code)
+        return string.format("CONTROL code %d", code)
+    end
+    if code ~= 3 and hold ~= 255 then tree:add_proto_expert_info(e.hold_control) end
+    if code == 1 or code == 2 then
+        -- OPEN / OPEN_ACK: fields in the clear, a 16-byte tag when KEYED.
+        if length < HEADER + 3 then
+            tree:add_proto_expert_info(e.bad_control)
+            return name
+        end
+        tree:add(f.version, tvb(HEADER + 1, 1))
+        local version = tvb(HEADER + 1, 1):uint()
+        if version ~= VERSION then
+            tree:add_proto_expert_info(e.version)
+            return string.format("%s version %d", name, version)
+        end
+        local flags = add_flags(tree, tvb, HEADER + 2)
+        local is_keyed = flag_bit(flags, 2)
+        local fixed = (code == 1) and 53 or 45
+        if length ~= fixed + (is_keyed and TAG or 0) then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (wrong length)"
+        end
+        tree:add(f.suite, tvb(HEADER + 3, 1))
+        tree:add(f.max_payload, tvb(HEADER + 4, 2))
+        local suite = tvb(HEADER + 3, 1):uint()
+        local max_payload = tvb(HEADER + 4, 2):uint()
+        if max_payload == 0 then tree:add_proto_expert_info(e.zero_payload) end
+        local text
+        if code == 1 then
+            tree:add(f.attempt, tvb(HEADER + 6, 2))
+            tree:add(f.nonce, tvb(HEADER + 8, 16))
+            tree:add(f.key_id, tvb(HEADER + 24, 8))
+            tree:add(f.cookie, tvb(HEADER + 32, 16))
+            local key_zero = tvb(HEADER + 24, 8):bytes():tohex() == "0000000000000000"
+            if (flag_bit(flags, 4) and not is_keyed) or (is_keyed ~= (suite ~= 0))
+                or (not is_keyed and not key_zero) then
+                tree:add_proto_expert_info(e.flags)
+            end
+            local cookie_zero = tvb(HEADER + 32, 16):bytes():tohex() == string.rep("00", 16)
+            text = string.format("OPEN attempt=%d max_payload=%d%s%s", tvb(HEADER + 6, 2):uint(),
+                max_payload, cookie_zero and "" or " cookie", is_keyed and " keyed" or "")
+        else
+            tree:add(f.open_ack_pn, tvb(HEADER + 6, 2))
+            tree:add(f.nonce, tvb(HEADER + 8, 16))
+            tree:add(f.slave_nonce, tvb(HEADER + 24, 16))
+            if (flag_bit(flags, 4) and not is_keyed) or (is_keyed ~= (suite ~= 0)) then
+                tree:add_proto_expert_info(e.flags)
+            end
+            text = string.format("OPEN_ACK max_payload=%d%s", max_payload, is_keyed and " keyed" or "")
+        end
+        if is_keyed then
+            tree:add(f.tag, tvb(length - TAG, TAG))
+            tree:add_proto_expert_info(e.unverified_tag)
+        end
+        if flag_bit(flags, 1) then text = text .. " separate-acks" end
+        note_session(pinfo, is_keyed)
+        return text
+    end
+    if code == 6 then
+        if length ~= 39 then
+            tree:add_proto_expert_info(e.bad_control)
+            return "COOKIE (wrong length)"
+        end
+        tree:add(f.version, tvb(HEADER + 1, 1))
+        if tvb(HEADER + 1, 1):uint() ~= VERSION then tree:add_proto_expert_info(e.version) end
+        tree:add(f.nonce, tvb(HEADER + 2, 16))
+        tree:add(f.cookie, tvb(HEADER + 18, 16))
+        note_session(pinfo, nil)
+        return "COOKIE"
+    end
+    if code == 5 then
+        if length ~= 23 then
+            tree:add_proto_expert_info(e.bad_control)
+            return "REJECT (wrong length)"
+        end
+        tree:add(f.nonce, tvb(HEADER + 1, 16))
+        tree:add(f.reason, tvb(HEADER + 17, 1))
+        note_session(pinfo, nil)
+        local reason = tvb(HEADER + 17, 1):uint()
+        return "REJECT " .. (REASON_NAMES[reason] or tostring(reason))
+    end
+    -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
+    if keyed then
+        if length < HEADER + 1 + PN + TAG then
+            tree:add_proto_expert_info(e.keyed_short)
+            return name .. " (truncated)"
+        end
+        local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
+        if (code == 3 and sealed ~= 0) or (code == 4 and sealed ~= 17) then
+            tree:add_proto_expert_info(e.bad_control)
+        end
+        return string.format("%s pn=%d", name, pn)
+    end
+    if code == 3 then
+        if length ~= 6 then tree:add_proto_expert_info(e.bad_control) end
+        return "KEEPALIVE"
+    end
+    if length ~= 23 then
+        tree:add_proto_expert_info(e.bad_control)
+        return "CLOSE (wrong length)"
+    end
+    tree:add(f.nonce, tvb(HEADER + 1, 16))
+    tree:add(f.reason, tvb(HEADER + 17, 1))
+    local reason = tvb(HEADER + 17, 1):uint()
+    return "CLOSE " .. (REASON_NAMES[reason] or tostring(reason))
+end
+
+function tdtp.dissector(tvb, pinfo, tree)
+    local length = tvb:len()
+    pinfo.cols.protocol = "TDTP"
+    local root = tree:add(tdtp, tvb(), "Teleoperation Data Transport Protocol")
+    if length < HEADER then
+        root:add_proto_expert_info(e.truncated)
+        pinfo.cols.info = "TDTP truncated"
+        return length
+    end
+    local keyed = session_keyed(pinfo)
+    local ptype, seq, ack, sack, hold, us = add_header(root, tvb)
+    local info
+    local handshake = false
+    if ptype == 2 and length > HEADER then
+        local code = tvb(HEADER, 1):uint()
+        handshake = code == 1 or code == 2 or code == 5 or code == 6
+    end
+    if not handshake then root:add(f.keyed, keyed):set_generated() end
+    if ptype == 3 then
+        root:add_proto_expert_info(e.reserved_type)
+        info = "reserved TYPE 3"
+    elseif ptype == 2 then
+        if length == HEADER then
+            root:add_proto_expert_info(e.bad_control)
+            info = "CONTROL without a code"
+        else
+            local code = tvb(HEADER, 1):uint()
+            info = dissect_control(tvb, pinfo, root, length, keyed and not handshake, hold)
+            if code == 3 or code == 4 then info = info .. string.format(" seq=%d", seq) .. ack_text(ack, sack, hold, us) end
+        end
+    elseif keyed then
+        -- DATA or ACK with the keyed layout: header | PN | sealed body | tag.
+        local name = TYPE_NAMES[ptype]
+        if length < HEADER + PN + TAG then
+            root:add_proto_expert_info(e.keyed_short)
+            info = name .. " (truncated)"
+        else
+            local pn, sealed = add_sealed(root, tvb, HEADER, length)
+            if ptype == 0 and sealed == 0 then root:add_proto_expert_info(e.empty_data) end
+            info = string.format("%s seq=%d", name, seq) .. ack_text(ack, sack, hold, us)
+                .. string.format(" pn=%d len=%d", pn, sealed)
+        end
+    elseif ptype == 0 then
+        local payload = length - HEADER
+        root:add(f.payload_len, payload):set_generated()
+        if payload == 0 then
+            root:add_proto_expert_info(e.empty_data)
+        else
+            root:add(f.payload, tvb(HEADER, payload))
+        end
+        info = string.format("DATA seq=%d", seq) .. ack_text(ack, sack, hold, us)
+            .. string.format(" len=%d", payload)
+    else
+        if length > HEADER then
+            local padding = tvb(HEADER, length - HEADER)
+            local item = root:add(f.padding, padding)
+            if padding:bytes():tohex() ~= string.rep("00", length - HEADER) then
+                item:add_proto_expert_info(e.padding)
+            end
+        end
+        info = string.format("ACK seq=%d", seq) .. ack_text(ack, sack, hold, us)
+    end
+    pinfo.cols.info = info
+    return length
+end
+
+-- The heuristic: a well-formed handshake message starts a TDTP address pair; later datagrams of
+-- a known pair are TDTP whatever they contain (malformed ones then get expert info).
+local function heuristic(tvb, pinfo, tree)
+    if not tdtp.prefs.heuristic then return false end
+    local length = tvb:len()
+    if known_session(pinfo) then
+        tdtp.dissector(tvb, pinfo, tree)
+        return true
+    end
+    if length < HEADER + 1 then return false end
+    local first = tvb(0, 1):uint()
+    if rshift(first, 6) ~= 2 then return false end
+    local code = tvb(HEADER, 1):uint()
+    if code ~= 1 and code ~= 2 and code ~= 5 and code ~= 6 then return false end
+    if not size_allowed(code, length) or tvb(4, 1):uint() ~= 255 then return false end
+    if code ~= 5 and tvb(HEADER + 1, 1):uint() ~= VERSION then return false end
+    if code == 6 or code == 5 then
+        if tvb(0, 4):uint() ~= 0x80000000 then return false end -- SEQ, ACK, SACK all zero
+    end
+    note_session(pinfo, nil)
+    tdtp.dissector(tvb, pinfo, tree)
+    return true
+end
+
+tdtp:register_heuristic("udp", heuristic)
+
+local registered_ports = ""
+function tdtp.prefs_changed()
+    local udp = DissectorTable.get("udp.port")
+    if registered_ports ~= "" then udp:remove(registered_ports, tdtp) end
+    registered_ports = tostring(tdtp.prefs.ports)
+    if registered_ports ~= "" then udp:add(registered_ports, tdtp) end
+end
+
+function tdtp.init()
+    sessions = {}
+end
