@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Final, Literal
 
-from tdtp.config import AckMode, ConnectionConfig
+from tdtp.config import AckMode, ConnectionConfig, ControllerName
 from tdtp.control.equations import tcp_friendly_rate
 from tdtp.sim.endpoints import IP_HEADER, UDP_HEADER, CbrSource, TdtpEndpoint, TdtpSession
 from tdtp.sim.engine import Network, Simulator, describe
@@ -69,7 +69,7 @@ class Scheme:
     key: str
     label: str
     ack_mode: AckMode
-    controller: str
+    controller: ControllerName
 
 
 SCHEMES: Final[dict[str, Scheme]] = {
