@@ -100,6 +100,13 @@ class NetemRelay:
         sockname: Address = self._listener.get_extra_info("sockname")
         return sockname
 
+    def change(self, spec: NetemSpec | str, *, return_spec: NetemSpec | str | None = None) -> None:
+        """Impair from now on with ``spec`` forward and ``return_spec`` back (default: ``spec``), as
+        ``tc qdisc change`` would: ``relay.change("loss 100%")`` is an outage both ways, and
+        changing back ends it. Datagrams already on a link keep their delivery times."""
+        self.forward.change(spec)
+        self.back.change(spec if return_spec is None else return_spec)
+
     def _from_client(self, data: bytes, client: Address) -> None:
         upstream = self._clients.get(client)
         if upstream is None:

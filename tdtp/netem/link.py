@@ -265,13 +265,31 @@ class NetemLink:
             isinstance(chosen, int) and not isinstance(chosen, bool) and 0 <= chosen <= MAX_SEED
         ):
             raise ValueError(f"seed must be a whole number from 0 to 2**64 - 1, got {chosen!r}")
-        self.spec: Final = spec
+        self.spec = spec
         self.seed: Final[int] = chosen
         """The seed in use: same seed, same spec and same calls give the same decisions."""
         self.stats: Final = NetemStats()
+        self._rng = random.Random(chosen)
+        self._configure(spec)
 
-        rng = random.Random(chosen)
-        self._rng = rng
+        self._now = -math.inf
+        self._seq = 0
+        self._counter = 0  # netem's q->counter: packets delayed since the last reordered one
+        self._last_send_time = -math.inf  # send time of the latest rate-scheduled packet
+        self._in_flight: list[tuple[float, int, bytes, object]] = []  # heap by (send time, seq)
+        self._due: deque[tuple[float, bytes, object]] = deque()  # due, not yet collected
+
+    def change(self, spec: NetemSpec) -> None:
+        """Impair from now on with ``spec``, as ``tc qdisc change`` does: datagrams already on the
+        link keep their delivery times, the statistics and the random sequence carry on. Switching
+        to ``loss 100%`` and back is how to emulate an outage."""
+        if not isinstance(spec, NetemSpec):
+            raise TypeError(f"change() needs a NetemSpec, got {type(spec).__name__}")
+        self._configure(spec)
+        self.spec = spec
+
+    def _configure(self, spec: NetemSpec) -> None:
+        rng = self._rng
         self._delay = spec.delay
         self._quantile = _QUANTILES[spec.delay.distribution] if spec.delay else _uniform
         self._delay_draw = _CorrelatedUniform(rng, spec.delay.correlation if spec.delay else 0.0)
@@ -286,13 +304,6 @@ class NetemLink:
         self._reorder_draw = _CorrelatedUniform(rng, reorder.correlation if reorder else 0.0)
         self._rate = spec.rate
         self._limit = spec.limit
-
-        self._now = -math.inf
-        self._seq = 0
-        self._counter = 0  # netem's q->counter: packets delayed since the last reordered one
-        self._last_send_time = -math.inf  # send time of the latest rate-scheduled packet
-        self._in_flight: list[tuple[float, int, bytes, object]] = []  # heap by (send time, seq)
-        self._due: deque[tuple[float, bytes, object]] = deque()  # due, not yet collected
 
     # -- the sans-IO interface ---------------------------------------------------------------------
 
