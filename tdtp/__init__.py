@@ -5,16 +5,24 @@ The core (:class:`Connection`) is sans-IO: it never touches sockets or reads a c
 points (:func:`connect`, :func:`listen`) run it over real UDP sockets.
 """
 
-from tdtp.aio.api import ConnectError, Server, ServerStats, connect, listen
-from tdtp.aio.endpoint import Endpoint, EndpointClosedError
+from tdtp.aio.api import Server, ServerStats, connect, listen
+from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
-from tdtp.config import AckMode, ConnectionConfig, Role
+from tdtp.config import AckMode, ConnectionConfig, ControllerName, Role
 from tdtp.connection import Connection, State
 from tdtp.errors import (
+    AddressError,
+    ArgumentTypeError,
+    ConnectError,
     ConnectionClosedError,
     ConnectionStateError,
+    EndpointClosedError,
+    InvalidArgumentError,
     PayloadTooLargeError,
+    PayloadTypeError,
+    PortUnreachableError,
+    ServerClosedError,
     TdtpError,
 )
 from tdtp.events import (
@@ -24,16 +32,21 @@ from tdtp.events import (
     ConnectionEstablished,
     DataReceived,
     Event,
+    PeerResumed,
+    PeerSilent,
 )
 from tdtp.stats import ConnectionStats, DirectionStats, DropReason
 from tdtp.wire import HEADER_SIZE
 
 __version__ = "0.1.0"
+"""The package version, kept in this one place: ``pyproject.toml`` reads it from here."""
 
 __all__ = [
     "HEADER_SIZE",
     "AckMode",
     "Address",
+    "AddressError",
+    "ArgumentTypeError",
     "CloseCause",
     "ConnectError",
     "Connection",
@@ -43,15 +56,22 @@ __all__ = [
     "ConnectionEstablished",
     "ConnectionStateError",
     "ConnectionStats",
+    "ControllerName",
     "DataReceived",
     "DirectionStats",
     "DropReason",
     "Endpoint",
     "EndpointClosedError",
     "Event",
+    "InvalidArgumentError",
     "PayloadTooLargeError",
+    "PayloadTypeError",
+    "PeerResumed",
+    "PeerSilent",
+    "PortUnreachableError",
     "Role",
     "Server",
+    "ServerClosedError",
     "ServerStats",
     "State",
     "TdtpError",

@@ -47,16 +47,19 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
+from typing import Literal, get_args
 
-from tdtp.errors import TdtpError
+from tdtp.errors import InvalidArgumentError, TdtpError
 
 __all__ = [
     "DEFAULT_SPIN_WINDOW",
     "PRECISE_SPIN_WINDOW",
     "CallAtTimer",
     "DeadlineTimer",
+    "TimerPreference",
     "TimerUnavailableError",
     "TimerfdTimer",
+    "check_timer_preference",
     "create_timer",
     "monotonic",
     "timerfd_unavailable_reason",
@@ -484,7 +487,25 @@ class CallAtTimer(DeadlineTimer):
 
 # --- choice ---------------------------------------------------------------------------------------
 
-_PREFERENCES = ("auto", "timerfd", "call_at")
+TimerPreference = Literal["auto", "timerfd", "call_at"]
+"""Which deadline timer to use: the best available, timerfd only, or the portable ``call_at``."""
+
+_PREFERENCES: tuple[str, ...] = get_args(TimerPreference)
+
+
+def check_timer_preference(prefer: object) -> None:
+    """Raise at once for a misspelt preference, or for ``"timerfd"`` where timerfd cannot run
+    (rather than on every connection the endpoint opens later)."""
+    if not isinstance(prefer, str) or prefer not in _PREFERENCES:
+        raise InvalidArgumentError(
+            f"timer must be one of {', '.join(map(repr, _PREFERENCES))}, not {prefer!r}"
+        )
+    if prefer == "timerfd":
+        reason = timerfd_unavailable_reason()
+        if reason is not None:
+            raise TimerUnavailableError(
+                f"timerfd is unavailable here ({reason}); use timer='auto' or 'call_at'"
+            )
 
 
 def create_timer(
@@ -501,7 +522,7 @@ def create_timer(
     fallback.
     """
     if prefer not in _PREFERENCES:
-        raise ValueError(
+        raise InvalidArgumentError(
             f"prefer must be one of {', '.join(map(repr, _PREFERENCES))}, not {prefer!r}"
         )
     if prefer == "call_at":
