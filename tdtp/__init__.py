@@ -5,6 +5,8 @@ The core (:class:`Connection`) is sans-IO: it never touches sockets or reads a c
 points (:func:`connect`, :func:`listen`) run it over real UDP sockets.
 """
 
+import logging
+
 from tdtp.aio.api import Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.ticker import Ticker
@@ -37,6 +39,10 @@ from tdtp.events import (
 )
 from tdtp.stats import ConnectionStats, DirectionStats, DropReason
 from tdtp.wire import HEADER_SIZE
+
+# A library leaves logging's configuration to the application: without a handler of its own, the
+# watchdog's warnings would go to stderr through logging's last-resort handler.
+logging.getLogger("tdtp").addHandler(logging.NullHandler())
 
 __version__ = "0.1.0"
 """The package version, kept in this one place: ``pyproject.toml`` reads it from here."""

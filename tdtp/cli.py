@@ -2,29 +2,46 @@
 
 A master sends position samples (a circle traced at 0.5 Hz) at ``--rate`` per second; the slave answers
 each period with force feedback from a virtual spring wall. Both print a live status block once per second,
-or with ``--json`` one JSON object at the end.
+or with ``--json`` one JSON object at the end. Ctrl-C ends a run early and still prints the summary.
+
+Exit status: 0 when the run ended as asked, 1 when the session failed (no slave, refused, lost after a
+silence longer than the outage limit), 2 for a usage error (one line on stderr saying what to change),
+130 after Ctrl-C.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import sys
-from collections.abc import Callable, Coroutine, Sequence
+from collections import deque
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from tdtp.aio.api import ConnectError, Server, connect, listen
-from tdtp.aio.endpoint import Endpoint
+from tdtp import __version__
+from tdtp.aio.api import Server, connect, listen
+from tdtp.aio.endpoint import Endpoint, format_address
 from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
-from tdtp.aio.timer import monotonic
-from tdtp.config import AckMode, ConnectionConfig
+from tdtp.aio.timer import check_timer_preference, monotonic
+from tdtp.cli_parser import EXIT_USAGE, CommandParser
+from tdtp.config import MAX_UDP_PAYLOAD, AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
 from tdtp.control.registry import available_controllers
-from tdtp.events import DataReceived
+from tdtp.errors import (
+    AddressError,
+    ArgumentTypeError,
+    ConnectError,
+    EndpointClosedError,
+    InvalidArgumentError,
+    PayloadTooLargeError,
+    TdtpError,
+)
+from tdtp.events import CloseCause, DataReceived
 from tdtp.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
 from tdtp.live_stats import (
     DirectionMeter,
@@ -34,31 +51,48 @@ from tdtp.live_stats import (
     receive_line,
 )
 from tdtp.netem import NetemSpec, parse_netem
+from tdtp.netem.spec import MAX_SEED
 from tdtp.sim.cli import simulate_main
+from tdtp.wire.header import HEADER_SIZE
 
 MAX_LATENCY = 10.0
 """Latencies above this are not recorded (the clocks of two hosts are not comparable)."""
+MAX_RATE = 100_000.0
+"""The highest --rate: the rate controllers' ceiling (and far beyond any supermedia loop)."""
+MAX_SIZE = MAX_UDP_PAYLOAD - HEADER_SIZE
+DEFAULT_MAX_PAYLOAD = ConnectionConfig().max_payload
+SESSIONS_KEPT = 256
+"""Finished sessions a long-running slave remembers for its summary."""
+
+EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
+
+
+class UsageError(Exception):
+    """A command-line value the library refused; printed as one line, exit status 2."""
 
 
 # ---------------------------------------------------------------------------- arguments
 
 
-def _host_port(text: str) -> tuple[str, int]:
+def _host_port(text: str, *, allow_zero: bool = False) -> tuple[str, int]:
     """``HOST:PORT``, ``[IPv6]:PORT`` or ``IPv6-without-brackets:PORT`` (last colon splits)."""
     if text.startswith("["):
         host, sep, port = text[1:].partition("]:")
     else:
         host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise argparse.ArgumentTypeError(f"expected HOST:PORT (e.g. 127.0.0.1:7000), got {text!r}")
+    low = 0 if allow_zero else 1
+    if not sep or not host or not port.isdigit() or not low <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(
+            f"expected HOST:PORT with a port in {low}..65535 (e.g. 127.0.0.1:7000), got {text!r}"
+        )
     return host, int(port)
 
 
 def _host_port_or_port(text: str) -> tuple[str, int]:
-    """``:PORT`` (all interfaces) or ``HOST:PORT``."""
+    """``:PORT`` (all interfaces) or ``HOST:PORT``; port 0 picks a free one."""
     if text.startswith(":"):
         text = "0.0.0.0" + text
-    return _host_port(text)
+    return _host_port(text, allow_zero=True)
 
 
 def _netem_spec(text: str) -> NetemSpec:
@@ -68,23 +102,54 @@ def _netem_spec(text: str) -> NetemSpec:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _positive(kind: Callable[[str], float]) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        value = kind(text)
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def _integer(low: int, high: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be in {low}..{high}, got {value}")
         return value
 
     return parse
 
 
+def _rate(text: str) -> float:
+    value = _number(text)
+    if not (0.0 < value <= MAX_RATE):  # also refuses nan and inf
+        raise argparse.ArgumentTypeError(
+            f"must be a number of samples per second above 0 and at most {MAX_RATE:g}, got {text}"
+        )
+    return value
+
+
+def _duration(text: str) -> float:
+    value = _number(text)
+    if not value > 0.0:  # also refuses nan; inf means "until Ctrl-C"
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
-    common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--rate", type=_positive(float), default=1000.0, help="samples/s (1000)")
+    common = CommandParser(add_help=False)
     common.add_argument(
-        "--size", type=int, default=100, help=f"payload bytes, >= {SAMPLE_SIZE} (100)"
+        "--rate", type=_rate, default=1000.0, help=f"samples/s, up to {MAX_RATE:g} (1000)"
     )
-    common.add_argument("--duration", type=_positive(float), help="seconds to run")
+    common.add_argument(
+        "--size",
+        type=_integer(SAMPLE_SIZE, MAX_SIZE),
+        default=100,
+        help=f"payload bytes, {SAMPLE_SIZE}..{MAX_SIZE} (100)",
+    )
+    common.add_argument("--duration", type=_duration, help="seconds to run")
     common.add_argument(
         "--controller", default="trinomial", choices=available_controllers(), help="rate control"
     )
@@ -94,7 +159,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="Trinomial mode: one ACK packet per data packet instead of piggybacked ACKs",
     )
     common.add_argument(
-        "--ack-size", type=int, default=5, help="bytes of a stand-alone ACK datagram (5)"
+        "--ack-size",
+        type=_integer(HEADER_SIZE, HEADER_SIZE + MAX_SIZE),
+        default=HEADER_SIZE,
+        help=f"bytes of a stand-alone ACK datagram, {HEADER_SIZE} or more (5)",
+    )
+    common.add_argument(
+        "--silence-timeout",
+        type=_duration,
+        default=ConnectionConfig().silence_timeout,
+        help="seconds without a datagram before the peer is reported silent (0.1)",
+    )
+    common.add_argument(
+        "--idle-timeout",
+        type=_duration,
+        default=ConnectionConfig().idle_timeout,
+        help="seconds of silence after which the session is given up (30)",
     )
     common.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     common.add_argument(
@@ -104,16 +184,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--timer", choices=("auto", "timerfd", "call_at"), default="auto", help="pacing timer"
     )
     netem = common.add_argument_group(
-        "impairment", 'emulated in-process with tc-netem\'s syntax, e.g. "delay 20ms 5ms loss 2%%"'
+        "impairment", 'emulated in-process with tc-netem\'s syntax, e.g. "delay 20ms 5ms loss 2%"'
     )
     netem.add_argument("--netem", type=_netem_spec, help="both directions")
     netem.add_argument("--netem-ms", type=_netem_spec, help="master -> slave (overrides --netem)")
     netem.add_argument("--netem-sm", type=_netem_spec, help="slave -> master (overrides --netem)")
-    netem.add_argument("--netem-seed", type=int, help="seed for reproducible impairment")
-
-    parser = argparse.ArgumentParser(
-        prog="tdtp", description="TDTP teleoperation transport: master, slave and demo."
+    netem.add_argument(
+        "--netem-seed", type=_integer(0, MAX_SEED - 1), help="seed for reproducible impairment"
     )
+
+    parser = CommandParser(
+        prog="tdtp",
+        description="TDTP teleoperation transport: master, slave and demo.",
+        epilog="Exit status: 0 done, 1 session failed, 2 usage error, 130 interrupted.",
+    )
+    parser.add_argument("--version", action="version", version=f"tdtp {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
     demo = commands.add_parser(
         "demo", parents=[common], help="master and slave on localhost, live statistics"
@@ -121,8 +206,12 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(duration=None)
     slave = commands.add_parser("slave", parents=[common], help="serve masters on a UDP port")
     slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
-    slave.add_argument("--port", type=int, required=True, help="UDP port")
-    slave.add_argument("--max-peers", type=int, default=256, help="masters served at once")
+    slave.add_argument(
+        "--port", type=_integer(0, 65535), required=True, help="UDP port (0: any free port)"
+    )
+    slave.add_argument(
+        "--max-peers", type=_integer(1, 1 << 20), default=256, help="masters served at once"
+    )
     master = commands.add_parser("master", parents=[common], help="connect to a slave")
     master.add_argument("address", type=_host_port, help="the slave, HOST:PORT")
     relay = commands.add_parser(
@@ -136,9 +225,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     relay.add_argument("--forward", type=_host_port, required=True, help="HOST:PORT to relay to")
     relay.add_argument("--return-spec", type=_netem_spec, help="the way back (default: spec)")
-    relay.add_argument("--seed", type=int, help="seed for reproducible impairment")
-    relay.add_argument("--duration", type=_positive(float), help="seconds to run")
-    relay.add_argument("--max-clients", type=int, default=256)
+    relay.add_argument(
+        "--seed", type=_integer(0, MAX_SEED - 1), help="seed for reproducible impairment"
+    )
+    relay.add_argument("--duration", type=_duration, help="seconds to run")
+    relay.add_argument("--max-clients", type=_integer(1, 1 << 20), default=256)
     relay.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     relay.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
     simulate = commands.add_parser(
@@ -154,12 +245,19 @@ def _config(args: argparse.Namespace) -> ConnectionConfig:
     controller_config: object | None = None
     if args.controller == "fixed":
         controller_config = FixedConfig(rate=args.rate)
-    return ConnectionConfig(
-        ack_mode=AckMode.SEPARATE if args.separate_acks else AckMode.BIDIRECTIONAL,
-        ack_size=args.ack_size,
-        controller=args.controller,
-        controller_config=controller_config,
-    )
+    try:
+        return ConnectionConfig(
+            max_payload=max(DEFAULT_MAX_PAYLOAD, args.size),
+            ack_mode=AckMode.SEPARATE if args.separate_acks else AckMode.BIDIRECTIONAL,
+            ack_size=args.ack_size,
+            controller=args.controller,
+            controller_config=controller_config,
+            silence_timeout=args.silence_timeout,
+            idle_timeout=args.idle_timeout,
+        )
+    except InvalidArgumentError as exc:
+        option = str(exc).split(" ", 1)[0].replace("_", "-")
+        raise UsageError(f"--{option}: {exc}") from None
 
 
 # ---------------------------------------------------------------------------- application loops
@@ -185,19 +283,32 @@ class Side:
             self.latency.add(latency)
 
 
+@dataclass
+class Outcome:
+    """What a run leaves behind, even when Ctrl-C cuts it short."""
+
+    summary: dict[str, Any] | None = None
+    status: int = EXIT_OK
+    failure: str | None = None
+
+
 async def _send_loop(
     ep: Endpoint, side: Side, rate: float, size: int, until: float, *, master: bool
 ) -> None:
+    """Offer a sample per tick until ``until`` (however slow the rate) or the session ends."""
     start = monotonic()
-    async for index in Ticker(rate, start=start):
-        now = monotonic()
-        if now >= until or ep.is_closed:
-            return
-        if master:
-            sample = master_trajectory(now - start, index, now)
-        else:
-            sample = slave_feedback(side.last_position, index, now)
-        ep.send(sample.encode(size))
+    remaining = until - start
+    with contextlib.suppress(TimeoutError, EndpointClosedError):
+        async with asyncio.timeout(None if math.isinf(remaining) else max(0.0, remaining)):
+            async for index in Ticker(rate, start=start):
+                now = monotonic()
+                if now >= until or ep.is_closed:
+                    return
+                if master:
+                    sample = master_trajectory(now - start, index, now)
+                else:
+                    sample = slave_feedback(side.last_position, index, now)
+                ep.send(sample.encode(size))
 
 
 async def _every_second(until: float, tick: Callable[[float], None]) -> None:
@@ -216,6 +327,25 @@ async def _every_second(until: float, tick: Callable[[float], None]) -> None:
         mark += 1
 
 
+async def _with_display(work: Awaitable[Any], display: Coroutine[Any, Any, None]) -> None:
+    """Run ``work`` with the live display beside it; the display stops when the work does."""
+    shown = asyncio.create_task(display)
+    try:
+        await work
+    finally:
+        shown.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await shown
+
+
+def _silence_note(ep: Endpoint, listener: str) -> str | None:
+    """``"<listener> hears nothing for 1.2 s"`` while ``ep``'s watchdog finds the peer silent."""
+    since = ep.connection.silent_since
+    if since is None:
+        return None
+    return f"SILENT: {listener} hears nothing for {monotonic() - since:.1f} s"
+
+
 def _header(args: argparse.Namespace, ep: Endpoint) -> str:
     mode = "separate ACKs" if args.separate_acks else "piggybacked ACKs"
     loop = type(asyncio.get_running_loop()).__module__.split(".")[0]
@@ -225,24 +355,31 @@ def _header(args: argparse.Namespace, ep: Endpoint) -> str:
     )
 
 
-async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
+def _close_info(ep: Endpoint) -> dict[str, str] | None:
+    event = ep.close_event
+    return None if event is None else {"cause": event.cause.value, "detail": event.detail}
+
+
+async def run_demo(args: argparse.Namespace, outcome: Outcome) -> None:
     config = _config(args)
     duration = args.duration if args.duration is not None else 5.0
     master_side, slave_side = Side("master"), Side("slave")
     ms_spec, sm_spec = _directions(args)
     async with (
-        await listen(
+        listen(
             "127.0.0.1",
             0,
             config=config,
+            timer=args.timer,
             on_data=slave_side.on_data,
             netem=sm_spec,
             netem_seed=_seed(args, 1),
         ) as server,
-        await connect(
+        connect(
             "127.0.0.1",
             server.port,
             config=config,
+            timer=args.timer,
             on_data=master_side.on_data,
             netem=ms_spec,
             netem_seed=_seed(args, 0),
@@ -251,6 +388,7 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
         slave = await server.accept()
         start = monotonic()
         until = start + duration
+        elapsed: float | None = None
         display = None if args.json else LiveDisplay()
         meters = (DirectionMeter("M->S"), DirectionMeter("S->M"))
         if display is not None:
@@ -258,45 +396,54 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
 
         def show(interval: float) -> None:
             assert display is not None
-            display.update(
-                [
-                    f"t={monotonic() - start:6.1f} s",
-                    meters[0].line(
-                        master.stats,
-                        slave.stats.received.data_packets,
-                        interval,
-                        slave_side.latency.take_window(),
-                    ),
-                    meters[1].line(
-                        slave.stats,
-                        master.stats.received.data_packets,
-                        interval,
-                        master_side.latency.take_window(),
-                    ),
-                ]
+            lines = [f"t={monotonic() - start:6.1f} s"]
+            lines.append(
+                meters[0].line(
+                    master.stats,
+                    slave.stats.received.data_packets,
+                    interval,
+                    slave_side.latency.take_window(),
+                    _silence_note(slave, "slave"),
+                )
             )
+            lines.append(
+                meters[1].line(
+                    slave.stats,
+                    master.stats.received.data_packets,
+                    interval,
+                    master_side.latency.take_window(),
+                    _silence_note(master, "master"),
+                )
+            )
+            display.update(lines)
 
-        tasks = [
-            _send_loop(master, master_side, args.rate, args.size, until, master=True),
-            _send_loop(slave, slave_side, args.rate, args.size, until, master=False),
-        ]
-        if display is not None:
-            tasks.append(_every_second(until, show))
-        await asyncio.gather(*tasks)
-        elapsed = monotonic() - start  # the sending window: rates are per second of it
-        await asyncio.sleep(0.05)  # let the last samples land before counting
-        summary = {
-            "command": "demo",
-            "duration_s": round(elapsed, 3),
-            **_settings(args, master),
-            "master_to_slave": direction_summary(
-                master.stats, slave.stats, elapsed, slave_side.latency
-            ),
-            "slave_to_master": direction_summary(
-                slave.stats, master.stats, elapsed, master_side.latency
-            ),
-        }
-    return summary
+        def summarize() -> None:
+            spent = elapsed if elapsed is not None else monotonic() - start
+            outcome.summary = {
+                "command": "demo",
+                "duration_s": round(spent, 3),
+                **_settings(args, master),
+                "master_to_slave": direction_summary(
+                    master.stats, slave.stats, spent, slave_side.latency
+                ),
+                "slave_to_master": direction_summary(
+                    slave.stats, master.stats, spent, master_side.latency
+                ),
+            }
+
+        try:
+            sending = asyncio.gather(
+                _send_loop(master, master_side, args.rate, args.size, until, master=True),
+                _send_loop(slave, slave_side, args.rate, args.size, until, master=False),
+            )
+            if display is None:
+                await sending
+            else:
+                await _with_display(sending, _every_second(until, show))
+            elapsed = monotonic() - start  # the sending window: rates are per second of it
+            await asyncio.sleep(0.05)  # let the last samples land before counting
+        finally:
+            summarize()
 
 
 def _directions(args: argparse.Namespace) -> tuple[NetemSpec | None, NetemSpec | None]:
@@ -326,89 +473,111 @@ def _settings(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
     }
 
 
-async def run_master(args: argparse.Namespace) -> dict[str, Any]:
+async def run_master(args: argparse.Namespace, outcome: Outcome) -> None:
     host, port = args.address
     side = Side("master")
-    until = math.inf if args.duration is None else monotonic() + args.duration
     ms_spec, _ = _directions(args)
-    async with await connect(
+    async with connect(
         host,
         port,
         config=_config(args),
+        timer=args.timer,
         on_data=side.on_data,
         netem=ms_spec,
         netem_seed=_seed(args, 0),
     ) as ep:
         start = monotonic()
-        until = min(until, start + (args.duration or math.inf))
+        until = start + (args.duration or math.inf)
         display = None if args.json else LiveDisplay()
-        meters = (DirectionMeter("M->S"),)
+        meter = DirectionMeter("M->S")
         reverse_meter = DirectionMeter("S->M")
         if display is not None:
-            display.message(_header(args, ep) + f", slave {host}:{port}")
+            display.message(_header(args, ep) + f", slave {format_address((host, port))}")
 
         def show(interval: float) -> None:
             assert display is not None
-            display.update(
-                [
-                    f"t={monotonic() - start:6.1f} s",
-                    meters[0].line(ep.stats, ep.stats.packets_acked, interval, None),
-                    receive_line("S->M", side.received, reverse_meter, interval, side.latency),
-                ]
-            )
+            lines = [
+                f"t={monotonic() - start:6.1f} s",
+                meter.line(ep.stats, ep.stats.packets_acked, interval, None),
+                receive_line("S->M", side.received, reverse_meter, interval, side.latency),
+            ]
+            note = _silence_note(ep, "master")
+            if note is not None:
+                lines.append(note)
+            display.update(lines)
 
-        tasks = [_send_loop(ep, side, args.rate, args.size, until, master=True)]
-        if display is not None:
-            tasks.append(_every_second(until, show))
-        await asyncio.gather(*tasks)
-        elapsed = monotonic() - start
-        return {
-            "command": "master",
-            "duration_s": round(elapsed, 3),
-            **_settings(args, ep),
-            "master_to_slave": direction_summary(ep.stats, None, elapsed),
-            "slave_to_master": {
-                "packets_received": side.received,
-                "mean_rate": round(side.received / elapsed, 2) if elapsed else 0.0,
-                "latency_ms": side.latency.summary_ms(),
-            },
-            "close": None if not ep.is_closed else "closed by the slave",
-        }
+        try:
+            sending = _send_loop(ep, side, args.rate, args.size, until, master=True)
+            if display is None:
+                await sending
+            else:
+                await _with_display(sending, _every_second(until, show))
+        finally:
+            elapsed = monotonic() - start
+            outcome.summary = {
+                "command": "master",
+                "duration_s": round(elapsed, 3),
+                **_settings(args, ep),
+                "master_to_slave": direction_summary(ep.stats, None, elapsed),
+                "slave_to_master": {
+                    "packets_received": side.received,
+                    "mean_rate": round(side.received / elapsed, 2) if elapsed else 0.0,
+                    "latency_ms": side.latency.summary_ms(),
+                },
+                "peer_silences": ep.stats.peer_silences,
+                "longest_silence_s": round(ep.stats.longest_silence, 3),
+                "close": _close_info(ep),
+            }
+            event = ep.close_event
+            if event is not None and event.cause is not CloseCause.PEER_CLOSE:
+                outcome.status = EXIT_FAILED
+                outcome.failure = f"session lost ({event.cause.value}): {event.detail}"
 
 
-async def _serve_one(ep: Endpoint, side: Side, args: argparse.Namespace, until: float) -> None:
-    await _send_loop(ep, side, args.rate, args.size, until, master=False)
-
-
-async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
+async def run_slave(args: argparse.Namespace, outcome: Outcome) -> None:
     until = math.inf if args.duration is None else monotonic() + args.duration
     sides: dict[int, Side] = {}
+    finished: deque[dict[str, Any]] = deque(maxlen=SESSIONS_KEPT)
     _, sm_spec = _directions(args)
-    async with await listen(
+    async with listen(
         args.host,
         args.port,
         config=_config(args),
         max_peers=args.max_peers,
+        timer=args.timer,
         netem=sm_spec,
         netem_seed=_seed(args, 1),
     ) as server:
         display = None if args.json else LiveDisplay()
         if display is not None:
-            display.message(f"tdtp slave listening on {args.host}:{server.port}")
+            display.message(f"tdtp slave listening on {format_address(server.sockname)}")
         tasks: set[asyncio.Task[None]] = set()
-        acceptor = asyncio.create_task(_accept_loop(server, sides, args, until, tasks))
+        acceptor = asyncio.create_task(_accept_loop(server, sides, args, until, tasks, finished))
         try:
             await _every_second(until, lambda interval: _show_slave(display, server, sides))
         finally:
             acceptor.cancel()
             for task in tasks:
                 task.cancel()
-        return {
-            "command": "slave",
-            "masters_served": server.stats.peers_accepted,
-            "masters_refused": server.stats.peers_refused,
-            "datagrams_unattached": server.stats.datagrams_unattached,
-        }
+            sessions = list(finished) + [_session(ep, sides.get(id(ep))) for ep in server.endpoints]
+            outcome.summary = {
+                "command": "slave",
+                "masters_served": server.stats.peers_accepted,
+                "masters_refused": server.stats.peers_refused,
+                "datagrams_unattached": server.stats.datagrams_unattached,
+                "sessions": sessions,
+            }
+
+
+def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
+    return {
+        "master": format_address(ep.peer),
+        "samples_received": side.received if side else ep.stats.samples_delivered,
+        "samples_sent": ep.stats.sent.data_packets,
+        "peer_silences": ep.stats.peer_silences,
+        "longest_silence_s": round(ep.stats.longest_silence, 3),
+        "close": _close_info(ep),
+    }
 
 
 async def _accept_loop(
@@ -417,14 +586,29 @@ async def _accept_loop(
     args: argparse.Namespace,
     until: float,
     tasks: set[asyncio.Task[None]],
+    finished: deque[dict[str, Any]],
 ) -> None:
     async for ep in server:
-        side = Side(f"master {ep.peer}")
+        side = Side(f"master {format_address(ep.peer)}")
         sides[id(ep)] = side
         ep.set_data_callback(side.on_data)
-        task = asyncio.create_task(_serve_one(ep, side, args, until))
+        task = asyncio.create_task(_serve_one(ep, side, args, until, sides, finished))
         tasks.add(task)
         task.add_done_callback(tasks.discard)
+
+
+async def _serve_one(
+    ep: Endpoint,
+    side: Side,
+    args: argparse.Namespace,
+    until: float,
+    sides: dict[int, Side],
+    finished: deque[dict[str, Any]],
+) -> None:
+    await _send_loop(ep, side, args.rate, args.size, until, master=False)
+    if ep.is_closed:
+        finished.append(_session(ep, side))
+        sides.pop(id(ep), None)
 
 
 def _show_slave(display: LiveDisplay | None, server: Server, sides: dict[int, Side]) -> None:
@@ -434,15 +618,19 @@ def _show_slave(display: LiveDisplay | None, server: Server, sides: dict[int, Si
     for ep in server.endpoints:
         side = sides.get(id(ep))
         stats = ep.stats
-        lines.append(
-            f"  {ep.peer}: received {side.received if side else 0} samples, "
-            f"sent {stats.sent.data_packets}, srtt {stats.srtt * 1e3:.3f} ms, "
-            f"lost {stats.packets_lost}, allowed {stats.rate:.0f}/s"
+        line = (
+            f"  {format_address(ep.peer)}:  received {side.received if side else 0} samples"
+            f"  sent {stats.sent.data_packets}  srtt {stats.srtt * 1e3:.3f} ms"
+            f"  lost {stats.packets_lost}  allowed {stats.rate:.0f}/s"
         )
+        note = _silence_note(ep, "slave")
+        if note is not None:
+            line += "  " + note
+        lines.append(line)
     display.update(lines)
 
 
-async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
+async def run_relay(args: argparse.Namespace, outcome: Outcome) -> None:
     relay = await start_relay(
         args.listen,
         args.forward,
@@ -454,7 +642,7 @@ async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
     display = None if args.json else LiveDisplay()
     if display is not None:
         display.message(
-            f"relaying {relay.address[0]}:{relay.address[1]} -> {args.forward[0]}:{args.forward[1]}"
+            f"relaying {format_address(relay.address)} -> {format_address(args.forward)}"
             f" with forward '{args.spec}', return '{args.return_spec or args.spec}'"
         )
 
@@ -465,7 +653,7 @@ async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
         display.update(
             [
                 f"clients {relay.stats.clients}  forwarded {relay.stats.forwarded}"
-                f"  returned {relay.stats.returned}",
+                f"  returned {relay.stats.returned}  not forwarded {relay.stats.forward_errors}",
                 f"  forward: {_link_line(fwd)}",
                 f"  return:  {_link_line(back)}",
             ]
@@ -476,12 +664,12 @@ async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
         await _every_second(until, show)
     finally:
         await relay.close()
-    return {
-        "command": "netem-relay",
-        "relay": asdict(relay.stats),
-        "forward": asdict(relay.forward.link.stats),
-        "return": asdict(relay.back.link.stats),
-    }
+        outcome.summary = {
+            "command": "netem-relay",
+            "relay": asdict(relay.stats),
+            "forward": asdict(relay.forward.link.stats),
+            "return": asdict(relay.back.link.stats),
+        }
 
 
 def _link_line(stats: Any) -> str:
@@ -498,10 +686,35 @@ def _loop_factory(choice: str) -> Callable[[], asyncio.AbstractEventLoop] | None
         import uvloop  # noqa: PLC0415 -- optional (the "fast" extra): imported only when wanted
     except ImportError:
         if choice == "uvloop":
-            raise SystemExit("uvloop is not installed: pip install 'tdtp[fast]'") from None
+            raise UsageError(
+                "--loop uvloop: uvloop is not installed (pip install 'tdtp[fast]')"
+            ) from None
         return None
     factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
     return factory
+
+
+Runner = Callable[[argparse.Namespace, Outcome], Coroutine[Any, Any, None]]
+RUNNERS: dict[str, Runner] = {
+    "demo": run_demo,
+    "master": run_master,
+    "slave": run_slave,
+    "netem-relay": run_relay,
+}
+
+_USAGE_ERRORS = (
+    UsageError,
+    InvalidArgumentError,
+    ArgumentTypeError,
+    AddressError,
+    PayloadTooLargeError,
+)
+"""Errors that a different command line fixes: exit status 2."""
+
+
+def _fail(message: object, status: int) -> int:
+    print(f"tdtp: {message}", file=sys.stderr)
+    return status
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -509,29 +722,36 @@ def main(argv: Sequence[str] | None = None) -> int:
     if arguments[:1] == ["simulate"]:
         # Its own parser (tdtp.sim.cli); the subcommand below only lists it in --help.
         return simulate_main(arguments[1:])
-    args = build_parser().parse_args(arguments)
-    if getattr(args, "size", SAMPLE_SIZE) < SAMPLE_SIZE:
-        print(f"tdtp: --size must be at least {SAMPLE_SIZE} bytes", file=sys.stderr)
-        return 2
-    runners: dict[str, Callable[[argparse.Namespace], Coroutine[Any, Any, dict[str, Any]]]] = {
-        "demo": run_demo,
-        "master": run_master,
-        "slave": run_slave,
-        "netem-relay": run_relay,
-    }
+    args = build_parser().parse_args(arguments)  # exits 2 with argparse's message on its own
     try:
-        with asyncio.Runner(loop_factory=_loop_factory(args.loop)) as runner:
-            summary = runner.run(runners[args.command](args))
-    except ConnectError as exc:
-        print(f"tdtp: {exc}", file=sys.stderr)
-        return 1
+        if hasattr(args, "timer"):
+            check_timer_preference(args.timer)
+        if hasattr(args, "controller"):
+            _config(args)
+        loop_factory = _loop_factory(args.loop)
+    except (*_USAGE_ERRORS, TdtpError) as exc:
+        return _fail(exc, EXIT_USAGE)
+    outcome = Outcome()
+    interrupted = False
+    try:
+        with asyncio.Runner(loop_factory=loop_factory) as runner:
+            runner.run(RUNNERS[args.command](args, outcome))
     except KeyboardInterrupt:
-        return 130
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        print(_demo_table(summary) if args.command == "demo" else json.dumps(summary, indent=2))
-    return 0
+        interrupted = True
+    except _USAGE_ERRORS as exc:
+        return _fail(exc, EXIT_USAGE)
+    except (ConnectError, TdtpError, OSError) as exc:
+        return _fail(exc, EXIT_FAILED)
+    if outcome.summary is not None:
+        if args.json or args.command != "demo":
+            print(json.dumps(outcome.summary, indent=2))
+        else:
+            print(_demo_table(outcome.summary))
+    if interrupted:
+        return EXIT_INTERRUPTED
+    if outcome.failure is not None:
+        return _fail(outcome.failure, outcome.status)
+    return outcome.status
 
 
 def _demo_table(summary: dict[str, Any]) -> str:
