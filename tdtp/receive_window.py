@@ -71,24 +71,26 @@ class ReceiveWindow:
         highest = self.highest
         seq = expand_seq(truncated_seq, highest + 1)
         distance = seq - highest
-        if distance <= -WINDOW:
-            self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
-            self._stale_next = seq + 1
-            if self._stale_run < RESYNC_RUN:
-                return Arrival.STALE, seq, 0
-            self._stale_run = 0
-            seq += SEQ_MODULUS  # now ahead of highest: expand_seq put it at most 2048 behind
-            distance = seq - highest
-        elif distance <= 0 and now - self.highest_arrival >= self.silence_guard:
-            # Older than the newest but inside the window, after a silence: a late or replayed copy,
-            # or the live flow after an outage that lasted just under a multiple of 4096 packets (it
-            # would be dropped as duplicates for up to 63 packets). A consecutive run decides.
-            self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
-            self._stale_next = seq + 1
-            if self._stale_run >= RESYNC_RUN:
+        if distance <= 0:  # (new packets skip all of this)
+            if distance <= -WINDOW:
+                self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
+                self._stale_next = seq + 1
+                if self._stale_run < RESYNC_RUN:
+                    return Arrival.STALE, seq, 0
                 self._stale_run = 0
-                seq += SEQ_MODULUS
+                seq += SEQ_MODULUS  # now ahead of highest: expand_seq put it at most 2048 behind
                 distance = seq - highest
+            elif now - self.highest_arrival >= self.silence_guard:
+                # Older than the newest but inside the window, after a silence: a late or replayed
+                # copy, or the live flow after an outage that lasted just under a multiple of 4096
+                # packets (it would be dropped as duplicates for up to 63 packets). A consecutive run
+                # decides, as for stale numbers.
+                self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
+                self._stale_next = seq + 1
+                if self._stale_run >= RESYNC_RUN:
+                    self._stale_run = 0
+                    seq += SEQ_MODULUS
+                    distance = seq - highest
         if distance > 0:
             self._mask = ((self._mask << distance) | 1) & _WINDOW_MASK if distance < WINDOW else 1
             self.highest = seq
