@@ -24,6 +24,21 @@ def _index(sample: DataReceived) -> int:
     return int.from_bytes(sample.payload[:4], "big")
 
 
+async def _settled(master: Endpoint, slave: Endpoint) -> int:
+    """Wait until the master holds nothing back (its newest sample has left: latest-value) and the
+    slave has everything it sent; return the number sent."""
+
+    def done() -> bool:
+        sent = master.stats
+        return (
+            sent.sent.data_packets + sent.samples_superseded == sent.samples_offered
+            and slave.stats.samples_delivered == sent.sent.data_packets
+        )
+
+    await _eventually(done)
+    return master.stats.sent.data_packets
+
+
 @pytest.mark.asyncio
 async def test_a_100hz_reader_of_a_1khz_stream_always_gets_the_newest_sample() -> None:
     """The issue's measurement: reading a 4096-deep queue at 100 Hz, samples were 0.93 s stale
@@ -45,8 +60,7 @@ async def test_a_100hz_reader_of_a_1khz_stream_always_gets_the_newest_sample() -
                 break
             await anext(reader_ticks)  # a 100 Hz control loop
         await sender
-        sent = master.stats.sent.data_packets
-        await _eventually(lambda: slave.stats.samples_delivered == sent)
+        sent = await _settled(master, slave)
         assert len(offsets) == 1  # every read was the newest sample: no staleness builds up
         newest = slave.latest()
         assert newest is not None and _index(newest) == 999  # the last one offered always leaves
@@ -78,8 +92,7 @@ async def test_stream_and_recv_give_every_sample_in_order() -> None:
     async with listen() as server, connect("127.0.0.1", server.port) as master:
         slave = await server.accept()
         await _send_indexed(master, 200)
-        sent = master.stats.sent.data_packets
-        await _eventually(lambda: slave.stats.samples_delivered == sent)
+        sent = await _settled(master, slave)
         first = await slave.recv()
         rest: list[DataReceived] = []
         async for sample in slave.stream():
@@ -99,8 +112,7 @@ async def test_the_unread_queue_is_bounded_for_a_reader_that_never_reads() -> No
     async with listen(config=config) as server, connect("127.0.0.1", server.port) as master:
         slave = await server.accept()
         await _send_indexed(master, 100)
-        sent = master.stats.sent.data_packets
-        await _eventually(lambda: slave.stats.samples_delivered == sent)
+        sent = await _settled(master, slave)
         assert slave.unread == 16
         assert slave.stats.events_discarded == sent - 16
         newest = await slave.recv_latest()
