@@ -441,9 +441,45 @@ async def run_demo(args: argparse.Namespace, outcome: Outcome) -> None:
             else:
                 await _with_display(sending, _every_second(until, show))
             elapsed = monotonic() - start  # the sending window: rates are per second of it
-            await asyncio.sleep(0.05)  # let the last samples land before counting
+            await _settle(master, slave)  # let the last samples land before counting
         finally:
             summarize()
+
+
+SETTLE_PATIENCE = 2.0
+"""Longest the demo waits for its last samples to land before it counts."""
+
+
+async def _settle(*endpoints: Endpoint) -> None:
+    """Wait until every sample offered has left and arrived, or nothing has moved for a while (an
+    emulated loss leaves some never to arrive); a fixed pause would undercount on a loaded machine."""
+
+    def figures() -> tuple[int, ...]:
+        return tuple(
+            n
+            for ep in endpoints
+            for n in (ep.stats.sent.data_packets, ep.stats.received.data_packets)
+        )
+
+    def done() -> bool:
+        for ep in endpoints:
+            stats = ep.stats
+            if stats.sent.data_packets + stats.samples_superseded != stats.samples_offered:
+                return False  # a sample is still held by the pacer
+        sent = sum(ep.stats.sent.data_packets for ep in endpoints)
+        return sent == sum(ep.stats.received.data_packets for ep in endpoints)
+
+    start = last_change = monotonic()
+    last = figures()
+    while not done():
+        now = monotonic()
+        quiet = max(0.1, 4 * max(ep.stats.srtt for ep in endpoints))
+        if now - start > SETTLE_PATIENCE or now - last_change > quiet:
+            return
+        await asyncio.sleep(0.01)
+        current = figures()
+        if current != last:
+            last, last_change = current, monotonic()
 
 
 def _directions(args: argparse.Namespace) -> tuple[NetemSpec | None, NetemSpec | None]:

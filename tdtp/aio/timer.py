@@ -56,6 +56,7 @@ __all__ = [
     "PRECISE_SPIN_WINDOW",
     "CallAtTimer",
     "DeadlineTimer",
+    "TimerClosedError",
     "TimerPreference",
     "TimerUnavailableError",
     "TimerfdTimer",
@@ -94,6 +95,10 @@ def monotonic() -> float:
 
 class TimerUnavailableError(TdtpError, RuntimeError):
     """The requested timer cannot run here; use ``prefer="auto"`` or ``prefer="call_at"``."""
+
+
+class TimerClosedError(TdtpError, RuntimeError):
+    """The timer was closed; create a new one."""
 
 
 class DeadlineTimer(abc.ABC):
@@ -142,14 +147,16 @@ class DeadlineTimer(abc.ABC):
         if deadline == self._deadline:
             return
         if self._closed:
-            raise RuntimeError("the timer is closed; create a new one")
+            raise TimerClosedError("the timer is closed; create a new one")
         if deadline is None or deadline == math.inf:
             if self._deadline is not None:
                 self._deadline = None
                 self._disarm()
             return
         if math.isnan(deadline):
-            raise ValueError("deadline is NaN; pass an absolute time on tdtp.aio.timer.monotonic()")
+            raise InvalidArgumentError(
+                "deadline is NaN; pass an absolute time on tdtp.aio.timer.monotonic()"
+            )
         self._deadline = deadline
         self._schedule(deadline)
 
@@ -449,7 +456,7 @@ class CallAtTimer(DeadlineTimer):
         spin_window: float = DEFAULT_SPIN_WINDOW,
     ) -> None:
         if not 0.0 <= spin_window <= _MAX_SPIN_WINDOW:
-            raise ValueError(
+            raise InvalidArgumentError(
                 f"spin_window must be within [0, {_MAX_SPIN_WINDOW}] s, not {spin_window}"
             )
         super().__init__(loop, callback)

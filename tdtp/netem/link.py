@@ -40,6 +40,7 @@ from dataclasses import asdict, dataclass
 from statistics import NormalDist
 from typing import Final
 
+from tdtp.errors import ArgumentTypeError, InvalidArgumentError
 from tdtp.netem.spec import (
     MAX_SEED,
     Distribution,
@@ -254,7 +255,7 @@ class NetemLink:
 
     def __init__(self, spec: NetemSpec, *, seed: int | None = None) -> None:
         if not isinstance(spec, NetemSpec):
-            raise TypeError(
+            raise ArgumentTypeError(
                 f"NetemLink needs a NetemSpec (parse_netem('delay 20ms') makes one), "
                 f"got {type(spec).__name__}"
             )
@@ -264,7 +265,9 @@ class NetemLink:
         if not (
             isinstance(chosen, int) and not isinstance(chosen, bool) and 0 <= chosen <= MAX_SEED
         ):
-            raise ValueError(f"seed must be a whole number from 0 to 2**64 - 1, got {chosen!r}")
+            raise InvalidArgumentError(
+                f"seed must be a whole number from 0 to 2**64 - 1, got {chosen!r}"
+            )
         self.spec = spec
         self.seed: Final[int] = chosen
         """The seed in use: same seed, same spec and same calls give the same decisions."""
@@ -284,7 +287,7 @@ class NetemLink:
         link keep their delivery times, the statistics and the random sequence carry on. Switching
         to ``loss 100%`` and back is how to emulate an outage."""
         if not isinstance(spec, NetemSpec):
-            raise TypeError(f"change() needs a NetemSpec, got {type(spec).__name__}")
+            raise ArgumentTypeError(f"change() needs a NetemSpec, got {type(spec).__name__}")
         self._configure(spec)
         self.spec = spec
 
@@ -378,9 +381,9 @@ class NetemLink:
 
     def _advance(self, now: float) -> None:
         if not math.isfinite(now):
-            raise ValueError(f"now must be a finite time in seconds, got {now!r}")
+            raise InvalidArgumentError(f"now must be a finite time in seconds, got {now!r}")
         if now < self._now:
-            raise ValueError(
+            raise InvalidArgumentError(
                 f"now went backwards ({now!r} after {self._now!r}): pass times from a monotonic clock"
             )
         self._now = now

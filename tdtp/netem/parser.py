@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from decimal import Decimal
 from typing import Final, cast
 
-from tdtp.errors import TdtpError
+from tdtp.errors import ArgumentTypeError, TdtpError
 from tdtp.netem.spec import (
     DISTRIBUTIONS,
     EXACT,
@@ -472,5 +472,7 @@ def parse_netem(text: str) -> NetemSpec:
     'delay'): expected a number with a unit like 20ms``.
     """
     if not isinstance(text, str):
-        raise TypeError(f"parse_netem takes a str of netem options, got {type(text).__name__}")
+        raise ArgumentTypeError(
+            f"parse_netem takes a str of netem options, got {type(text).__name__}"
+        )
     return _Parser(text).parse()
