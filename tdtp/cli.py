@@ -24,7 +24,7 @@ from typing import Any
 
 from tdtp import __version__
 from tdtp.aio.api import Server, connect, listen
-from tdtp.aio.endpoint import Endpoint, format_address
+from tdtp.aio.endpoint import Endpoint, WatchdogCallback, format_address
 from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import check_timer_preference, monotonic
@@ -41,7 +41,7 @@ from tdtp.errors import (
     PayloadTooLargeError,
     TdtpError,
 )
-from tdtp.events import CloseCause, DataReceived
+from tdtp.events import CloseCause, DataReceived, PeerResumed, PeerSilent
 from tdtp.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
 from tdtp.live_stats import (
     DirectionMeter,
@@ -346,6 +346,26 @@ def _silence_note(ep: Endpoint, listener: str) -> str | None:
     return f"SILENT: {listener} hears nothing for {monotonic() - since:.1f} s"
 
 
+def _watchdog_log(
+    display: LiveDisplay | None, start: float, listener: str, peer: str
+) -> WatchdogCallback | None:
+    """Lines that stay in the display's log when ``listener`` loses and regains its ``peer``."""
+    if display is None:
+        return None
+
+    def on_watchdog(event: PeerSilent | PeerResumed) -> None:
+        assert display is not None
+        at = f"t={monotonic() - start:6.1f} s"
+        if isinstance(event, PeerSilent):
+            display.message(f"{at}  {listener} hears nothing from the {peer} (watchdog)")
+        else:
+            display.message(
+                f"{at}  {listener} hears the {peer} again after {event.silent_for:.2f} s"
+            )
+
+    return on_watchdog
+
+
 def _header(args: argparse.Namespace, ep: Endpoint) -> str:
     mode = "separate ACKs" if args.separate_acks else "piggybacked ACKs"
     loop = type(asyncio.get_running_loop()).__module__.split(".")[0]
@@ -393,6 +413,8 @@ async def run_demo(args: argparse.Namespace, outcome: Outcome) -> None:
         meters = (DirectionMeter("M->S"), DirectionMeter("S->M"))
         if display is not None:
             display.message(_header(args, master))
+        master.set_watchdog_callback(_watchdog_log(display, start, "master", "slave"))
+        slave.set_watchdog_callback(_watchdog_log(display, start, "slave", "master"))
 
         def show(interval: float) -> None:
             assert display is not None
@@ -529,6 +551,7 @@ async def run_master(args: argparse.Namespace, outcome: Outcome) -> None:
         reverse_meter = DirectionMeter("S->M")
         if display is not None:
             display.message(_header(args, ep) + f", slave {format_address((host, port))}")
+        ep.set_watchdog_callback(_watchdog_log(display, start, "master", "slave"))
 
         def show(interval: float) -> None:
             assert display is not None
@@ -588,7 +611,9 @@ async def run_slave(args: argparse.Namespace, outcome: Outcome) -> None:
         if display is not None:
             display.message(f"tdtp slave listening on {format_address(server.sockname)}")
         tasks: set[asyncio.Task[None]] = set()
-        acceptor = asyncio.create_task(_accept_loop(server, sides, args, until, tasks, finished))
+        acceptor = asyncio.create_task(
+            _accept_loop(server, sides, args, until, tasks, finished, display)
+        )
         try:
             await _every_second(until, lambda interval: _show_slave(display, server, sides))
         finally:
@@ -623,11 +648,16 @@ async def _accept_loop(
     until: float,
     tasks: set[asyncio.Task[None]],
     finished: deque[dict[str, Any]],
+    display: LiveDisplay | None,
 ) -> None:
+    start = monotonic()
     async for ep in server:
         side = Side(f"master {format_address(ep.peer)}")
         sides[id(ep)] = side
         ep.set_data_callback(side.on_data)
+        ep.set_watchdog_callback(
+            _watchdog_log(display, start, "slave", f"master {format_address(ep.peer)}")
+        )
         task = asyncio.create_task(_serve_one(ep, side, args, until, sides, finished))
         tasks.add(task)
         task.add_done_callback(tasks.discard)

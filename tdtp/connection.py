@@ -130,6 +130,7 @@ class Connection:
         self._keepalive = self.config.effective_keepalive_interval
         self._silence = self.config.silence_timeout
         self._silent_since: float | None = None  # the watchdog: last arrival before a silence
+        self._last_outage: tuple[float, float] | None = None  # (since, resumed at) of the last one
         self._send_paused = False
         self._close_event: ConnectionClosed | None = None
         self._open_deadline = 0.0
@@ -334,6 +335,7 @@ class Connection:
         since = self._silent_since
         assert since is not None
         self._silent_since = None
+        self._last_outage = (since, now)
         silent_for = now - since
         stats = self._stats
         stats.longest_silence = max(stats.longest_silence, silent_for)
@@ -429,12 +431,23 @@ class Connection:
         largest = self._sent.largest_acked
         stats = self._stats
         stats.packets_lost += len(lost)
+        outage = self._last_outage if self._silent_since is None else (self._silent_since, now)
         for packet in lost:
-            if estimator.on_packet_lost(packet.seq, packet.send_time, srtt, largest):
+            window = srtt
+            during_outage = outage is not None and outage[0] <= packet.send_time <= outage[1]
+            if during_outage:
+                # Packets sent into a silent path are lost together: one loss event per outage,
+                # however far apart the controller's back-off spaced them (docs/PROTOCOL.md 5.4).
+                assert outage is not None
+                window = srtt + outage[1] - outage[0]
+            if estimator.on_packet_lost(packet.seq, packet.send_time, window, largest):
                 stats.loss_events += 1
-                self._controller.on_loss_event(
-                    now=now, srtt=srtt, loss_event_rate=estimator.loss_event_rate
-                )
+                if not during_outage:
+                    # An outage's loss event counts in p; the controller answers the outage itself
+                    # through on_peer_silent / on_peer_resumed, not a second time here.
+                    self._controller.on_loss_event(
+                        now=now, srtt=srtt, loss_event_rate=estimator.loss_event_rate
+                    )
         lost.clear()
 
     def _loss_delay(self) -> float:

@@ -44,13 +44,15 @@ def _watchdog(events: list[object]) -> list[PeerSilent | PeerResumed]:
     return [e for e in events if isinstance(e, PeerSilent | PeerResumed)]
 
 
-def _outage_pair(config: ConnectionConfig, seed: int = 1) -> tuple[Pair, Switch]:
+def _outage_pair(
+    config: ConnectionConfig, seed: int = 1, delay: float = 0.010
+) -> tuple[Pair, Switch]:
     link = Switch()
     pair = Pair(
         config,
         config,
-        ms=Direction(delay=0.010, drop=link),
-        sm=Direction(delay=0.010, drop=link),
+        ms=Direction(delay=delay, drop=link),
+        sm=Direction(delay=delay, drop=link),
         seed=seed,
     )
     pair.open()
@@ -186,6 +188,7 @@ def test_sessions_survive_long_outages_and_recover_within_half_a_second(
     """At 1 kHz the 12-bit numbers wrap every 4.096 s: 10 and 20 s outages cross the sequence
     space several times (the fixed controller keeps sending at 1 kHz into the dead link)."""
     pair, link = _outage_pair(CONTROLLERS[controller])
+    events_before = pair.master.conn.stats.loss_events
     link.down = True
     pair.run_for(outage)
     assert pair.master.conn.state is pair.slave.conn.state is State.ESTABLISHED
@@ -193,6 +196,9 @@ def test_sessions_survive_long_outages_and_recover_within_half_a_second(
     recovery = _recovery_time(pair)
     assert recovery <= 0.5, recovery
     pair.run_for(1.0)
+    # The packets sent into the dead link are one loss event, not one per packet the back-off
+    # spaced more than an RTT apart (that made p jump and capped the rate after an outage).
+    assert pair.master.conn.stats.loss_events - events_before <= 1
     for sender, receiver in ((pair.master, pair.slave), (pair.slave, pair.master)):
         drops = receiver.conn.stats.drops
         # Fresh samples after the outage are not mistaken for old ones: at most the two packets
@@ -232,15 +238,27 @@ def test_the_outage_limit_ends_the_session_with_the_true_cause() -> None:
         assert side.conn.state is State.CLOSED
 
 
-def test_trinomial_resumes_at_half_the_rate_from_before_the_outage() -> None:
-    pair, link = _outage_pair(ConnectionConfig())
+@pytest.mark.parametrize("delay", [0.010, 0.050])
+def test_trinomial_resumes_at_half_the_rate_from_before_the_outage(delay: float) -> None:
+    """Once, not twice: the outage's loss event, reported an RTT later, does not halve again."""
+    pair, link = _outage_pair(ConnectionConfig(), delay=delay)
     controller = pair.master.conn.controller
     assert isinstance(controller, TrinomialController)
     before = controller.rate
+    decreases = controller.decrease_count
     link.down = True
     pair.run_for(2.0)
-    assert controller.rate == controller.config.min_rate  # backed off for lack of feedback
+    assert controller.rate <= before / 8  # backed off for lack of feedback
     link.down = False
-    pair.run_for(0.06)  # a keep-alive (33 ms) and the path's 10 ms
-    assert controller.rate >= controller.config.beta * before * 0.99
+    pair.run_for(2 * delay + 0.04)  # a keep-alive (33 ms) and the path's delay
+    # Half the old rate, or the TCP-friendly cap for the outage's loss event if that is lower.
+    assert controller.rate >= min(controller.config.beta * before, controller.cap) * 0.99
+    assert controller.rate >= 0.75 * 1000  # well above min_rate either way
     assert not controller.in_blackout
+    pair.run_for(4 * delay + 0.1)  # the reports of the outage's last packets arrive
+    assert pair.master.conn.stats.loss_events >= 1
+    assert controller.decrease_count == decreases
+    if delay == 0.010:
+        assert _recovery_time(pair) <= 0.1
+    # (At 100 ms RTT the TCP-friendly cap for the outage's one loss event, about 800-970 packets/s
+    # with this history, holds the rate until the history is stale: docs/CONTROL.md section 3.3.)

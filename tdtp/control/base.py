@@ -139,4 +139,9 @@ class RateController(abc.ABC):
     def on_peer_resumed(self, *, now: float, silent_for: float) -> None:  # noqa: B027
         """The peer is heard again after :meth:`on_peer_silent`, ``silent_for`` seconds after its
         last datagram. A controller that backed off for lack of feedback during the outage may
-        restore what the path carried before it (the default does nothing)."""
+        restore what the path carried before it (the default does nothing).
+
+        The packets sent during the outage that turn out lost form one loss event: it counts in the
+        ``loss_event_rate`` passed to :meth:`on_ack`, but it is not reported through
+        :meth:`on_loss_event`, because this hook is the response to the outage.
+        """

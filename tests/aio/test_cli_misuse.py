@@ -257,15 +257,23 @@ async def test_a_master_that_loses_its_slave_reports_the_true_cause() -> None:
                 await eventually(lambda: slave.stats.samples_delivered > 10)  # master is open
                 relay.change("loss 100%")
                 output: list[str] = []
-                while not any("SILENT: master hears nothing" in line for line in output):
-                    line = (await process.stdout.readline()).decode()
-                    assert line, "the master ended before showing the silence"
-                    output.append(line)
+
+                async def read_until(text: str) -> None:
+                    while not any(text in line for line in output):
+                        line = (await process.stdout.readline()).decode()  # type: ignore[union-attr]
+                        assert line, f"the master ended before printing {text!r}"
+                        output.append(line)
+
+                await read_until("master hears nothing from the slave (watchdog)")
+                await read_until("SILENT: master hears nothing")  # in the live block
+                relay.change("delay 1ms")  # the slave is back for a while...
+                await read_until("master hears the slave again after")
+                relay.change("loss 100%")  # ...and gone for good
                 rest, err = await process.communicate()
             assert process.returncode == 1, err
             assert b"session lost (idle_timeout)" in err
             summary = json.loads(rest.decode()[rest.decode().index("{") :])
             assert summary["close"]["cause"] == "idle_timeout"
-            assert summary["peer_silences"] == 1
+            assert summary["peer_silences"] == 2
         finally:
             await relay.close()
