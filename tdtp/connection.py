@@ -7,6 +7,10 @@ re-arms a single timer at :meth:`Connection.get_timer`. What happened comes out 
 :meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and the virtual-time simulator
 all drive this one class.
 
+The watchdog lives here too: nothing heard from the peer for ``silence_timeout`` gives a
+:class:`~tdtp.events.PeerSilent` event, the next datagram a :class:`~tdtp.events.PeerResumed`, and the
+connection survives the outage until ``idle_timeout`` (docs/PROTOCOL.md section 5.2).
+
 Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
 ``stats.drops`` by reason. Misuse by the caller raises a :class:`~tdtp.errors.TdtpError` subclass.
 """
