@@ -35,15 +35,19 @@ async def main() -> None:
             force[:] = decoded.force  # a real master would drive its motors with this
             received += 1
 
-    async with await tdtp.connect(host.strip("[]"), int(port), on_data=on_force) as ep:
+    async with tdtp.connect(host.strip("[]"), int(port), on_data=on_force) as ep:
         print(f"connected to {ep.peer} (controller {ep.connection.config.controller})")
         start = last_print = tdtp.monotonic()
         last_sent = last_received = 0
         async for index in tdtp.Ticker(args.rate):
             now = tdtp.monotonic()
-            if now - start >= args.seconds or ep.is_closed:
+            if now - start >= args.seconds:
                 break
-            ep.send(master_trajectory(now - start, index, now).encode(100))
+            try:
+                ep.send(master_trajectory(now - start, index, now).encode(100))
+            except tdtp.EndpointClosedError as exc:  # the slave closed, or its silence outlasted
+                print(f"the slave went away: {exc}")  # idle_timeout: the message says which
+                break
             if now - last_print >= 1.0:
                 stats = ep.stats
                 interval = now - last_print

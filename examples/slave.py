@@ -5,7 +5,8 @@ Run it first, then ``python examples/master.py 127.0.0.1:7000`` in another termi
     python examples/slave.py --port 7000
 
 Each period (1 kHz) the slave answers with the force of a virtual spring wall at x = 5 cm, computed
-from the newest position it has. It prints one line per second for each connected master.
+from the newest position it has. It prints one line per second for each connected master, and a line
+when the watchdog finds a master silent (the arm would hold its position) and when it is back.
 """
 
 from __future__ import annotations
@@ -29,7 +30,15 @@ async def serve_master(ep: tdtp.Endpoint, rate: float) -> None:
             newest = decoded.position
             received += 1
 
+    def on_watchdog(event: tdtp.PeerSilent | tdtp.PeerResumed) -> None:
+        # A real arm would hold its position here (or stop), and release it on PeerResumed.
+        if isinstance(event, tdtp.PeerSilent):
+            print(f"{ep.peer}: silent since {event.since:.3f}: holding the arm")
+        else:
+            print(f"{ep.peer}: back after {event.silent_for:.3f} s: following again")
+
     ep.set_data_callback(on_position)
+    ep.set_watchdog_callback(on_watchdog)
     last_print, last_received = tdtp.monotonic(), 0
     async for index in tdtp.Ticker(rate):
         if ep.is_closed:
@@ -55,7 +64,7 @@ async def main() -> None:
     parser.add_argument("--port", type=int, default=7000)
     parser.add_argument("--rate", type=float, default=1000.0)
     args = parser.parse_args()
-    async with await tdtp.listen(args.host, args.port) as server:
+    async with tdtp.listen(args.host, args.port) as server:
         print(f"slave listening on {args.host}:{server.port}")
         async with asyncio.TaskGroup() as group:
             async for ep in server:

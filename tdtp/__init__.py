@@ -5,18 +5,28 @@ The core (:class:`Connection`) is sans-IO: it never touches sockets or reads a c
 points (:func:`connect`, :func:`listen`) run it over real UDP sockets.
 """
 
-from tdtp.aio.api import ConnectError, Server, ServerStats, connect, listen
-from tdtp.aio.endpoint import Endpoint, EndpointClosedError
+import logging
+
+from tdtp.aio.api import Server, ServerStats, connect, listen
+from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
-from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, Role
+from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, ControllerName, Role
 from tdtp.connection import Connection, State
 from tdtp.errors import (
+    AddressError,
+    ArgumentTypeError,
+    ConnectError,
     ConnectionClosedError,
     ConnectionStateError,
     EmptyPayloadError,
+    EndpointClosedError,
+    InvalidArgumentError,
     InvalidKeyError,
     PayloadTooLargeError,
+    PayloadTypeError,
+    PortUnreachableError,
+    ServerClosedError,
     TdtpError,
 )
 from tdtp.events import (
@@ -26,19 +36,28 @@ from tdtp.events import (
     ConnectionEstablished,
     DataReceived,
     Event,
+    PeerResumed,
+    PeerSilent,
 )
 from tdtp.protection.key_file import load_keys, write_key_file
 from tdtp.protection.keys import KeyRing, PresharedKey
 from tdtp.stats import ConnectionStats, DirectionStats, DropReason
 from tdtp.wire import HEADER_SIZE, CipherSuite
 
+# A library leaves logging's configuration to the application: without a handler of its own, the
+# watchdog's warnings would go to stderr through logging's last-resort handler.
+logging.getLogger("tdtp").addHandler(logging.NullHandler())
+
 __version__ = "0.1.0"
+"""The package version, kept in this one place: ``pyproject.toml`` reads it from here."""
 
 __all__ = [
     "HEADER_SIZE",
     "AckMode",
     "Address",
+    "AddressError",
     "AdmissionConfig",
+    "ArgumentTypeError",
     "CipherSuite",
     "CloseCause",
     "ConnectError",
@@ -49,6 +68,7 @@ __all__ = [
     "ConnectionEstablished",
     "ConnectionStateError",
     "ConnectionStats",
+    "ControllerName",
     "DataReceived",
     "DirectionStats",
     "DropReason",
@@ -56,12 +76,18 @@ __all__ = [
     "Endpoint",
     "EndpointClosedError",
     "Event",
+    "InvalidArgumentError",
     "InvalidKeyError",
     "KeyRing",
     "PayloadTooLargeError",
+    "PayloadTypeError",
+    "PeerResumed",
+    "PeerSilent",
+    "PortUnreachableError",
     "PresharedKey",
     "Role",
     "Server",
+    "ServerClosedError",
     "ServerStats",
     "State",
     "TdtpError",

@@ -39,6 +39,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tdtp.errors import InvalidArgumentError
+
 __all__ = [
     "FIGURE5_SIZES",
     "IP_HEADER",
@@ -101,7 +103,7 @@ class Scheme:
 
     def __post_init__(self) -> None:
         if self.header < 0 or self.ack < 0:
-            raise ValueError(f"header and ack sizes must be >= 0 bytes, got {self!r}")
+            raise InvalidArgumentError(f"header and ack sizes must be >= 0 bytes, got {self!r}")
 
     def bytes_per_sample(self, data_size: int) -> int:
         """Wire bytes one data packet costs, its own ACK (travelling the other way) included."""
@@ -132,12 +134,14 @@ def scheme(name: str, encapsulation: Encapsulation = Encapsulation.NATIVE) -> Sc
         if candidate.name.lower() == name.lower():
             return candidate
     known = ", ".join(s.name for s in schemes(encapsulation))
-    raise ValueError(f"unknown scheme {name!r}; known: {known}")
+    raise InvalidArgumentError(f"unknown scheme {name!r}; known: {known}")
 
 
 def _check_size(data_size: int) -> None:
     if data_size <= 0:
-        raise ValueError(f"data_size must be a positive number of bytes, got {data_size!r}")
+        raise InvalidArgumentError(
+            f"data_size must be a positive number of bytes, got {data_size!r}"
+        )
 
 
 def packet_rate(app_rate: float, data_size: int) -> float:
@@ -145,7 +149,7 @@ def packet_rate(app_rate: float, data_size: int) -> float:
     data fields (the paper's figure 5: 400 kbit/s in 100-byte fields is 500 packets/s)."""
     _check_size(data_size)
     if not app_rate >= 0:
-        raise ValueError(f"app_rate must be >= 0 bit/s, got {app_rate!r}")
+        raise InvalidArgumentError(f"app_rate must be >= 0 bit/s, got {app_rate!r}")
     return app_rate / (8.0 * data_size)
 
 
@@ -163,7 +167,7 @@ def wire_bandwidth(
     every link direction carries one data flow and the other flow's ACKs: eq. 6.
     """
     if directions not in (1, 2):
-        raise ValueError(f"directions must be 1 or 2, got {directions!r}")
+        raise InvalidArgumentError(f"directions must be 1 or 2, got {directions!r}")
     return directions * packet_rate(app_rate, data_size) * 8.0 * scheme.bytes_per_sample(data_size)
 
 

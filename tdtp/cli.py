@@ -2,25 +2,32 @@
 
 A master sends position samples (a circle traced at 0.5 Hz) at ``--rate`` per second; the slave answers
 each period with force feedback from a virtual spring wall. Both print a live status block once per second,
-or with ``--json`` one JSON object at the end.
+or with ``--json`` one JSON object at the end. Ctrl-C ends a run early and still prints the summary.
+
+Exit status: 0 when the run ended as asked, 1 when the session failed (no slave, refused, lost after a
+silence longer than the outage limit), 2 for a usage error (one line on stderr saying what to change),
+130 after Ctrl-C.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import sys
-from collections.abc import Callable, Coroutine, Sequence
+from collections import deque
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from tdtp.aio.api import ConnectError, Server, connect, listen
-from tdtp.aio.endpoint import Endpoint
+from tdtp import __version__
+from tdtp.aio.api import Server, connect, listen
+from tdtp.aio.endpoint import Endpoint, WatchdogCallback, format_address
 from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
-from tdtp.aio.timer import monotonic
+from tdtp.aio.timer import check_timer_preference, monotonic
 from tdtp.cli_keys import (
     KeyArgumentError,
     SessionKeys,
@@ -29,11 +36,21 @@ from tdtp.cli_keys import (
     session_keys,
     warn_if_exposed,
 )
+from tdtp.cli_parser import EXIT_USAGE, CommandParser
 from tdtp.cli_summary import LatencyCounts, capture_report, direction_report
-from tdtp.config import AckMode, ConnectionConfig
+from tdtp.config import MAX_UDP_PAYLOAD, AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
 from tdtp.control.registry import available_controllers
-from tdtp.events import DataReceived
+from tdtp.errors import (
+    AddressError,
+    ArgumentTypeError,
+    ConnectError,
+    EndpointClosedError,
+    InvalidArgumentError,
+    PayloadTooLargeError,
+    TdtpError,
+)
+from tdtp.events import CloseCause, DataReceived, PeerResumed, PeerSilent
 from tdtp.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
 from tdtp.live_stats import (
     DirectionMeter,
@@ -42,34 +59,49 @@ from tdtp.live_stats import (
     receive_line,
 )
 from tdtp.netem import NetemSpec, parse_netem
+from tdtp.netem.spec import MAX_SEED
 from tdtp.pcap import CaptureError, PcapWriter
 from tdtp.sim.cli import simulate_main
+from tdtp.wire.header import HEADER_SIZE
 
 MAX_LATENCY = 10.0
 """Latencies above this are not recorded (the clocks of two hosts are not comparable)."""
-MAX_SESSIONS_REPORTED = 1024
-"""Sessions a slave keeps for its summary (the oldest are forgotten first)."""
+MAX_RATE = 100_000.0
+"""The highest --rate: the rate controllers' ceiling (and far beyond any supermedia loop)."""
+MAX_SIZE = MAX_UDP_PAYLOAD - HEADER_SIZE
+DEFAULT_MAX_PAYLOAD = ConnectionConfig().max_payload
+SESSIONS_KEPT = 256
+"""Finished sessions a long-running slave remembers for its summary."""
+
+EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
+
+
+class UsageError(Exception):
+    """A command-line value the library refused; printed as one line, exit status 2."""
 
 
 # ---------------------------------------------------------------------------- arguments
 
 
-def _host_port(text: str) -> tuple[str, int]:
+def _host_port(text: str, *, allow_zero: bool = False) -> tuple[str, int]:
     """``HOST:PORT``, ``[IPv6]:PORT`` or ``IPv6-without-brackets:PORT`` (last colon splits)."""
     if text.startswith("["):
         host, sep, port = text[1:].partition("]:")
     else:
         host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise argparse.ArgumentTypeError(f"expected HOST:PORT (e.g. 127.0.0.1:7000), got {text!r}")
+    low = 0 if allow_zero else 1
+    if not sep or not host or not port.isdigit() or not low <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(
+            f"expected HOST:PORT with a port in {low}..65535 (e.g. 127.0.0.1:7000), got {text!r}"
+        )
     return host, int(port)
 
 
 def _host_port_or_port(text: str) -> tuple[str, int]:
-    """``:PORT`` (all interfaces) or ``HOST:PORT``."""
+    """``:PORT`` (all interfaces) or ``HOST:PORT``; port 0 picks a free one."""
     if text.startswith(":"):
         text = "0.0.0.0" + text
-    return _host_port(text)
+    return _host_port(text, allow_zero=True)
 
 
 def _netem_spec(text: str) -> NetemSpec:
@@ -79,23 +111,54 @@ def _netem_spec(text: str) -> NetemSpec:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _positive(kind: Callable[[str], float]) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        value = kind(text)
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def _integer(low: int, high: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be in {low}..{high}, got {value}")
         return value
 
     return parse
 
 
+def _rate(text: str) -> float:
+    value = _number(text)
+    if not (0.0 < value <= MAX_RATE):  # also refuses nan and inf
+        raise argparse.ArgumentTypeError(
+            f"must be a number of samples per second above 0 and at most {MAX_RATE:g}, got {text}"
+        )
+    return value
+
+
+def _duration(text: str) -> float:
+    value = _number(text)
+    if not value > 0.0:  # also refuses nan; inf means "until Ctrl-C"
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
-    common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--rate", type=_positive(float), default=1000.0, help="samples/s (1000)")
+    common = CommandParser(add_help=False)
     common.add_argument(
-        "--size", type=int, default=100, help=f"payload bytes, >= {SAMPLE_SIZE} (100)"
+        "--rate", type=_rate, default=1000.0, help=f"samples/s, up to {MAX_RATE:g} (1000)"
     )
-    common.add_argument("--duration", type=_positive(float), help="seconds to run")
+    common.add_argument(
+        "--size",
+        type=_integer(SAMPLE_SIZE, MAX_SIZE),
+        default=100,
+        help=f"payload bytes, {SAMPLE_SIZE}..{MAX_SIZE} (100)",
+    )
+    common.add_argument("--duration", type=_duration, help="seconds to run")
     common.add_argument(
         "--controller", default="trinomial", choices=available_controllers(), help="rate control"
     )
@@ -105,7 +168,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="Trinomial mode: one ACK packet per data packet instead of piggybacked ACKs",
     )
     common.add_argument(
-        "--ack-size", type=int, default=5, help="bytes of a stand-alone ACK datagram (5)"
+        "--ack-size",
+        type=_integer(HEADER_SIZE, HEADER_SIZE + MAX_SIZE),
+        default=HEADER_SIZE,
+        help=f"bytes of a stand-alone ACK datagram, {HEADER_SIZE} or more (5)",
+    )
+    common.add_argument(
+        "--silence-timeout",
+        type=_duration,
+        default=ConnectionConfig().silence_timeout,
+        help="seconds without a datagram before the peer is reported silent (0.1)",
+    )
+    common.add_argument(
+        "--idle-timeout",
+        type=_duration,
+        default=ConnectionConfig().idle_timeout,
+        help="seconds of silence after which the session is given up (30)",
     )
     common.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     common.add_argument(
@@ -121,16 +199,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--timer", choices=("auto", "timerfd", "call_at"), default="auto", help="pacing timer"
     )
     netem = common.add_argument_group(
-        "impairment", 'emulated in-process with tc-netem\'s syntax, e.g. "delay 20ms 5ms loss 2%%"'
+        "impairment", 'emulated in-process with tc-netem\'s syntax, e.g. "delay 20ms 5ms loss 2%"'
     )
     netem.add_argument("--netem", type=_netem_spec, help="both directions")
     netem.add_argument("--netem-ms", type=_netem_spec, help="master -> slave (overrides --netem)")
     netem.add_argument("--netem-sm", type=_netem_spec, help="slave -> master (overrides --netem)")
-    netem.add_argument("--netem-seed", type=int, help="seed for reproducible impairment")
-
-    parser = argparse.ArgumentParser(
-        prog="tdtp", description="TDTP teleoperation transport: master, slave and demo."
+    netem.add_argument(
+        "--netem-seed", type=_integer(0, MAX_SEED - 1), help="seed for reproducible impairment"
     )
+
+    parser = CommandParser(
+        prog="tdtp",
+        description="TDTP teleoperation transport: master, slave and demo.",
+        epilog="Exit status: 0 done, 1 session failed, 2 usage error, 130 interrupted.",
+    )
+    parser.add_argument("--version", action="version", version=f"tdtp {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
     demo = commands.add_parser(
         "demo", parents=[common], help="master and slave on localhost, live statistics"
@@ -139,8 +222,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_key_arguments(demo, demo=True)
     slave = commands.add_parser("slave", parents=[common], help="serve masters on a UDP port")
     slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
-    slave.add_argument("--port", type=int, required=True, help="UDP port")
-    slave.add_argument("--max-peers", type=int, default=256, help="masters served at once")
+    slave.add_argument(
+        "--port", type=_integer(0, 65535), required=True, help="UDP port (0: any free port)"
+    )
+    slave.add_argument(
+        "--max-peers", type=_integer(1, 1 << 20), default=256, help="masters served at once"
+    )
     add_key_arguments(slave)
     master = commands.add_parser("master", parents=[common], help="connect to a slave")
     master.add_argument("address", type=_host_port, help="the slave, HOST:PORT")
@@ -156,9 +243,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     relay.add_argument("--forward", type=_host_port, required=True, help="HOST:PORT to relay to")
     relay.add_argument("--return-spec", type=_netem_spec, help="the way back (default: spec)")
-    relay.add_argument("--seed", type=int, help="seed for reproducible impairment")
-    relay.add_argument("--duration", type=_positive(float), help="seconds to run")
-    relay.add_argument("--max-clients", type=int, default=256)
+    relay.add_argument(
+        "--seed", type=_integer(0, MAX_SEED - 1), help="seed for reproducible impairment"
+    )
+    relay.add_argument("--duration", type=_duration, help="seconds to run")
+    relay.add_argument("--max-clients", type=_integer(1, 1 << 20), default=256)
     relay.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     relay.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
     commands.add_parser(
@@ -179,15 +268,22 @@ def _config(args: argparse.Namespace) -> ConnectionConfig:
     controller_config: object | None = None
     if args.controller == "fixed":
         controller_config = FixedConfig(rate=args.rate)
-    return ConnectionConfig(
-        ack_mode=AckMode.SEPARATE if args.separate_acks else AckMode.BIDIRECTIONAL,
-        ack_size=args.ack_size,
-        controller=args.controller,
-        controller_config=controller_config,
-        # A peer that cannot take our samples is refused at the open, not on the first send.
-        min_peer_payload=args.size,
-        encrypt=not getattr(args, "no_encrypt", False),
-    )
+    try:
+        return ConnectionConfig(
+            max_payload=max(DEFAULT_MAX_PAYLOAD, args.size),
+            ack_mode=AckMode.SEPARATE if args.separate_acks else AckMode.BIDIRECTIONAL,
+            ack_size=args.ack_size,
+            controller=args.controller,
+            controller_config=controller_config,
+            silence_timeout=args.silence_timeout,
+            idle_timeout=args.idle_timeout,
+            # A peer that cannot take our samples is refused at the open, not on the first send.
+            min_peer_payload=args.size,
+            encrypt=not getattr(args, "no_encrypt", False),
+        )
+    except InvalidArgumentError as exc:
+        option = str(exc).split(" ", 1)[0].replace("_", "-")
+        raise UsageError(f"--{option}: {exc}") from None
 
 
 # ---------------------------------------------------------------------------- application loops
@@ -203,7 +299,6 @@ class Side:
     last_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     not_haptic: int = 0
     clock_mismatch: int = 0
-    endpoint: Endpoint | None = None
     started: float = 0.0
 
     def on_data(self, event: DataReceived) -> None:
@@ -223,19 +318,32 @@ class Side:
         return LatencyCounts(self.latency, self.not_haptic, self.clock_mismatch)
 
 
+@dataclass
+class Outcome:
+    """What a run leaves behind, even when Ctrl-C cuts it short."""
+
+    summary: dict[str, Any] | None = None
+    status: int = EXIT_OK
+    failure: str | None = None
+
+
 async def _send_loop(
     ep: Endpoint, side: Side, rate: float, size: int, until: float, *, master: bool
 ) -> None:
+    """Offer a sample per tick until ``until`` (however slow the rate) or the session ends."""
     start = monotonic()
-    async for index in Ticker(rate, start=start):
-        now = monotonic()
-        if now >= until or ep.is_closed:
-            return
-        if master:
-            sample = master_trajectory(now - start, index, now)
-        else:
-            sample = slave_feedback(side.last_position, index, now)
-        ep.send(sample.encode(size))
+    remaining = until - start
+    with contextlib.suppress(TimeoutError, EndpointClosedError):
+        async with asyncio.timeout(None if math.isinf(remaining) else max(0.0, remaining)):
+            async for index in Ticker(rate, start=start):
+                now = monotonic()
+                if now >= until or ep.is_closed:
+                    return
+                if master:
+                    sample = master_trajectory(now - start, index, now)
+                else:
+                    sample = slave_feedback(side.last_position, index, now)
+                ep.send(sample.encode(size))
 
 
 async def _every_second(until: float, tick: Callable[[float], None]) -> None:
@@ -254,6 +362,45 @@ async def _every_second(until: float, tick: Callable[[float], None]) -> None:
         mark += 1
 
 
+async def _with_display(work: Awaitable[Any], display: Coroutine[Any, Any, None]) -> None:
+    """Run ``work`` with the live display beside it; the display stops when the work does."""
+    shown = asyncio.create_task(display)
+    try:
+        await work
+    finally:
+        shown.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await shown
+
+
+def _silence_note(ep: Endpoint, listener: str) -> str | None:
+    """``"<listener> hears nothing for 1.2 s"`` while ``ep``'s watchdog finds the peer silent."""
+    since = ep.connection.silent_since
+    if since is None:
+        return None
+    return f"SILENT: {listener} hears nothing for {monotonic() - since:.1f} s"
+
+
+def _watchdog_log(
+    display: LiveDisplay | None, start: float, listener: str, peer: str
+) -> WatchdogCallback | None:
+    """Lines that stay in the display's log when ``listener`` loses and regains its ``peer``."""
+    if display is None:
+        return None
+
+    def on_watchdog(event: PeerSilent | PeerResumed) -> None:
+        assert display is not None
+        at = f"t={monotonic() - start:6.1f} s"
+        if isinstance(event, PeerSilent):
+            display.message(f"{at}  {listener} hears nothing from the {peer} (watchdog)")
+        else:
+            display.message(
+                f"{at}  {listener} hears the {peer} again after {event.silent_for:.2f} s"
+            )
+
+    return on_watchdog
+
+
 def _header(args: argparse.Namespace, ep: Endpoint) -> str:
     mode = "separate ACKs" if args.separate_acks else "piggybacked ACKs"
     loop = type(asyncio.get_running_loop()).__module__.split(".")[0]
@@ -270,27 +417,52 @@ def _header(args: argparse.Namespace, ep: Endpoint) -> str:
     )
 
 
-async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
+def _close_info(ep: Endpoint) -> dict[str, str] | None:
+    event = ep.close_event
+    return None if event is None else {"cause": event.cause.value, "detail": event.detail}
+
+
+async def run_demo(args: argparse.Namespace, outcome: Outcome) -> None:
     config = _config(args)
     keys: SessionKeys = args.session_keys
-    duration = args.duration if args.duration is not None else 5.0
     master_side, slave_side = Side("master"), Side("slave")
-    ms_spec, sm_spec = _directions(args)
     capture = PcapWriter(args.pcap) if args.pcap is not None else None
+    try:
+        await _demo(args, outcome, config, keys, master_side, slave_side, capture)
+    finally:
+        if capture is not None:
+            capture.close()
+            if outcome.summary is not None:
+                outcome.summary["pcap"] = capture_report(capture)
+
+
+async def _demo(
+    args: argparse.Namespace,
+    outcome: Outcome,
+    config: ConnectionConfig,
+    keys: SessionKeys,
+    master_side: Side,
+    slave_side: Side,
+    capture: PcapWriter | None,
+) -> None:
+    duration = args.duration if args.duration is not None else 5.0
+    ms_spec, sm_spec = _directions(args)
     async with (
-        await listen(
+        listen(
             "127.0.0.1",
             0,
             config=config,
+            timer=args.timer,
             on_data=slave_side.on_data,
             netem=sm_spec,
             netem_seed=_seed(args, 1),
             keys=keys.slave,
         ) as server,
-        await connect(
+        connect(
             "127.0.0.1",
             server.port,
             config=config,
+            timer=args.timer,
             on_data=master_side.on_data,
             netem=ms_spec,
             netem_seed=_seed(args, 0),
@@ -301,64 +473,109 @@ async def run_demo(args: argparse.Namespace) -> dict[str, Any]:
         slave = await server.accept()
         start = monotonic()
         until = start + duration
+        elapsed: float | None = None
         display = None if args.json else LiveDisplay()
         meters = (DirectionMeter("M->S"), DirectionMeter("S->M"))
         if display is not None:
             display.message(_header(args, master))
+        master.set_watchdog_callback(_watchdog_log(display, start, "master", "slave"))
+        slave.set_watchdog_callback(_watchdog_log(display, start, "slave", "master"))
 
         def show(interval: float) -> None:
             assert display is not None
-            display.update(
-                [
-                    f"t={monotonic() - start:6.1f} s",
-                    meters[0].line(
-                        master.stats,
-                        slave.stats.received.data_packets,
-                        interval,
-                        slave_side.latency.take_window(),
-                    ),
-                    meters[1].line(
-                        slave.stats,
-                        master.stats.received.data_packets,
-                        interval,
-                        master_side.latency.take_window(),
-                    ),
-                ]
+            lines = [f"t={monotonic() - start:6.1f} s"]
+            lines.append(
+                meters[0].line(
+                    master.stats,
+                    slave.stats.received.data_packets,
+                    interval,
+                    slave_side.latency.take_window(),
+                    _silence_note(slave, "slave"),
+                )
             )
+            lines.append(
+                meters[1].line(
+                    slave.stats,
+                    master.stats.received.data_packets,
+                    interval,
+                    master_side.latency.take_window(),
+                    _silence_note(master, "master"),
+                )
+            )
+            display.update(lines)
 
-        tasks = [
-            _send_loop(master, master_side, args.rate, args.size, until, master=True),
-            _send_loop(slave, slave_side, args.rate, args.size, until, master=False),
-        ]
-        if display is not None:
-            tasks.append(_every_second(until, show))
-        await asyncio.gather(*tasks)
-        elapsed = monotonic() - start  # the sending window: rates are per second of it
-        await asyncio.sleep(0.05)  # let the last samples land before counting
-        both = ["master", "slave"]
-        summary = {
-            "command": "demo",
-            "duration_s": round(elapsed, 3),
-            **_settings(args, master),
-            "master_to_slave": direction_report(
-                sender=master.stats,
-                receiver=slave.stats,
-                observed_at=both,
-                duration=elapsed,
-                latency=slave_side.latency_counts(),
-            ),
-            "slave_to_master": direction_report(
-                sender=slave.stats,
-                receiver=master.stats,
-                observed_at=both,
-                duration=elapsed,
-                latency=master_side.latency_counts(),
-            ),
-        }
-    if capture is not None:
-        capture.close()
-        summary["pcap"] = capture_report(capture)
-    return summary
+        def summarize() -> None:
+            spent = elapsed if elapsed is not None else monotonic() - start
+            both = ["master", "slave"]
+            outcome.summary = {
+                "command": "demo",
+                "duration_s": round(spent, 3),
+                **_settings(args, master),
+                "master_to_slave": direction_report(
+                    sender=master.stats,
+                    receiver=slave.stats,
+                    observed_at=both,
+                    duration=spent,
+                    latency=slave_side.latency_counts(),
+                ),
+                "slave_to_master": direction_report(
+                    sender=slave.stats,
+                    receiver=master.stats,
+                    observed_at=both,
+                    duration=spent,
+                    latency=master_side.latency_counts(),
+                ),
+            }
+
+        try:
+            sending = asyncio.gather(
+                _send_loop(master, master_side, args.rate, args.size, until, master=True),
+                _send_loop(slave, slave_side, args.rate, args.size, until, master=False),
+            )
+            if display is None:
+                await sending
+            else:
+                await _with_display(sending, _every_second(until, show))
+            elapsed = monotonic() - start  # the sending window: rates are per second of it
+            await _settle(master, slave)  # let the last samples land before counting
+        finally:
+            summarize()
+
+
+SETTLE_PATIENCE = 2.0
+"""Longest the demo waits for its last samples to land before it counts."""
+
+
+async def _settle(*endpoints: Endpoint) -> None:
+    """Wait until every sample offered has left and arrived, or nothing has moved for a while (an
+    emulated loss leaves some never to arrive); a fixed pause would undercount on a loaded machine."""
+
+    def figures() -> tuple[int, ...]:
+        return tuple(
+            n
+            for ep in endpoints
+            for n in (ep.stats.sent.data_packets, ep.stats.received.data_packets)
+        )
+
+    def done() -> bool:
+        for ep in endpoints:
+            stats = ep.stats
+            if stats.sent.data_packets + stats.samples_superseded != stats.samples_offered:
+                return False  # a sample is still held by the pacer
+        sent = sum(ep.stats.sent.data_packets for ep in endpoints)
+        return sent == sum(ep.stats.received.data_packets for ep in endpoints)
+
+    start = last_change = monotonic()
+    last = figures()
+    while not done():
+        now = monotonic()
+        quiet = max(0.1, 4 * max(ep.stats.srtt for ep in endpoints))
+        if now - start > SETTLE_PATIENCE or now - last_change > quiet:
+            return
+        await asyncio.sleep(0.01)
+        current = figures()
+        if current != last:
+            last, last_change = current, monotonic()
 
 
 def _directions(args: argparse.Namespace) -> tuple[NetemSpec | None, NetemSpec | None]:
@@ -390,16 +607,26 @@ def _settings(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
     }
 
 
-async def run_master(args: argparse.Namespace) -> dict[str, Any]:
+async def run_master(args: argparse.Namespace, outcome: Outcome) -> None:
+    capture = PcapWriter(args.pcap) if args.pcap is not None else None
+    try:
+        await _master(args, outcome, capture)
+    finally:
+        if capture is not None:
+            capture.close()
+            if outcome.summary is not None:
+                outcome.summary["pcap"] = capture_report(capture)
+
+
+async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWriter | None) -> None:
     host, port = args.address
     side = Side("master")
-    until = math.inf if args.duration is None else monotonic() + args.duration
     ms_spec, _ = _directions(args)
-    capture = PcapWriter(args.pcap) if args.pcap is not None else None
-    async with await connect(
+    async with connect(
         host,
         port,
         config=_config(args),
+        timer=args.timer,
         on_data=side.on_data,
         netem=ms_spec,
         netem_seed=_seed(args, 0),
@@ -407,117 +634,138 @@ async def run_master(args: argparse.Namespace) -> dict[str, Any]:
         pcap=capture,
     ) as ep:
         start = monotonic()
-        until = min(until, start + (args.duration or math.inf))
+        until = start + (args.duration or math.inf)
         display = None if args.json else LiveDisplay()
-        meters = (DirectionMeter("M->S"),)
+        meter = DirectionMeter("M->S")
         reverse_meter = DirectionMeter("S->M")
         if display is not None:
-            display.message(_header(args, ep) + f", slave {host}:{port}")
+            display.message(_header(args, ep) + f", slave {format_address((host, port))}")
+        ep.set_watchdog_callback(_watchdog_log(display, start, "master", "slave"))
 
         def show(interval: float) -> None:
             assert display is not None
-            display.update(
-                [
-                    f"t={monotonic() - start:6.1f} s",
-                    meters[0].line(ep.stats, ep.stats.packets_acked, interval, None),
-                    receive_line("S->M", side.received, reverse_meter, interval, side.latency),
-                ]
-            )
+            lines = [
+                f"t={monotonic() - start:6.1f} s",
+                meter.line(ep.stats, ep.stats.packets_acked, interval, None),
+                receive_line("S->M", side.received, reverse_meter, interval, side.latency),
+            ]
+            note = _silence_note(ep, "master")
+            if note is not None:
+                lines.append(note)
+            display.update(lines)
 
-        tasks = [_send_loop(ep, side, args.rate, args.size, until, master=True)]
-        if display is not None:
-            tasks.append(_every_second(until, show))
-        await asyncio.gather(*tasks)
-        elapsed = monotonic() - start
-        summary = {
-            "command": "master",
-            "duration_s": round(elapsed, 3),
-            **_settings(args, ep),
-            "master_to_slave": direction_report(
-                sender=ep.stats,
-                receiver=None,
-                observed_at=["master"],
-                duration=elapsed,
-                latency=None,
-            ),
-            "slave_to_master": direction_report(
-                sender=None,
-                receiver=ep.stats,
-                observed_at=["master"],
-                duration=elapsed,
-                latency=side.latency_counts(),
-            ),
-            "close": None if not ep.is_closed else "closed by the slave",
-        }
-    if capture is not None:
-        capture.close()
-        summary["pcap"] = capture_report(capture)
-    return summary
+        try:
+            sending = _send_loop(ep, side, args.rate, args.size, until, master=True)
+            if display is None:
+                await sending
+            else:
+                await _with_display(sending, _every_second(until, show))
+        finally:
+            elapsed = monotonic() - start
+            outcome.summary = {
+                "command": "master",
+                "duration_s": round(elapsed, 3),
+                **_settings(args, ep),
+                "master_to_slave": direction_report(
+                    sender=ep.stats,
+                    receiver=None,
+                    observed_at=["master"],
+                    duration=elapsed,
+                    latency=None,
+                ),
+                "slave_to_master": direction_report(
+                    sender=None,
+                    receiver=ep.stats,
+                    observed_at=["master"],
+                    duration=elapsed,
+                    latency=side.latency_counts(),
+                ),
+                "peer_silences": ep.stats.peer_silences,
+                "longest_silence_s": round(ep.stats.longest_silence, 3),
+                "close": _close_info(ep),
+            }
+            event = ep.close_event
+            if event is not None and event.cause is not CloseCause.PEER_CLOSE:
+                outcome.status = EXIT_FAILED
+                outcome.failure = f"session lost ({event.cause.value}): {event.detail}"
 
 
-async def _serve_one(ep: Endpoint, side: Side, args: argparse.Namespace, until: float) -> None:
-    await _send_loop(ep, side, args.rate, args.size, until, master=False)
+async def run_slave(args: argparse.Namespace, outcome: Outcome) -> None:
+    keys: SessionKeys = args.session_keys
+    capture = PcapWriter(args.pcap) if args.pcap is not None else None
+    try:
+        await _slave(args, outcome, keys, capture)
+    finally:
+        if capture is not None:
+            capture.close()
+            if outcome.summary is not None:
+                outcome.summary["pcap"] = capture_report(capture)
 
 
-async def run_slave(args: argparse.Namespace) -> dict[str, Any]:
+async def _slave(
+    args: argparse.Namespace, outcome: Outcome, keys: SessionKeys, capture: PcapWriter | None
+) -> None:
     until = math.inf if args.duration is None else monotonic() + args.duration
     sides: dict[int, Side] = {}
+    finished: deque[dict[str, Any]] = deque(maxlen=SESSIONS_KEPT)
     _, sm_spec = _directions(args)
-    keys: SessionKeys = args.session_keys
-    warn_if_exposed(args.host, keys)
-    capture = PcapWriter(args.pcap) if args.pcap is not None else None
-    async with await listen(
+    async with listen(
         args.host,
         args.port,
         config=_config(args),
         max_peers=args.max_peers,
+        timer=args.timer,
         netem=sm_spec,
         netem_seed=_seed(args, 1),
         keys=keys.slave,
         pcap=capture,
     ) as server:
+        warn_if_exposed(args.host, keys)  # once bound: a slave that failed to start exposes nothing
         display = None if args.json else LiveDisplay()
         if display is not None:
             keyed = f", keyed ({len(keys.slave)} key(s))" if keys.slave is not None else ", unkeyed"
-            display.message(f"tdtp slave listening on {args.host}:{server.port}{keyed}")
+            display.message(f"tdtp slave listening on {format_address(server.sockname)}{keyed}")
         tasks: set[asyncio.Task[None]] = set()
-        acceptor = asyncio.create_task(_accept_loop(server, sides, args, until, tasks))
+        acceptor = asyncio.create_task(
+            _accept_loop(server, sides, args, until, tasks, finished, display)
+        )
         try:
             await _every_second(until, lambda interval: _show_slave(display, server, sides))
         finally:
             acceptor.cancel()
             for task in tasks:
                 task.cancel()
-        summary = {
-            "command": "slave",
-            "masters_served": server.stats.peers_accepted,
-            "masters_refused": server.stats.peers_refused,
-            "datagrams_unattached": server.stats.datagrams_unattached,
-            "admission": asdict(server.stats.admission),
-            "sessions": [_session_report(side) for side in sides.values()],
-        }
-    if capture is not None:
-        capture.close()
-        summary["pcap"] = capture_report(capture)
-    return summary
+            sessions = list(finished) + [_session(ep, sides.get(id(ep))) for ep in server.endpoints]
+            outcome.summary = {
+                "command": "slave",
+                "masters_served": server.stats.peers_accepted,
+                "masters_refused": server.stats.peers_refused,
+                "datagrams_unattached": server.stats.datagrams_unattached,
+                "admission": asdict(server.stats.admission),
+                "sessions": sessions,
+            }
 
 
-def _session_report(side: Side) -> dict[str, Any]:
+def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
     """One master's session as the slave saw it: both directions from this end."""
-    ep = side.endpoint
-    assert ep is not None
-    duration = monotonic() - side.started
-    peer = ep.peer
+    duration = monotonic() - side.started if side is not None else 0.0
+    key = ep.connection.key
     return {
-        "master": None if peer is None else f"{peer[0]}:{peer[1]}",
+        "master": format_address(ep.peer),
+        "key": None if key is None else key.label,
         "duration_s": round(duration, 3),
         "closed": ep.is_closed,
+        "samples_received": side.received if side else ep.stats.samples_delivered,
+        "samples_sent": ep.stats.sent.data_packets,
+        "peer_silences": ep.stats.peer_silences,
+        "longest_silence_s": round(ep.stats.longest_silence, 3),
+        "close": _close_info(ep),
         "master_to_slave": direction_report(
             sender=None,
             receiver=ep.stats,
             observed_at=["slave"],
             duration=duration,
-            latency=side.latency_counts(),
+            latency=side.latency_counts() if side is not None else None,
         ),
         "slave_to_master": direction_report(
             sender=ep.stats, receiver=None, observed_at=["slave"], duration=duration, latency=None
@@ -531,17 +779,34 @@ async def _accept_loop(
     args: argparse.Namespace,
     until: float,
     tasks: set[asyncio.Task[None]],
+    finished: deque[dict[str, Any]],
+    display: LiveDisplay | None,
 ) -> None:
+    start = monotonic()
     async for ep in server:
-        side = Side(f"master {ep.peer}", endpoint=ep, started=monotonic())
-        if len(sides) >= MAX_SESSIONS_REPORTED:  # a churning peer must not grow this forever
-            oldest = next(iter(sides))
-            del sides[oldest]
+        side = Side(f"master {format_address(ep.peer)}", started=monotonic())
         sides[id(ep)] = side
         ep.set_data_callback(side.on_data)
-        task = asyncio.create_task(_serve_one(ep, side, args, until))
+        ep.set_watchdog_callback(
+            _watchdog_log(display, start, "slave", f"master {format_address(ep.peer)}")
+        )
+        task = asyncio.create_task(_serve_one(ep, side, args, until, sides, finished))
         tasks.add(task)
         task.add_done_callback(tasks.discard)
+
+
+async def _serve_one(
+    ep: Endpoint,
+    side: Side,
+    args: argparse.Namespace,
+    until: float,
+    sides: dict[int, Side],
+    finished: deque[dict[str, Any]],
+) -> None:
+    await _send_loop(ep, side, args.rate, args.size, until, master=False)
+    if ep.is_closed:
+        finished.append(_session(ep, side))
+        sides.pop(id(ep), None)
 
 
 def _show_slave(display: LiveDisplay | None, server: Server, sides: dict[int, Side]) -> None:
@@ -551,15 +816,19 @@ def _show_slave(display: LiveDisplay | None, server: Server, sides: dict[int, Si
     for ep in server.endpoints:
         side = sides.get(id(ep))
         stats = ep.stats
-        lines.append(
-            f"  {ep.peer}: received {side.received if side else 0} samples, "
-            f"sent {stats.sent.data_packets}, srtt {stats.srtt * 1e3:.3f} ms, "
-            f"lost {stats.packets_lost}, allowed {stats.rate:.0f}/s"
+        line = (
+            f"  {format_address(ep.peer)}:  received {side.received if side else 0} samples"
+            f"  sent {stats.sent.data_packets}  srtt {stats.srtt * 1e3:.3f} ms"
+            f"  lost {stats.packets_lost}  allowed {stats.rate:.0f}/s"
         )
+        note = _silence_note(ep, "slave")
+        if note is not None:
+            line += "  " + note
+        lines.append(line)
     display.update(lines)
 
 
-async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
+async def run_relay(args: argparse.Namespace, outcome: Outcome) -> None:
     relay = await start_relay(
         args.listen,
         args.forward,
@@ -571,7 +840,7 @@ async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
     display = None if args.json else LiveDisplay()
     if display is not None:
         display.message(
-            f"relaying {relay.address[0]}:{relay.address[1]} -> {args.forward[0]}:{args.forward[1]}"
+            f"relaying {format_address(relay.address)} -> {format_address(args.forward)}"
             f" with forward '{args.spec}', return '{args.return_spec or args.spec}'"
         )
 
@@ -582,7 +851,7 @@ async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
         display.update(
             [
                 f"clients {relay.stats.clients}  forwarded {relay.stats.forwarded}"
-                f"  returned {relay.stats.returned}",
+                f"  returned {relay.stats.returned}  not forwarded {relay.stats.forward_errors}",
                 f"  forward: {_link_line(fwd)}",
                 f"  return:  {_link_line(back)}",
             ]
@@ -593,12 +862,12 @@ async def run_relay(args: argparse.Namespace) -> dict[str, Any]:
         await _every_second(until, show)
     finally:
         await relay.close()
-    return {
-        "command": "netem-relay",
-        "relay": asdict(relay.stats),
-        "forward": asdict(relay.forward.link.stats),
-        "return": asdict(relay.back.link.stats),
-    }
+        outcome.summary = {
+            "command": "netem-relay",
+            "relay": asdict(relay.stats),
+            "forward": asdict(relay.forward.link.stats),
+            "return": asdict(relay.back.link.stats),
+        }
 
 
 def _link_line(stats: Any) -> str:
@@ -615,10 +884,37 @@ def _loop_factory(choice: str) -> Callable[[], asyncio.AbstractEventLoop] | None
         import uvloop  # noqa: PLC0415 -- optional (the "fast" extra): imported only when wanted
     except ImportError:
         if choice == "uvloop":
-            raise SystemExit("uvloop is not installed: pip install 'tdtp[fast]'") from None
+            raise UsageError(
+                "--loop uvloop: uvloop is not installed (pip install 'tdtp[fast]')"
+            ) from None
         return None
     factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
     return factory
+
+
+Runner = Callable[[argparse.Namespace, Outcome], Coroutine[Any, Any, None]]
+RUNNERS: dict[str, Runner] = {
+    "demo": run_demo,
+    "master": run_master,
+    "slave": run_slave,
+    "netem-relay": run_relay,
+}
+
+_USAGE_ERRORS = (
+    UsageError,
+    KeyArgumentError,
+    CaptureError,
+    InvalidArgumentError,
+    ArgumentTypeError,
+    AddressError,
+    PayloadTooLargeError,
+)
+"""Errors that a different command line fixes: exit status 2."""
+
+
+def _fail(message: object, status: int) -> int:
+    print(f"tdtp: {message}", file=sys.stderr)
+    return status
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -628,38 +924,38 @@ def main(argv: Sequence[str] | None = None) -> int:
         return simulate_main(arguments[1:])
     if arguments[:1] == ["keygen"]:
         return keygen_main(arguments[1:])
-    args = build_parser().parse_args(arguments)
-    if args.command in ("demo", "master", "slave"):
-        try:
-            args.session_keys = session_keys(args)
-        except KeyArgumentError as exc:
-            print(f"tdtp: {exc}", file=sys.stderr)
-            return 2
-    if getattr(args, "size", SAMPLE_SIZE) < SAMPLE_SIZE:
-        print(f"tdtp: --size must be at least {SAMPLE_SIZE} bytes", file=sys.stderr)
-        return 2
-    runners: dict[str, Callable[[argparse.Namespace], Coroutine[Any, Any, dict[str, Any]]]] = {
-        "demo": run_demo,
-        "master": run_master,
-        "slave": run_slave,
-        "netem-relay": run_relay,
-    }
+    args = build_parser().parse_args(arguments)  # exits 2 with argparse's message on its own
     try:
-        with asyncio.Runner(loop_factory=_loop_factory(args.loop)) as runner:
-            summary = runner.run(runners[args.command](args))
-    except ConnectError as exc:
-        print(f"tdtp: {exc}", file=sys.stderr)
-        return 1
-    except CaptureError as exc:
-        print(f"tdtp: {exc}", file=sys.stderr)
-        return 2
+        if args.command in ("demo", "master", "slave"):
+            args.session_keys = session_keys(args)
+        if hasattr(args, "timer"):
+            check_timer_preference(args.timer)
+        if hasattr(args, "controller"):
+            _config(args)
+        loop_factory = _loop_factory(args.loop)
+    except (*_USAGE_ERRORS, TdtpError) as exc:
+        return _fail(exc, EXIT_USAGE)
+    outcome = Outcome()
+    interrupted = False
+    try:
+        with asyncio.Runner(loop_factory=loop_factory) as runner:
+            runner.run(RUNNERS[args.command](args, outcome))
     except KeyboardInterrupt:
-        return 130
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        print(_demo_table(summary) if args.command == "demo" else json.dumps(summary, indent=2))
-    return 0
+        interrupted = True
+    except _USAGE_ERRORS as exc:
+        return _fail(exc, EXIT_USAGE)
+    except (ConnectError, TdtpError, OSError) as exc:
+        return _fail(exc, EXIT_FAILED)
+    if outcome.summary is not None:
+        if args.json or args.command != "demo":
+            print(json.dumps(outcome.summary, indent=2))
+        else:
+            print(_demo_table(outcome.summary))
+    if interrupted:
+        return EXIT_INTERRUPTED
+    if outcome.failure is not None:
+        return _fail(outcome.failure, outcome.status)
+    return outcome.status
 
 
 def _demo_table(summary: dict[str, Any]) -> str:

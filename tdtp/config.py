@@ -5,7 +5,10 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
+from typing import Literal
 
+from tdtp.control.registry import available_controllers, controller_config_type
+from tdtp.errors import InvalidArgumentError
 from tdtp.wire.control import CipherSuite
 from tdtp.wire.header import HEADER_SIZE
 from tdtp.wire.hold import HOLD_MAX
@@ -16,6 +19,14 @@ MAX_UDP_PAYLOAD = 65507
 MAX_PAYLOAD = MAX_UDP_PAYLOAD - HEADER_SIZE - PROTECTION_OVERHEAD
 """The largest TDTP payload: what fits in one UDP/IPv4 datagram with the header and, in a keyed
 session, the packet protection (65484 bytes)."""
+
+ControllerName = Literal["trinomial", "tfrc", "fixed"]
+"""The built-in rate controllers. A controller added with
+:func:`tdtp.control.register_controller` is accepted too (type checkers then need a ``cast``)."""
+
+KEEPALIVE_PER_SILENCE = 3
+"""With ``keepalive_interval`` left to its default, a quiet peer sends this many keep-alives per
+``silence_timeout``: one lost keep-alive never makes a healthy peer look silent."""
 
 
 class Role(enum.Enum):
@@ -34,7 +45,7 @@ class AckMode(enum.Enum):
 
 def _require(condition: bool, message: str) -> None:
     if not condition:
-        raise ValueError(message)
+        raise InvalidArgumentError(message)
 
 
 def _positive_finite(name: str, value: float) -> None:
@@ -92,10 +103,19 @@ class ConnectionConfig:
     ack_delay: float = 0.020
     """Longest a received packet waits for a reverse packet to carry its ACK before a stand-alone ACK
     goes out (bidirectional mode). At most 31.232 ms, so every ACK can report its hold time."""
-    keepalive_interval: float = 0.25
-    """Send a KEEPALIVE after this long with nothing else sent."""
-    idle_timeout: float = 2.0
-    """The connection is lost after this long without any datagram from the peer."""
+    silence_timeout: float = 0.1
+    """The watchdog: after this long without any datagram from the peer the connection reports
+    :class:`~tdtp.events.PeerSilent` (and :class:`~tdtp.events.PeerResumed` when the peer is heard
+    again). 100 ms is five times a 1 kHz loop's worst normal gap and short enough for a slave to stop
+    a machine safely; it must be shorter than ``idle_timeout``."""
+    keepalive_interval: float | None = None
+    """Send a KEEPALIVE after this long with nothing else sent. ``None`` (the default): a third of
+    ``silence_timeout``, so that a healthy but quiet peer is never taken for a silent one. Set it
+    explicitly below the *peer's* ``silence_timeout``; it is not negotiated."""
+    idle_timeout: float = 30.0
+    """The outage limit: the connection is given up after this long without any datagram from the
+    peer. Until then it survives the outage and recovers by itself (roaming, handovers and route
+    changes last seconds); the watchdog (``silence_timeout``) is what tells the application early."""
     open_retry_interval: float = 0.25
     """The master repeats its OPEN this often until it is answered."""
     open_timeout: float = 5.0
@@ -112,10 +132,12 @@ class ConnectionConfig:
     """Events held for the application; when full the oldest data event is discarded and counted."""
     max_tracked_packets: int = 16384
     """Sent packets remembered while awaiting acknowledgement; the oldest is declared lost past this."""
-    controller: str = "trinomial"
-    """Rate controller by registry name: ``trinomial``, ``tfrc`` or ``fixed``."""
+    controller: ControllerName = "trinomial"
+    """Rate controller by registry name: ``trinomial``, ``tfrc`` or ``fixed`` (or one registered
+    with :func:`tdtp.control.register_controller`)."""
     controller_config: object | None = None
-    """The chosen controller's own config dataclass (``None`` = its defaults)."""
+    """The chosen controller's own config dataclass (``None`` = its defaults), e.g.
+    ``tdtp.control.FixedConfig(rate=500.0)`` for ``controller="fixed"``."""
     min_peer_payload: int = 1
     """The largest payload this side will send: a peer whose ``max_payload`` is smaller is refused at
     the open (REJECT ``PAYLOAD_TOO_SMALL``) instead of failing on the first ``send``."""
@@ -126,6 +148,13 @@ class ConnectionConfig:
     chooses; the slave adopts its choice."""
     admission: AdmissionConfig = field(default_factory=AdmissionConfig)
     """A slave's policy for OPENs: cookies and rate limits."""
+
+    @property
+    def effective_keepalive_interval(self) -> float:
+        """``keepalive_interval``, or a third of ``silence_timeout`` when it is left to ``None``."""
+        if self.keepalive_interval is not None:
+            return self.keepalive_interval
+        return self.silence_timeout / KEEPALIVE_PER_SILENCE
 
     def __post_init__(self) -> None:
         _require(
@@ -148,13 +177,21 @@ class ConnectionConfig:
             f"ack_delay must be at most {HOLD_MAX * 1000:.3f} ms so that every ACK can carry its "
             f"hold time, got {self.ack_delay * 1000:.3f} ms",
         )
-        for name in ("keepalive_interval", "idle_timeout", "open_retry_interval", "open_timeout"):
+        for name in ("silence_timeout", "idle_timeout", "open_retry_interval", "open_timeout"):
             _positive_finite(name, getattr(self, name))
+        if self.keepalive_interval is not None:
+            _positive_finite("keepalive_interval", self.keepalive_interval)
         _positive_finite("initial_rtt", self.initial_rtt)
         _require(
-            self.keepalive_interval < self.idle_timeout,
-            f"keepalive_interval ({self.keepalive_interval} s) must be shorter than idle_timeout "
-            f"({self.idle_timeout} s), or a quiet but healthy peer would time out",
+            self.silence_timeout < self.idle_timeout,
+            f"silence_timeout ({self.silence_timeout} s) must be shorter than idle_timeout "
+            f"({self.idle_timeout} s): the watchdog warns of a silence, the idle timeout ends it",
+        )
+        _require(
+            self.effective_keepalive_interval < self.silence_timeout,
+            f"keepalive_interval ({self.keepalive_interval} s) must be shorter than "
+            f"silence_timeout ({self.silence_timeout} s), or a quiet but healthy peer would look "
+            "silent; leave it to None for a third of silence_timeout",
         )
         _require(
             isinstance(self.reorder_threshold, int) and 1 <= self.reorder_threshold <= 6,
@@ -169,6 +206,12 @@ class ConnectionConfig:
             isinstance(self.max_tracked_packets, int) and self.max_tracked_packets >= 64,
             f"max_tracked_packets must be an integer >= 64, got {self.max_tracked_packets!r}",
         )
+        config_type = controller_config_type(self.controller)
+        if config_type is None:
+            raise InvalidArgumentError(
+                f"unknown controller {self.controller!r}; known controllers: "
+                f"{', '.join(available_controllers())}"
+            )
         _require(
             isinstance(self.min_peer_payload, int)
             and 1 <= self.min_peer_payload <= self.max_payload,
@@ -187,6 +230,7 @@ class ConnectionConfig:
             f"admission must be an AdmissionConfig, got {self.admission!r}",
         )
         _require(
-            isinstance(self.controller, str) and bool(self.controller),
-            f"controller must be a registry name such as 'trinomial', got {self.controller!r}",
+            self.controller_config is None or isinstance(self.controller_config, config_type),
+            f"controller {self.controller!r} is configured by {config_type.__name__}, got "
+            f"{type(self.controller_config).__name__}; pass None for its defaults",
         )

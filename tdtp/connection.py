@@ -7,6 +7,10 @@ re-arms a single timer at :meth:`Connection.get_timer`. What happened comes out 
 :meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and the virtual-time simulator
 all drive this one class.
 
+The watchdog lives here too: nothing heard from the peer for ``silence_timeout`` gives a
+:class:`~tdtp.events.PeerSilent` event, the next datagram a :class:`~tdtp.events.PeerResumed`, and the
+connection survives the outage until ``idle_timeout`` (docs/PROTOCOL.md section 5.2).
+
 Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
 ``stats.drops`` by reason. Misuse by the caller raises a :class:`~tdtp.errors.TdtpError` subclass.
 """
@@ -23,11 +27,13 @@ from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.base import RateController
 from tdtp.control.registry import create_controller
 from tdtp.errors import (
+    ArgumentTypeError,
     ConnectionClosedError,
     ConnectionStateError,
     EmptyPayloadError,
     InvalidKeyError,
     PayloadTooLargeError,
+    PayloadTypeError,
 )
 from tdtp.events import (
     Address,
@@ -36,6 +42,8 @@ from tdtp.events import (
     ConnectionEstablished,
     DataReceived,
     Event,
+    PeerResumed,
+    PeerSilent,
 )
 from tdtp.loss_rate import LossIntervalEstimator
 from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
@@ -138,7 +146,7 @@ class Connection:
         admission: Admission | None = None,
     ) -> None:
         if not isinstance(role, Role):
-            raise TypeError(f"role must be Role.MASTER or Role.SLAVE, got {role!r}")
+            raise ArgumentTypeError(f"role must be Role.MASTER or Role.SLAVE, got {role!r}")
         self.config = config if config is not None else ConnectionConfig()
         self.role = role
         rng = rng if rng is not None else random.SystemRandom()
@@ -212,6 +220,12 @@ class Connection:
         self._other_events: deque[tuple[int, Event]] = deque()
         self._last_send = 0.0
         self._last_receive = 0.0
+        self._keepalive = self.config.effective_keepalive_interval
+        self._silence = self.config.silence_timeout
+        self._silent_since: float | None = None  # the watchdog: last arrival before a silence
+        self._last_outage: tuple[float, float] | None = None  # (since, resumed at) of the last one
+        self._send_paused = False
+        self._close_event: ConnectionClosed | None = None
         self._open_deadline = 0.0
         self._open_next = 0.0
         self._lost: list[LostPacket] = []
@@ -265,6 +279,27 @@ class Connection:
         return self._admission
 
     @property
+    def peer_silent(self) -> bool:
+        """True while the watchdog finds the peer silent (between :class:`~tdtp.events.PeerSilent`
+        and :class:`~tdtp.events.PeerResumed`)."""
+        return self._silent_since is not None
+
+    @property
+    def silent_since(self) -> float | None:
+        """The ``now`` of the peer's last datagram while it is silent, else ``None``."""
+        return self._silent_since
+
+    @property
+    def close_event(self) -> ConnectionClosed | None:
+        """Why the connection ended, once it has (the same event :meth:`next_event` reports)."""
+        return self._close_event
+
+    @property
+    def sending_paused(self) -> bool:
+        """True between :meth:`pause_sending` and :meth:`resume_sending`."""
+        return self._send_paused
+
+    @property
     def stats(self) -> ConnectionStats:
         """Live counters; the derived figures (srtt, p, rate) are refreshed on each access."""
         stats = self._stats
@@ -301,18 +336,23 @@ class Connection:
                 self._suite, derive_open_secret(self._key.secret, self._master_nonce, self._suite)
             )
 
-    def send(self, payload: bytes, *, now: float) -> None:
-        """Offer the newest sample. It replaces any sample still waiting for the pacer (which is
-        counted as superseded): stale supermedia data is never queued or retransmitted."""
+    def send(self, payload: bytes | bytearray | memoryview, *, now: float) -> None:
+        """Offer the newest sample (bytes, bytearray or memoryview). It replaces any sample still
+        waiting for the pacer or for the socket (which is counted as superseded): stale supermedia
+        data is never queued or retransmitted."""
         state = self._state
         if state is not State.ESTABLISHED:
             if state is State.CLOSED:
+                event = self._close_event
+                why = "" if event is None else f" ({event.cause.value}: {event.detail})"
                 raise ConnectionClosedError(
-                    "the connection is closed; open a new one to send again"
+                    f"the connection is closed{why}; open a new one to send again", event
                 )
             raise ConnectionStateError(
                 f"cannot send while {state.value}: wait for the ConnectionEstablished event"
             )
+        if type(payload) is not bytes:
+            payload = _as_payload(payload)
         if not payload:
             raise EmptyPayloadError(
                 "a sample must have at least one byte (TDTP sends no empty DATA packet; the "
@@ -328,10 +368,28 @@ class Connection:
         stats.samples_offered += 1
         if self._pending is not None:
             stats.samples_superseded += 1
+            if self._send_paused:
+                stats.samples_blocked += 1
             self._pending_paced = True
         else:
             self._pending_paced = now < self._controller.next_send_time()
-        self._pending = bytes(payload)
+        self._pending = payload
+
+    def pause_sending(self) -> None:
+        """The layer below cannot take datagrams now (the socket's send buffer is full).
+
+        Data is held: the pending sample waits and newer samples supersede it (counted in
+        ``samples_superseded`` and ``samples_blocked``) instead of queueing in a buffer out of sight.
+        Acknowledgements and control packets still go out. Call :meth:`resume_sending` when the
+        buffer has drained, then :meth:`datagrams_to_send`.
+        """
+        if not self._send_paused:
+            self._send_paused = True
+            self._stats.send_pauses += 1
+
+    def resume_sending(self) -> None:
+        """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
+        self._send_paused = False
 
     def close(self, *, now: float) -> None:
         """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`."""
@@ -436,6 +494,26 @@ class Connection:
         received.payload_bytes += payload_size
         received.protection_bytes += self._overhead
         self._last_receive = now
+        if self._silent_since is not None:
+            self._on_peer_resumed(now)
+
+    def _heard(self, now: float) -> None:
+        """A datagram from the peer that is not taken in (late, duplicate, stale) still shows it is
+        alive."""
+        self._last_receive = now
+        if self._silent_since is not None:
+            self._on_peer_resumed(now)
+
+    def _on_peer_resumed(self, now: float) -> None:
+        since = self._silent_since
+        assert since is not None
+        self._silent_since = None
+        self._last_outage = (since, now)
+        silent_for = now - since
+        stats = self._stats
+        stats.longest_silence = max(stats.longest_silence, silent_for)
+        self._push_watchdog_event(PeerResumed(silent_for, now))
+        self._controller.on_peer_resumed(now=now, silent_for=silent_for)
 
     def _on_data(self, data: bytes, seq: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
@@ -455,7 +533,7 @@ class Connection:
             return
         arrival, full_seq, gap = window.on_data(seq, now)
         if arrival is Arrival.STALE:
-            self._last_receive = now
+            self._heard(now)
             stats.count_drop(DropReason.STALE)
             return
         if arrival is not Arrival.DUPLICATE and self._ack_mode is AckMode.SEPARATE:
@@ -466,11 +544,11 @@ class Connection:
         elif arrival is Arrival.LATE:
             stats.reordered += 1
             if not self.config.deliver_late:
-                self._last_receive = now
+                self._heard(now)
                 stats.count_drop(DropReason.LATE)
                 return
         elif not self.config.deliver_duplicates:
-            self._last_receive = now
+            self._heard(now)
             stats.count_drop(DropReason.DUPLICATE)
             return
         size = len(data)
@@ -533,12 +611,23 @@ class Connection:
         largest = self._sent.largest_acked
         stats = self._stats
         stats.packets_lost += len(lost)
+        outage = self._last_outage if self._silent_since is None else (self._silent_since, now)
         for packet in lost:
-            if estimator.on_packet_lost(packet.seq, packet.send_time, srtt, largest):
+            window = srtt
+            during_outage = outage is not None and outage[0] <= packet.send_time <= outage[1]
+            if during_outage:
+                # Packets sent into a silent path are lost together: one loss event per outage,
+                # however far apart the controller's back-off spaced them (docs/PROTOCOL.md 5.4).
+                assert outage is not None
+                window = srtt + outage[1] - outage[0]
+            if estimator.on_packet_lost(packet.seq, packet.send_time, window, largest):
                 stats.loss_events += 1
-                self._controller.on_loss_event(
-                    now=now, srtt=srtt, loss_event_rate=estimator.loss_event_rate
-                )
+                if not during_outage:
+                    # An outage's loss event counts in p; the controller answers the outage itself
+                    # through on_peer_silent / on_peer_resumed, not a second time here.
+                    self._controller.on_loss_event(
+                        now=now, srtt=srtt, loss_event_rate=estimator.loss_event_rate
+                    )
         lost.clear()
 
     def _loss_delay(self) -> float:
@@ -599,7 +688,7 @@ class Connection:
         received.protection_bytes += tag
         received.control_packets += 1
         if alive:
-            self._last_receive = now
+            self._heard(now)
 
     # ------------------------------------------------------------------ opening
 
@@ -657,7 +746,7 @@ class Connection:
             # established this is a delayed duplicate or a replay (PROTOCOL.md 5.2).
             self._accept_handshake(verdict.size, now, self._tag_size(), alive=False)
             self._queue_open_ack()
-        elif now - self._last_receive > self.config.keepalive_interval + 2.0 * self._rtt.srtt:
+        elif now - self._last_receive > self._keepalive + 2.0 * self._rtt.srtt:
             # The same address opens anew and this session has been silent longer than a live
             # master ever is (it sends at least a KEEPALIVE per interval): the master restarted.
             # A live session is never replaced, so a replayed OPEN cannot end it.
@@ -758,7 +847,7 @@ class Connection:
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
         # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
-        self._last_send = now - 2.0 * self.config.keepalive_interval
+        self._last_send = now - 2.0 * self._keepalive
 
     def _on_duplicate_open_ack(self, body: OpenAckBody, data: bytes, now: float) -> None:
         """The slave answered a retransmitted OPEN again; our open is already done. In a keyed
@@ -793,6 +882,8 @@ class Connection:
         self._confirming = False
         self._last_receive = now
         self._last_send = now
+        if self._window is not None:
+            self._window.silence_guard = self._silence
         self._push_other_event(ConnectionEstablished(self._peer_address()))
 
     # ------------------------------------------------------------------ timers
@@ -808,10 +899,12 @@ class Connection:
             return None
         config = self.config
         deadline = min(
-            self._last_receive + config.idle_timeout,
-            self._last_send + config.keepalive_interval,
+            # The watchdog until the peer is silent, then the outage limit.
+            self._last_receive
+            + (self._silence if self._silent_since is None else config.idle_timeout),
+            self._last_send + self._keepalive,
         )
-        if self._pending is not None:
+        if self._pending is not None and not self._send_paused:
             deadline = min(deadline, self._controller.next_send_time())
         window = self._window
         if self._ack_mode is AckMode.BIDIRECTIONAL:
@@ -849,9 +942,14 @@ class Connection:
             self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer_address())
             self._terminate(
                 CloseCause.IDLE_TIMEOUT,
-                f"nothing received from the peer for {self.config.idle_timeout} s",
+                f"nothing received from the peer for {self.config.idle_timeout:g} s",
             )
             return
+        if self._silent_since is None and now >= self._last_receive + self._silence:
+            self._silent_since = self._last_receive
+            self._stats.peer_silences += 1
+            self._push_watchdog_event(PeerSilent(self._last_receive, now))
+            self._controller.on_peer_silent(now=now)
         lost = self._lost
         self._sent.detect_losses(now, self._loss_delay(), lost)
         if lost:
@@ -885,7 +983,11 @@ class Connection:
             for held in window.take_held():
                 self._emit_ack(out, held.ack, held.sack, encode_hold(now - held.arrival), peer, now)
         payload = self._pending
-        if payload is not None and now >= self._controller.next_send_time():
+        if (
+            payload is not None
+            and not self._send_paused
+            and now >= self._controller.next_send_time()
+        ):
             self._pending = None
             ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
             header = encode_header(_DATA, self._sent.next_seq, ack, sack, hold)
@@ -915,7 +1017,7 @@ class Connection:
                 self._emit_ack(
                     out, seq, window.sack_below(seq), encode_hold(now - arrival), peer, now
                 )
-        if now >= self._last_send + self.config.keepalive_interval:
+        if now >= self._last_send + self._keepalive:
             ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
             self._emit_control(
                 out,
@@ -1054,7 +1156,8 @@ class Connection:
         self._confirming = False
         self._pending = None
         self._separate_acks.clear()
-        self._push_other_event(ConnectionClosed(cause, detail))
+        self._close_event = event = ConnectionClosed(cause, detail)
+        self._push_other_event(event)
 
     def _push_data_event(self, event: DataReceived) -> None:
         events = self._data_events
@@ -1067,6 +1170,32 @@ class Connection:
     def _push_other_event(self, event: Event) -> None:
         self._event_seq += 1
         self._other_events.append((self._event_seq, event))
+
+    def _push_watchdog_event(self, event: PeerSilent | PeerResumed) -> None:
+        """Watchdog events share the ``max_pending_events`` bound: an application that never takes
+        events loses the oldest data event, or failing that the oldest watchdog event."""
+        data, other = self._data_events, self._other_events
+        if len(data) + len(other) >= self.config.max_pending_events:
+            if data:
+                data.popleft()
+                self._stats.events_discarded += 1
+            else:
+                for index, (_, pending) in enumerate(other):
+                    if isinstance(pending, PeerSilent | PeerResumed):
+                        del other[index]
+                        self._stats.events_discarded += 1
+                        break
+        self._push_other_event(event)
+
+
+def _as_payload(payload: object) -> bytes:
+    if isinstance(payload, bytes | bytearray | memoryview):
+        return bytes(payload)
+    hint = "; encode text first, e.g. text.encode()" if isinstance(payload, str) else ""
+    raise PayloadTypeError(
+        "a sample must be bytes-like (bytes, bytearray or memoryview), got "
+        f"{type(payload).__name__}{hint}"
+    )
 
 
 def _reason_text(reason: int) -> str:

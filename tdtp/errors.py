@@ -1,10 +1,39 @@
-"""Exceptions raised to the *caller* for API misuse. Peer input never raises; it is dropped and counted."""
+"""Exceptions raised to the *caller*. Peer input never raises; it is dropped and counted.
+
+Every exception tdtp raises on purpose derives from :class:`TdtpError`, so ``except tdtp.TdtpError``
+catches them all. Where a standard exception fits too it is a second base: argument mistakes are also
+:class:`ValueError` or :class:`TypeError`, a connection that is over or could not be opened is also
+:class:`ConnectionError`.
+"""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from tdtp.events import ConnectionClosed
 
 
 class TdtpError(Exception):
     """Base class of every exception tdtp raises on purpose."""
+
+
+class InvalidArgumentError(TdtpError, ValueError):
+    """An argument or configuration value is out of range or of the wrong kind; the message names it
+    and says what is accepted."""
+
+
+class ArgumentTypeError(TdtpError, TypeError):
+    """An argument is of the wrong type; the message names it and says what is accepted."""
+
+
+class PayloadTypeError(ArgumentTypeError):
+    """``send()`` was given something other than a bytes-like object (bytes, bytearray, memoryview)."""
+
+
+class AddressError(TdtpError, OSError):
+    """A host name could not be resolved, or a socket could not be bound to the address (in use, not
+    an address of this host). The original :class:`OSError` is the ``__cause__``."""
 
 
 class ConnectionStateError(TdtpError):
@@ -12,7 +41,15 @@ class ConnectionStateError(TdtpError):
 
 
 class ConnectionClosedError(ConnectionStateError):
-    """The connection is over; create a new one (or reconnect) to send again."""
+    """The connection is over; create a new one (or reconnect) to send again.
+
+    :attr:`event` says why it ended when that is known (the peer closed, its silence outlasted
+    ``idle_timeout``, ...).
+    """
+
+    def __init__(self, message: str, event: ConnectionClosed | None = None) -> None:
+        super().__init__(message)
+        self.event = event
 
 
 class PayloadTooLargeError(TdtpError, ValueError):
@@ -25,3 +62,27 @@ class EmptyPayloadError(TdtpError, ValueError):
 
 class InvalidKeyError(TdtpError, ValueError):
     """Key material or a key argument is unusable: too short, malformed, or given to the wrong role."""
+
+
+class EndpointClosedError(ConnectionClosedError, ConnectionError):
+    """An asyncio endpoint's association is over; :attr:`event` says why (peer closed, idle timeout,
+    closed by this application, ...). Raised by ``send``, ``recv`` and the waits once the association
+    has ended."""
+
+    event: ConnectionClosed
+
+    def __init__(self, event: ConnectionClosed) -> None:
+        super().__init__(f"TDTP connection closed ({event.cause.value}): {event.detail}", event)
+
+
+class ConnectError(TdtpError, ConnectionError):
+    """The slave did not accept: no answer within ``open_timeout``, or an explicit refusal."""
+
+
+class PortUnreachableError(ConnectError):
+    """Nothing listens at the slave's address: the host answered the OPEN with an ICMP port
+    unreachable (``ECONNREFUSED``). Start the slave, or check the host and port."""
+
+
+class ServerClosedError(TdtpError, ConnectionError):
+    """The listening server is closed; no more masters will be accepted."""

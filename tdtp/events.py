@@ -16,7 +16,8 @@ class CloseCause(enum.Enum):
     PEER_CLOSE = "peer_close"
     """The peer sent CLOSE."""
     IDLE_TIMEOUT = "idle_timeout"
-    """Nothing arrived from the peer for ``idle_timeout``: the peer is gone or the path is down."""
+    """Nothing arrived from the peer for ``idle_timeout`` (30 s by default): the outage lasted longer
+    than the connection is configured to survive, or the peer is gone."""
     OPEN_TIMEOUT = "open_timeout"
     """The master's OPEN was never answered."""
     REJECTED = "rejected"
@@ -34,16 +35,31 @@ class ConnectionEstablished:
 
 @dataclass(frozen=True, slots=True)
 class DataReceived:
-    """One supermedia sample from the peer."""
+    """One supermedia sample from the peer.
+
+    **How old is it?** TDTP carries no timestamp (the header is 5 bytes), and the two ends' clocks are
+    not synchronised, so the transport cannot know a sample's own age. It knows two things: when the
+    sample arrived (:attr:`received_at`, on this side's clock) and the round-trip time of the path.
+    :attr:`estimated_age` is half the smoothed RTT at arrival, the one-way delay if the path is
+    symmetric; :meth:`age_at` adds the time the sample has waited since it arrived. Where the exact
+    age matters, put a timestamp in the payload and synchronise the clocks (PTP, NTP), as the
+    ``tdtp demo`` samples do.
+    """
 
     payload: bytes
     seq: int
     """The sample's full (unwrapped) sequence number on this connection."""
-    age: float | None
-    """Estimated one-way age in seconds when it arrived: half the smoothed RTT (clocks are not
-    synchronised, so the path is assumed symmetric); ``None`` before the first RTT sample."""
+    estimated_age: float | None
+    """Estimated age in seconds when it arrived: half the smoothed RTT (the path is assumed
+    symmetric). ``None`` before the first RTT sample, when nothing can be estimated."""
     received_at: float
     """The ``now`` it arrived at."""
+
+    def age_at(self, now: float) -> float | None:
+        """The estimated age at ``now`` (same clock as ``received_at``, e.g. :func:`tdtp.monotonic`):
+        :attr:`estimated_age` plus the time since arrival; ``None`` when no estimate exists yet."""
+        estimate = self.estimated_age
+        return None if estimate is None else estimate + (now - self.received_at)
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,4 +68,29 @@ class ConnectionClosed:
     detail: str
 
 
-Event = ConnectionEstablished | DataReceived | ConnectionClosed
+@dataclass(frozen=True, slots=True)
+class PeerSilent:
+    """The watchdog: nothing has arrived from the peer for ``silence_timeout``.
+
+    The connection is still open and survives the outage up to ``idle_timeout``; a slave would hold or
+    stop the machine its master drives until :class:`PeerResumed` follows.
+    """
+
+    since: float
+    """The ``now`` of the last datagram heard from the peer."""
+    detected_at: float
+    """The ``now`` the silence was noticed (``since + silence_timeout``, or later if the timer ran
+    late)."""
+
+
+@dataclass(frozen=True, slots=True)
+class PeerResumed:
+    """The peer is heard again after a :class:`PeerSilent`."""
+
+    silent_for: float
+    """Seconds from the last datagram before the silence to the one that ended it."""
+    resumed_at: float
+    """The ``now`` the first datagram after the silence arrived."""
+
+
+Event = ConnectionEstablished | DataReceived | ConnectionClosed | PeerSilent | PeerResumed

@@ -16,6 +16,8 @@ import math
 import struct
 from dataclasses import dataclass
 
+from tdtp.errors import InvalidArgumentError
+
 _LAYOUT = struct.Struct(">dI3f3f")
 SAMPLE_SIZE = _LAYOUT.size
 
@@ -30,7 +32,9 @@ class HapticSample:
     def encode(self, size: int = SAMPLE_SIZE) -> bytes:
         """The sample padded with zeros to ``size`` bytes (at least :data:`SAMPLE_SIZE`)."""
         if size < SAMPLE_SIZE:
-            raise ValueError(f"a haptic sample needs at least {SAMPLE_SIZE} bytes, got size={size}")
+            raise InvalidArgumentError(
+                f"a haptic sample needs at least {SAMPLE_SIZE} bytes, got size={size}"
+            )
         body = _LAYOUT.pack(self.sent_at, self.index & 0xFFFFFFFF, *self.position, *self.force)
         return body + bytes(size - SAMPLE_SIZE)
 

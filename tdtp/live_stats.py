@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
+import re
+import shutil
 import sys
+import textwrap
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, TextIO
@@ -69,6 +72,9 @@ def direction_summary(
         "packets_acked": sender.packets_acked,
         "losses": lost,
         "loss_ratio": round(lost / sent, 6) if sent else 0.0,
+        "packets_unreported": sender.packets_unreported,
+        # Neither acknowledged nor lost: unreported, or in flight when the run ended (an outage).
+        "packets_unacknowledged": sent - sender.packets_acked - lost,
         "loss_events": sender.loss_events,
         "srtt_ms": round(sender.srtt * 1e3, 4),
         "min_rtt_ms": round(sender.min_rtt * 1e3, 4),
@@ -109,7 +115,9 @@ class DirectionMeter:
         received_total: int,
         interval: float,
         latency: list[float] | None,
+        note: str | None = None,
     ) -> str:
+        """One line of figures for the last ``interval``; ``note`` (e.g. the watchdog's) is appended."""
         received = received_total - self.last_received
         lost = sender.packets_lost - self.last_lost
         sent = sender.sent.data_packets - self.last_sent
@@ -131,6 +139,8 @@ class DirectionMeter:
                 f"latency p50 {percentile(latency, 0.5) * 1e3:6.3f} ms"
                 f" p99 {percentile(latency, 0.99) * 1e3:6.3f} ms"
             )
+        if note:
+            parts.append(note)
         return "  ".join(parts)
 
 
@@ -154,26 +164,74 @@ def receive_line(
     return text
 
 
+FIELD_SEPARATOR = "  "
+"""Status lines separate their fields with two spaces; a narrow terminal breaks lines there."""
+_FIELD_BREAK = re.compile(r"(?<=\S) {2}(?=\S)")
+"""Exactly two spaces between two fields; wider runs are padding inside a field (``lost    0``)."""
+CONTINUATION = "    "
+
+
+def fit_to_width(line: str, width: int) -> list[str]:
+    """``line`` as terminal rows of at most ``width`` columns, broken between fields (two spaces),
+    or between words inside a field wider than a row; continuation rows are indented."""
+    if len(line) <= width:
+        return [line]
+    rows: list[str] = []
+    current = ""
+    for part in (p for p in _FIELD_BREAK.split(line) if p):
+        candidate = part if not current else current + FIELD_SEPARATOR + part
+        if len(candidate) <= width:
+            current = candidate
+            continue
+        if current:
+            rows.append(current)
+        pieces = textwrap.wrap(
+            part.strip(),
+            width,
+            initial_indent=CONTINUATION if rows else "",
+            subsequent_indent=CONTINUATION,
+        )
+        rows.extend(pieces[:-1])
+        current = pieces[-1] if pieces else ""
+    if current:
+        rows.append(current)
+    return rows
+
+
 class LiveDisplay:
     """Prints a block of status lines once per update: redrawn in place on a terminal, appended
-    otherwise (a log file or a pipe gets one block per update)."""
+    otherwise (a log file or a pipe gets one block per update).
 
-    def __init__(self, stream: TextIO | None = None) -> None:
+    On a terminal every line is fitted to its width (broken between fields): a line the terminal
+    wrapped by itself would take two rows, and redrawing the block in place would garble it.
+    """
+
+    def __init__(self, stream: TextIO | None = None, *, width: int | None = None) -> None:
         self._stream = stream if stream is not None else sys.stdout
         self._interactive = self._stream.isatty()
+        self._width = width
         self._drawn = 0
+
+    def _rows(self, lines: list[str]) -> list[str]:
+        if not self._interactive and self._width is None:
+            return lines
+        width = self._width if self._width is not None else shutil.get_terminal_size().columns
+        width = max(width, 20)
+        return [row for line in lines for row in fit_to_width(line, width)]
 
     def update(self, lines: list[str]) -> None:
         stream = self._stream
+        rows = self._rows(lines)
         if self._interactive and self._drawn:
             stream.write(f"\x1b[{self._drawn}F")  # cursor to the start of the block
-        for line in lines:
-            stream.write(("\x1b[2K" if self._interactive else "") + line + "\n")
-        self._drawn = len(lines)
+        for row in rows:
+            stream.write(("\x1b[2K" if self._interactive else "") + row + "\n")
+        self._drawn = len(rows)
         stream.flush()
 
     def message(self, text: str) -> None:
         """A line that stays (printed below the block, which is then redrawn beneath it)."""
-        self._stream.write(text + "\n")
+        for row in self._rows([text]):
+            self._stream.write(row + "\n")
         self._drawn = 0
         self._stream.flush()

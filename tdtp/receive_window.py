@@ -28,7 +28,10 @@ SACK_COVERAGE = SACK_SPAN + 1
 RESYNC_RUN = 3
 """Consecutive sequence numbers that all look older than the window: the peer's numbering has moved on by
 more than half the 12-bit space (a loss burst of over 2047 packets), so the window re-anchors one wrap
-ahead instead of discarding a live flow as stale."""
+ahead instead of discarding a live flow as stale. After a silence the same rule covers numbers that look
+like duplicates or late packets within the window (an outage just short of a multiple of 4096)."""
+DEFAULT_SILENCE_GUARD = 0.1
+"""Seconds without a new packet after which in-window "old" numbers may be a wrapped live flow."""
 MAX_HELD = 8
 """Jump ACKs kept for the next flush. The caller flushes after every input, so one is the most ever
 waiting; the bound only protects against a caller that does not (the oldest is then forgotten)."""
@@ -64,6 +67,7 @@ class ReceiveWindow:
         "highest_arrival",
         "last_reported",
         "pending_low",
+        "silence_guard",
         "unreported_since",
     )
 
@@ -85,6 +89,10 @@ class ReceiveWindow:
         self._coverage = coverage
         self._stale_next = 0
         self._stale_run = 0
+        self.silence_guard = DEFAULT_SILENCE_GUARD
+        """After this long without a new packet, a run of consecutive numbers that look like
+        duplicates or late packets re-anchors the window like a stale run (the connection sets it to
+        its ``silence_timeout``)."""
 
     @property
     def has_data(self) -> bool:
@@ -95,14 +103,26 @@ class ReceiveWindow:
         highest = self.highest
         seq = expand_seq(truncated_seq, highest + 1)
         distance = seq - highest
-        if distance <= -WINDOW:
-            self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
-            self._stale_next = seq + 1
-            if self._stale_run < RESYNC_RUN:
-                return Arrival.STALE, seq, 0
-            self._stale_run = 0
-            seq += SEQ_MODULUS  # now ahead of highest: expand_seq put it at most 2048 behind
-            distance = seq - highest
+        if distance <= 0:  # (new packets skip all of this)
+            if distance <= -WINDOW:
+                self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
+                self._stale_next = seq + 1
+                if self._stale_run < RESYNC_RUN:
+                    return Arrival.STALE, seq, 0
+                self._stale_run = 0
+                seq += SEQ_MODULUS  # now ahead of highest: expand_seq put it at most 2048 behind
+                distance = seq - highest
+            elif now - self.highest_arrival >= self.silence_guard:
+                # Older than the newest but inside the window, after a silence: a late or replayed
+                # copy, or the live flow after an outage that lasted just under a multiple of 4096
+                # packets (it would be dropped as duplicates for up to 63 packets). A consecutive run
+                # decides, as for stale numbers.
+                self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
+                self._stale_next = seq + 1
+                if self._stale_run >= RESYNC_RUN:
+                    self._stale_run = 0
+                    seq += SEQ_MODULUS
+                    distance = seq - highest
         if distance > 0:
             if self._coverage:
                 reach = seq - 6  # the lowest sequence number an ACK of ``seq`` describes

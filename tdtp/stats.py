@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import enum
+import logging
 from dataclasses import asdict, dataclass, field
 from typing import Any
+
+_logger = logging.getLogger("tdtp")
 
 
 class DropReason(enum.Enum):
@@ -79,11 +82,25 @@ class ConnectionStats:
     samples_offered: int = 0
     """Payloads the application passed to ``send``."""
     samples_superseded: int = 0
-    """Payloads replaced by a newer one before the pacer let them leave (latest-value semantics)."""
+    """Payloads replaced by a newer one before they left (latest-value semantics): the pacer held
+    them, or the socket's send buffer was full (those are in ``samples_blocked`` too)."""
+    samples_blocked: int = 0
+    """Of ``samples_superseded``: replaced while the socket's send buffer was backed up (the pacer
+    would have let them go; the operating system could not take them)."""
+    send_pauses: int = 0
+    """Times the socket's send buffer backed up and data was held back until it drained."""
     samples_delivered: int = 0
     """Payloads handed to the application as :class:`~tdtp.events.DataReceived`."""
+    samples_skipped: int = 0
+    """Delivered samples a latest-value reader never saw: a newer one had arrived by the time it
+    read (``ep.latest()``, ``async for sample in ep``). Superseded at the receiver."""
     events_discarded: int = 0
-    """Data events dropped because the application did not drain ``next_event`` fast enough."""
+    """Data events dropped because the application did not drain them fast enough (the bounded
+    queue of ``max_pending_events`` was full)."""
+    peer_silences: int = 0
+    """Times the watchdog found the peer silent for ``silence_timeout`` (outages, a stalled peer)."""
+    longest_silence: float = 0.0
+    """The longest silence from the peer that ended, in seconds (one still going is not included)."""
     packets_acked: int = 0
     """Own data packets the peer reported received."""
     packets_lost: int = 0
@@ -115,6 +132,8 @@ class ConnectionStats:
     def count_drop(self, reason: DropReason) -> None:
         key = reason.value
         self.drops[key] = self.drops.get(key, 0) + 1
+        if _logger.isEnabledFor(logging.DEBUG):
+            _logger.debug("dropped a datagram: %s", key)
 
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready copy (``math.inf`` rates become ``None``)."""

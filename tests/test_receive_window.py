@@ -138,3 +138,34 @@ def test_every_received_packet_is_acknowledged_and_every_short_gap_reported(
     for seq in range(received[0], received[-1]):
         if seq not in arrived and any(seq < r <= seq + 6 for r in arrived):
             assert described.get(seq) is False, seq
+
+
+def _window_at(highest: int, now: float) -> ReceiveWindow:
+    window = ReceiveWindow(highest - 99)
+    for seq in range(highest - 99, highest + 1):
+        assert window.on_data(seq & 0xFFF, now)[0] is Arrival.NEW
+    return window
+
+
+def test_after_a_silence_a_wrap_that_lands_inside_the_window_resyncs() -> None:
+    """An outage of 4096 - 6 packets: the live flow decodes 6 below the newest, as duplicates."""
+    window = _window_at(5000, now=1.0)
+    live = 5000 + 4096 - 6
+    kinds = [window.on_data(seq & 0xFFF, 5.0)[0] for seq in range(live, live + RESYNC_RUN + 2)]
+    assert kinds == [Arrival.DUPLICATE, Arrival.DUPLICATE, Arrival.NEW, Arrival.NEW, Arrival.NEW]
+    assert window.highest & 0xFFF == (live + RESYNC_RUN + 1) & 0xFFF
+
+
+def test_late_packets_right_after_new_ones_are_still_late() -> None:
+    """Legitimate reordering (a burst overtaken by newer packets) happens within milliseconds."""
+    window = ReceiveWindow(0)
+    for seq in (0, 1, 2, 10):
+        window.on_data(seq, 0.0)
+    kinds = [window.on_data(seq, 0.002)[0] for seq in range(3, 10)]
+    assert kinds == [Arrival.LATE] * 7
+    assert window.highest == 10
+    # The same after a silence (silence_guard), but replayed as duplicates of a scattered few, does
+    # not resync either: only a consecutive run does.
+    kinds = [window.on_data(seq, 1.0)[0] for seq in (4, 8, 6)]
+    assert kinds == [Arrival.DUPLICATE] * 3
+    assert window.highest == 10

@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from tdtp import CloseCause, Connection, ConnectionClosed, Role, State
+from tdtp import CloseCause, Connection, ConnectionClosed, ConnectionConfig, Role, State
 from tdtp.wire import ControlCode, OpenBody, PacketType, encode_header, encode_open
 
 from pair import MASTER_ADDR, SLAVE_ADDR, Direction, Pair
@@ -38,7 +38,9 @@ class Partition:
 
 def _partitioned_pair() -> tuple[Pair, Partition]:
     cut = Partition()
-    pair = Pair(ms=Direction(drop=cut, keep_wire=True), sm=Direction(drop=cut))
+    # A short outage limit, so that "the session still ends" shows within the test's 4 s.
+    config = ConnectionConfig(idle_timeout=2.0)
+    pair = Pair(config, config, ms=Direction(drop=cut, keep_wire=True), sm=Direction(drop=cut))
     pair.open()
     pair.start_samples(1000, 1000)
     pair.run_for(0.3)

@@ -5,7 +5,7 @@ deadline timer that paces data packets at 1 kHz (a Linux ``timerfd`` read throug
 ``loop.add_reader``, with a portable ``loop.call_at`` fallback).
 """
 
-from tdtp.aio.api import ConnectError, Server, ServerStats, connect, listen
+from tdtp.aio.api import ConnectError, Opener, Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint, EndpointClosedError
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
@@ -15,6 +15,7 @@ __all__ = [
     "DeadlineTimer",
     "Endpoint",
     "EndpointClosedError",
+    "Opener",
     "Server",
     "ServerStats",
     "Ticker",

@@ -3,46 +3,152 @@
 ``connect`` gives one :class:`~tdtp.aio.endpoint.Endpoint` on its own connected UDP socket (the kernel
 drops datagrams from anyone but the slave). ``listen`` binds one UDP socket for any number of masters, up
 to ``max_peers``, and hands out an endpoint for each master whose OPEN arrives.
+
+Both check their arguments at once (a port of 70000 or ``timer="timefd"`` raises before anything is
+bound) and return an :class:`Opener`: ``await`` it, or use it directly as ``async with``, as aioquic's
+and websockets' ``connect`` allow.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import errno
+import logging
 import random
 import socket
 from collections import deque
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable, Coroutine, Generator
 from dataclasses import dataclass, field
+from typing import Any, Generic, Protocol, TypeVar
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
-from tdtp.aio.endpoint import DataCallback, Endpoint, EndpointClosedError
-from tdtp.aio.impairment import ImpairedTransport
-from tdtp.aio.timer import monotonic
+from tdtp.aio.endpoint import (
+    DataCallback,
+    Endpoint,
+    EndpointClosedError,
+    WatchdogCallback,
+    format_address,
+)
+from tdtp.aio.impairment import ImpairedTransport, as_spec
+from tdtp.aio.timer import TimerPreference, check_timer_preference, monotonic
 from tdtp.config import ConnectionConfig, Role
-from tdtp.connection import Connection
-from tdtp.errors import InvalidKeyError
+from tdtp.connection import Connection, State
+from tdtp.errors import (
+    AddressError,
+    ArgumentTypeError,
+    ConnectError,
+    ConnectionStateError,
+    InvalidArgumentError,
+    InvalidKeyError,
+    PortUnreachableError,
+    ServerClosedError,
+)
 from tdtp.events import Address
 from tdtp.netem import NetemSpec
 from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
 from tdtp.wire.control import CloseReason, ControlCode
 from tdtp.wire.header import HEADER_SIZE, PacketType
 
+__all__ = ["ConnectError", "Opener", "Server", "ServerStats", "connect", "listen"]
+
 _CONTROL_TYPE_BITS = int(PacketType.CONTROL) << 6
 _OPEN = int(ControlCode.OPEN)
+SOCKET_CLOSE_PATIENCE = 5.0
+"""Longest :meth:`Server.close` waits for an emulated link to let its last datagrams out before it
+drops them and releases the port."""
+
+logger = logging.getLogger("tdtp")
 
 
-class ConnectError(ConnectionError):
-    """The slave did not accept: no answer within ``open_timeout``, or an explicit refusal."""
+class _Closable(Protocol):
+    async def close(self) -> None: ...
+
+
+T = TypeVar("T", bound=_Closable)
+
+
+class Opener(Generic[T]):
+    """What :func:`connect` and :func:`listen` return: ``await`` it for the endpoint (or server), or
+    use it as ``async with tdtp.connect(...) as ep:``, which closes it on the way out."""
+
+    def __init__(self, open_: Callable[[], Coroutine[Any, Any, T]]) -> None:
+        self._open = open_
+        self._opened: T | None = None
+
+    def __await__(self) -> Generator[Any, None, T]:
+        return self._open().__await__()
+
+    async def __aenter__(self) -> T:
+        self._opened = await self._open()
+        return self._opened
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        opened, self._opened = self._opened, None
+        if opened is not None:
+            await opened.close()
 
 
 def _peer_key(addr: Address) -> tuple[object, object]:
     return addr[0], addr[1]
 
 
+def _check_port(port: object, *, allow_zero: bool) -> int:
+    low = 0 if allow_zero else 1
+    if isinstance(port, bool) or not isinstance(port, int) or not low <= port <= 65535:
+        what = "0..65535 (0 picks a free port)" if allow_zero else "1..65535"
+        raise InvalidArgumentError(f"port must be an integer in {what}, got {port!r}")
+    return port
+
+
+def _check_common(
+    config: object, timer: object, on_data: object, on_watchdog: object, netem: object
+) -> NetemSpec | None:
+    if config is not None and not isinstance(config, ConnectionConfig):
+        raise ArgumentTypeError(
+            f"config must be a tdtp.ConnectionConfig or None, got {type(config).__name__}"
+        )
+    check_timer_preference(timer)
+    for name, callback in (("on_data", on_data), ("on_watchdog", on_watchdog)):
+        if callback is not None and not callable(callback):
+            raise ArgumentTypeError(f"{name} must be callable or None, got {callback!r}")
+    if netem is None:
+        return None
+    if not isinstance(netem, NetemSpec | str):
+        raise ArgumentTypeError(f"netem must be a netem string or NetemSpec, got {netem!r}")
+    return as_spec(netem)
+
+
+def _address_error(exc: OSError, action: str, host: object, port: int) -> AddressError:
+    where = format_address((host, port))
+    if exc.errno is None and isinstance(exc.__cause__, OSError):
+        exc = exc.__cause__  # uvloop wraps the bind error: the errno is on its cause
+    if isinstance(exc, socket.gaierror):
+        return AddressError(f"cannot {action} {where}: host name not resolved ({exc.strerror})")
+    if exc.errno == errno.EADDRINUSE:
+        return AddressError(
+            f"cannot {action} {where}: the port is in use; choose another port or stop the "
+            "program using it"
+        )
+    if exc.errno == errno.EADDRNOTAVAIL:
+        return AddressError(f"cannot {action} {where}: not an address of this host")
+    return AddressError(f"cannot {action} {where}: {exc.strerror or exc}")
+
+
+def _limit_write_buffer(transport: asyncio.BaseTransport) -> None:
+    """Ask for ``pause_writing`` as soon as the loop has to buffer one datagram: the endpoint then
+    holds data (a newer sample supersedes it) instead of letting the loop queue it."""
+    # A loop without flow control keeps what it cannot send to itself; nothing to do then.
+    with contextlib.suppress(AttributeError, NotImplementedError):
+        transport.set_write_buffer_limits(high=0)  # type: ignore[attr-defined]
+
+
 class _MasterProtocol(asyncio.DatagramProtocol):
     def __init__(self) -> None:
         self.endpoint: Endpoint | None = None
+        self.where = ""
+        self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
         endpoint = self.endpoint
@@ -50,9 +156,33 @@ class _MasterProtocol(asyncio.DatagramProtocol):
             endpoint.datagram_received(data, addr)
 
     def error_received(self, exc: Exception) -> None:
-        # ICMP port unreachable and friends: the idle timeout decides whether the peer is gone.
+        endpoint = self.endpoint
+        if endpoint is None:
+            return
+        if isinstance(exc, ConnectionRefusedError) and endpoint.connection.state is State.OPENING:
+            # The slave's host answered our OPEN with ICMP port unreachable: nobody listens.
+            endpoint.fail_open(
+                PortUnreachableError(
+                    f"nothing listens at {self.where} (the host refused the OPEN with ICMP port "
+                    "unreachable); start the slave there, or check the host and port"
+                )
+            )
+            return
+        # Once established, an ICMP error alone does not end the session (a slave restarting, a
+        # route flapping): the watchdog and the outage limit decide.
+        endpoint.send_errors += 1
+
+    def pause_writing(self) -> None:
         if self.endpoint is not None:
-            self.endpoint.send_errors += 1
+            self.endpoint.pause_writing()
+
+    def resume_writing(self) -> None:
+        if self.endpoint is not None:
+            self.endpoint.resume_writing()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.closed.done():
+            self.closed.set_result(None)
 
 
 class _CapturingMasterProtocol(_MasterProtocol):
@@ -66,40 +196,92 @@ class _CapturingMasterProtocol(_MasterProtocol):
         super().datagram_received(data, addr)
 
 
-async def connect(
+def connect(
     host: str,
     port: int,
     *,
     config: ConnectionConfig | None = None,
     local_addr: tuple[str, int] | None = None,
-    timer: str = "auto",
+    timer: TimerPreference = "auto",
     on_data: DataCallback | None = None,
+    on_watchdog: WatchdogCallback | None = None,
     rng: random.Random | None = None,
     netem: NetemSpec | str | None = None,
     netem_seed: int | None = None,
     key: KeyInput | None = None,
     pcap: CaptureTarget | None = None,
-) -> Endpoint:
+) -> Opener[Endpoint]:
     """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
 
-    Use it as ``async with await tdtp.aio.connect(host, port) as ep:``. Raises :class:`ConnectError`
-    when the slave does not answer within ``config.open_timeout`` or refuses.
+    ``async with tdtp.connect(host, port) as ep:`` (or ``ep = await tdtp.connect(host, port)``).
+    Arguments are checked at once (:class:`~tdtp.InvalidArgumentError`). Raises
+    :class:`~tdtp.AddressError` when ``host`` cannot be resolved, :class:`~tdtp.PortUnreachableError`
+    as soon as the slave's host reports that nothing listens on ``port``, and
+    :class:`~tdtp.ConnectError` when the slave does not answer within ``config.open_timeout`` or
+    refuses.
+
+    ``on_data`` receives every sample as it arrives (instead of the reads), ``on_watchdog`` every
+    :class:`~tdtp.PeerSilent` / :class:`~tdtp.PeerResumed`. ``netem`` impairs everything this master
+    sends, in tc-netem's language (``"delay 20ms 5ms loss 1%"``), emulated in-process (see
+    :mod:`tdtp.aio.impairment`).
 
     ``key`` (a :class:`~tdtp.PresharedKey` or its secret bytes) opens a keyed session: every
     datagram authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must
     hold the same key.
 
-    ``netem`` impairs everything this master sends, in tc-netem's language
-    (``"delay 20ms 5ms loss 1%"``), emulated in-process (see :mod:`tdtp.aio.impairment`).
-
     ``pcap`` (a path, or a shared :class:`~tdtp.pcap.PcapWriter`) records every datagram the socket
     sends and receives, with UDP/IP headers, for Wireshark (``tools/wireshark/tdtp.lua``).
     """
+    if not isinstance(host, str) or not host:
+        raise InvalidArgumentError(f"host must be a host name or address, got {host!r}")
+    _check_port(port, allow_zero=False)
+    if local_addr is not None:
+        if not (isinstance(local_addr, tuple) and len(local_addr) == 2):
+            raise InvalidArgumentError(
+                f"local_addr must be a (host, port) tuple, got {local_addr!r}"
+            )
+        _check_port(local_addr[1], allow_zero=True)
+    spec = _check_common(config, timer, on_data, on_watchdog, netem)
+    return Opener(
+        lambda: _connect(
+            host,
+            port,
+            config=config,
+            local_addr=local_addr,
+            timer=timer,
+            on_data=on_data,
+            on_watchdog=on_watchdog,
+            rng=rng,
+            netem=spec,
+            netem_seed=netem_seed,
+            key=key,
+            pcap=pcap,
+        )
+    )
+
+
+async def _connect(
+    host: str,
+    port: int,
+    *,
+    config: ConnectionConfig | None,
+    local_addr: tuple[str, int] | None,
+    timer: TimerPreference,
+    on_data: DataCallback | None,
+    on_watchdog: WatchdogCallback | None,
+    rng: random.Random | None,
+    netem: NetemSpec | None,
+    netem_seed: int | None,
+    key: KeyInput | None,
+    pcap: CaptureTarget | None,
+) -> Endpoint:
     loop = asyncio.get_running_loop()
-    infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
-    if not infos:
-        raise ConnectError(f"cannot resolve {host!r}")
+    try:
+        infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+    except OSError as exc:
+        raise _address_error(exc, "connect to", host, port) from exc
     family, _, _, _, remote = infos[0]
+    conn = Connection(config, role=Role.MASTER, rng=rng, key=key)
     capture = open_capture(pcap) if pcap is not None else None
     # Both loops want (host, port) here and resolve it again themselves; the core compares only
     # host and port, so an IPv6 peer's 4-tuple source address still matches ``remote``.
@@ -110,11 +292,16 @@ async def connect(
             local_addr=local_addr,
             family=family,
         )
+    except OSError as exc:
+        if capture is not None and capture[1]:
+            capture[0].close()
+        raise _address_error(exc, "connect to", host, port) from exc
     except BaseException:
         if capture is not None and capture[1]:
             capture[0].close()
         raise
-    conn = Connection(config, role=Role.MASTER, rng=rng, key=key)
+    _limit_write_buffer(transport)
+    protocol.where = format_address((host, port))
     socket_side: asyncio.DatagramTransport = transport
     if capture is not None:
         socket_side = CapturingTransport(transport, capture[0], owned=capture[1])
@@ -127,8 +314,18 @@ async def connect(
     def _close_transport(_: Endpoint) -> None:
         sender.close()  # an impaired one lets the datagrams inside its link out first
 
+    async def _wait_transport_closed() -> None:
+        await _released(protocol.closed, transport)
+
     endpoint = Endpoint(
-        conn, sender, connected=True, timer=timer, on_data=on_data, on_closed=_close_transport
+        conn,
+        sender,
+        connected=True,
+        timer=timer,
+        on_data=on_data,
+        on_watchdog=on_watchdog,
+        on_closed=_close_transport,
+        transport_closed=_wait_transport_closed,
     )
     protocol.endpoint = endpoint
     conn.connect(remote, now=monotonic())
@@ -136,12 +333,27 @@ async def connect(
     try:
         await endpoint.wait_established()
     except EndpointClosedError as exc:
-        sender.close()
-        raise ConnectError(f"could not open a TDTP connection to {host}:{port}: {exc}") from exc
+        await endpoint.close()
+        raise ConnectError(f"could not open a TDTP connection to {protocol.where}: {exc}") from exc
+    except PortUnreachableError:
+        endpoint._release()  # nobody to send a CLOSE to
+        transport.close()
+        logger.info("tdtp master: nothing listens at %s", protocol.where)
+        raise
     except BaseException:
         await endpoint.close()
         raise
     return endpoint
+
+
+async def _released(closed: asyncio.Future[None], transport: asyncio.DatagramTransport) -> None:
+    """Wait until the socket is closed (the port is free), dropping what an emulated link still
+    holds after :data:`SOCKET_CLOSE_PATIENCE`."""
+    try:
+        await asyncio.wait_for(asyncio.shield(closed), SOCKET_CLOSE_PATIENCE)
+    except TimeoutError:
+        transport.abort()
+        await asyncio.shield(closed)
 
 
 @dataclass(slots=True)
@@ -162,12 +374,26 @@ class ServerStats:
 class _ServerProtocol(asyncio.DatagramProtocol):
     def __init__(self, server: Server) -> None:
         self.server = server
+        self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
         self.server._datagram_received(data, addr)
 
     def error_received(self, exc: Exception) -> None:
         pass  # an ICMP error about one master says nothing about the others
+
+    def pause_writing(self) -> None:
+        # One socket for every master: while it is backed up, every endpoint holds its data.
+        for endpoint in self.server.endpoints:
+            endpoint.pause_writing()
+
+    def resume_writing(self) -> None:
+        for endpoint in self.server.endpoints:
+            endpoint.resume_writing()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.closed.done():
+            self.closed.set_result(None)
 
 
 class _CapturingServerProtocol(_ServerProtocol):
@@ -187,8 +413,8 @@ class Server:
 
     Every OPEN goes through one shared :class:`~tdtp.admission.Admission`: no state is kept for a
     master until it proves it receives at its address (a cookie) and, on a keyed server, holds a key
-    of the ring. A validated master finds the server full (``max_peers`` connections, or ``backlog``
-    established ones nobody accepted yet) is refused at once with REJECT ``BUSY``.
+    of the ring. A validated master that finds the server full (``max_peers`` connections, or
+    ``backlog`` established ones nobody accepted yet) is refused at once with REJECT ``BUSY``.
     """
 
     def __init__(
@@ -196,21 +422,24 @@ class Server:
         *,
         config: ConnectionConfig | None,
         max_peers: int,
-        backlog: int,
-        timer: str,
+        timer: TimerPreference,
         on_data: DataCallback | None,
-        keys: KeyRing | None,
+        on_watchdog: WatchdogCallback | None = None,
+        backlog: int = 16,
+        keys: KeyRing | None = None,
     ) -> None:
-        if max_peers < 1:
-            raise ValueError(f"max_peers must be at least 1, got {max_peers}")
-        if backlog < 1:
-            raise ValueError(f"backlog must be at least 1, got {backlog}")
+        if isinstance(max_peers, bool) or not isinstance(max_peers, int) or max_peers < 1:
+            raise InvalidArgumentError(f"max_peers must be an integer >= 1, got {max_peers!r}")
+        if isinstance(backlog, bool) or not isinstance(backlog, int) or backlog < 1:
+            raise InvalidArgumentError(f"backlog must be an integer >= 1, got {backlog!r}")
         self._config = config
         self._max_peers = max_peers
         self._backlog = backlog
         self._timer = timer
         self._on_data = on_data
+        self._on_watchdog = on_watchdog
         self._admission = Admission(config, keys)
+        self._protocol: _ServerProtocol | None = None
         self._transport: asyncio.DatagramTransport | None = None
         self._sender: asyncio.DatagramTransport | ImpairedTransport | None = None
         self._peers: dict[tuple[object, object], Endpoint] = {}
@@ -224,7 +453,7 @@ class Server:
     def sockname(self) -> Address:
         """The bound address, e.g. to learn the port after ``listen(port=0)``."""
         if self._transport is None:
-            raise RuntimeError("the server is not bound")
+            raise ConnectionStateError("the server is not bound; create it with tdtp.listen()")
         sockname: Address = self._transport.get_extra_info("sockname")
         return sockname
 
@@ -250,7 +479,7 @@ class Server:
             if endpoint is not None:
                 return endpoint
             if self._closed:
-                raise ConnectionError("the server is closed")
+                raise ServerClosedError("the server is closed; no more masters are accepted")
             waiter = loop.create_future()
             self._waiter = waiter
             try:
@@ -273,19 +502,34 @@ class Server:
         while True:
             try:
                 yield await self.accept()
-            except ConnectionError:
+            except ServerClosedError:
                 return
 
     async def close(self) -> None:
-        """Close every connection (each peer gets a CLOSE) and the socket. Idempotent."""
-        if self._closed:
-            return
-        self._closed = True
-        for endpoint in list(self._peers.values()):
-            await endpoint.close()
-        if self._sender is not None:
-            self._sender.close()
-        self._wake()
+        """Close every connection (each peer gets a CLOSE) and the socket, and return once the port
+        is free (an emulated link first lets its last datagrams out). Idempotent."""
+        if not self._closed:
+            self._closed = True
+            for endpoint in list(self._peers.values()):
+                await endpoint.close()
+            if self._sender is not None:
+                self._sender.close()
+            self._wake()
+            logger.info("tdtp slave: stopped listening on %s", self._where())
+        if self._protocol is not None and self._transport is not None:
+            await _released(self._protocol.closed, self._transport)
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else "listening"
+        keyed = " keyed" if self.keyed else ""
+        return (
+            f"<Server {self._where()} {state}{keyed} masters={len(self._peers)}/{self._max_peers}>"
+        )
+
+    def _where(self) -> str:
+        if self._transport is None:
+            return "(unbound)"
+        return format_address(self._transport.get_extra_info("sockname"))
 
     async def __aenter__(self) -> Server:
         return self
@@ -331,6 +575,12 @@ class Server:
         ):
             self.stats.peers_refused += 1
             self._sender.sendto(self._admission.reject(admitted, CloseReason.BUSY), addr)
+            logger.info(
+                "tdtp slave: refused %s (busy: %d masters, %d waiting to be accepted)",
+                format_address(addr),
+                len(self._peers),
+                len(self._pending),
+            )
             return
         conn = Connection(self._config, role=Role.SLAVE, admission=self._admission)
         endpoint = Endpoint(
@@ -339,6 +589,7 @@ class Server:
             connected=False,
             timer=self._timer,
             on_data=self._on_data,
+            on_watchdog=self._on_watchdog,
             on_closed=self._forget,
             on_established=self._on_established,
         )
@@ -368,27 +619,33 @@ def _is_open(data: bytes) -> bool:
     return len(data) > HEADER_SIZE and data[0] & 0xC0 == _CONTROL_TYPE_BITS and data[5] == _OPEN
 
 
-async def listen(
+def listen(
     host: str | None = "127.0.0.1",
     port: int = 0,
     *,
     config: ConnectionConfig | None = None,
     max_peers: int = 256,
     backlog: int = 16,
-    timer: str = "auto",
+    timer: TimerPreference = "auto",
     on_data: DataCallback | None = None,
+    on_watchdog: WatchdogCallback | None = None,
     netem: NetemSpec | str | None = None,
     netem_seed: int | None = None,
     key: KeyInput | None = None,
     keys: KeysInput | None = None,
     pcap: CaptureTarget | None = None,
-) -> Server:
+) -> Opener[Server]:
     """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
 
-    Use it as ``async with await tdtp.aio.listen(host, port) as server: async for ep in server: ...``.
+    ``async with tdtp.listen(host, port) as server: async for ep in server: ...`` (or
+    ``server = await tdtp.listen(...)``). Arguments are checked at once
+    (:class:`~tdtp.InvalidArgumentError`); :class:`~tdtp.AddressError` says why the address cannot
+    be bound (in use, not local, not resolvable).
+
     At most ``max_peers`` masters are served at once, and at most ``backlog`` established ones wait
     for :meth:`Server.accept` (with ``on_data`` the sessions are served anyway and accept() sees the
-    newest ``backlog``); a master beyond either is refused at once (REJECT ``BUSY``).
+    newest ``backlog``); a master beyond either is refused at once (REJECT ``BUSY``). ``on_data``
+    and ``on_watchdog`` apply to every endpoint (see :func:`connect`).
 
     ``key`` (one pre-shared key) or ``keys`` (a :class:`~tdtp.KeyRing`, several keys, or a mapping
     of master name to secret) makes the server keyed: it accepts only masters holding one of the
@@ -396,23 +653,39 @@ async def listen(
     the port can open a session.
 
     ``netem`` impairs everything the slave sends (all its masters share the one emulated link).
-
     ``pcap`` (a path, or a shared :class:`~tdtp.pcap.PcapWriter`) records every datagram the
     socket sends and receives, every master's and the strangers' alike, until the server closes.
     """
+    if host is not None and not isinstance(host, str):
+        raise InvalidArgumentError(f"host must be an address, a host name or None, got {host!r}")
+    _check_port(port, allow_zero=True)
+    spec = _check_common(config, timer, on_data, on_watchdog, netem)
     if key is not None and keys is not None:
         raise InvalidKeyError("pass key= (one key) or keys= (several), not both")
     chosen = keys if keys is not None else key
     ring = as_key_ring(chosen) if chosen is not None else None
-    loop = asyncio.get_running_loop()
     server = Server(
         config=config,
         max_peers=max_peers,
-        backlog=backlog,
         timer=timer,
         on_data=on_data,
+        on_watchdog=on_watchdog,
+        backlog=backlog,
         keys=ring,
     )
+    return Opener(lambda: _listen(server, host, port, spec, netem_seed, timer, pcap))
+
+
+async def _listen(
+    server: Server,
+    host: str | None,
+    port: int,
+    netem: NetemSpec | None,
+    netem_seed: int | None,
+    timer: TimerPreference,
+    pcap: CaptureTarget | None,
+) -> Server:
+    loop = asyncio.get_running_loop()
     family = socket.AF_INET6 if host is not None and ":" in host else socket.AF_UNSPEC
     capture = open_capture(pcap) if pcap is not None else None
     protocol_class = _ServerProtocol if capture is None else _CapturingServerProtocol
@@ -420,11 +693,17 @@ async def listen(
         transport, protocol = await loop.create_datagram_endpoint(
             lambda: protocol_class(server), local_addr=(host or "0.0.0.0", port), family=family
         )
+    except OSError as exc:
+        if capture is not None and capture[1]:
+            capture[0].close()
+        raise _address_error(exc, "listen on", host or "0.0.0.0", port) from exc
     except BaseException:
         if capture is not None and capture[1]:
             capture[0].close()
         raise
+    _limit_write_buffer(transport)
     server._transport = transport
+    server._protocol = protocol
     socket_side: asyncio.DatagramTransport = transport
     if capture is not None:
         socket_side = CapturingTransport(transport, capture[0], owned=capture[1])
@@ -434,5 +713,8 @@ async def listen(
         socket_side
         if netem is None
         else ImpairedTransport(socket_side, netem, seed=netem_seed, timer=timer)
+    )
+    logger.info(
+        "tdtp slave: listening on %s%s", server._where(), " (keyed)" if server.keyed else ""
     )
     return server

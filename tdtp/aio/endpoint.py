@@ -4,38 +4,72 @@ The shell does three things after every input (a datagram, a timer expiry, a sam
 hand it to the connection with ``now``, transmit whatever the connection wants sent, and re-arm the single
 deadline timer if the connection's next deadline moved. Nothing else decides anything here, so a user can
 never forget to flush and the asyncio layer behaves exactly like the core under fake time.
+
+Reading. Samples wait in one bounded queue (``max_pending_events``). A control loop wants the newest
+sample, not the oldest: :meth:`Endpoint.latest`, :meth:`Endpoint.recv_latest` and ``async for sample in
+ep`` skip to the newest and count what they skip (``stats.samples_skipped``); :meth:`Endpoint.recv` and
+:meth:`Endpoint.stream` give every sample in order. ``on_data`` callbacks get each sample as it arrives.
+
+Writing. The endpoint watches its socket's send buffer (``pause_writing`` / ``resume_writing`` from the
+transport, whose high-water mark is set to zero): while the operating system cannot take datagrams, data
+is held in the core, where a newer sample supersedes it, instead of queueing in the event loop.
+
+The watchdog. :attr:`Endpoint.peer_silent`, :meth:`Endpoint.wait_silent`, :meth:`Endpoint.wait_resumed`
+and ``on_watchdog`` callbacks report the core's :class:`~tdtp.events.PeerSilent` and
+:class:`~tdtp.events.PeerResumed` events, so a slave can hold its machine while its master is silent.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Protocol
 
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
 from tdtp.connection import Connection, State
-from tdtp.events import Address, ConnectionClosed, ConnectionEstablished, DataReceived
+from tdtp.errors import ConnectionClosedError, EndpointClosedError
+from tdtp.events import (
+    Address,
+    ConnectionClosed,
+    ConnectionEstablished,
+    DataReceived,
+    PeerResumed,
+    PeerSilent,
+)
 from tdtp.stats import ConnectionStats
 
+__all__ = [
+    "DataCallback",
+    "Endpoint",
+    "EndpointClosedError",
+    "WatchdogCallback",
+    "WatchdogEvent",
+]
+
 DataCallback = Callable[[DataReceived], None]
+WatchdogEvent = PeerSilent | PeerResumed
+WatchdogCallback = Callable[[WatchdogEvent], None]
 
-
-class EndpointClosedError(ConnectionError):
-    """The association is over; :attr:`event` says why (peer closed, idle timeout, ...)."""
-
-    def __init__(self, event: ConnectionClosed) -> None:
-        super().__init__(f"TDTP connection closed ({event.cause.value}): {event.detail}")
-        self.event = event
+logger = logging.getLogger("tdtp")
 
 
 class DatagramSender(Protocol):
     def sendto(self, data: bytes, addr: Address | None = ..., /) -> None: ...
 
 
+def format_address(addr: Address | None) -> str:
+    """``host:port`` (``[v6]:port`` for IPv6), or ``-`` when there is none yet."""
+    if addr is None:
+        return "-"
+    host, port = addr[0], addr[1]
+    return f"[{host}]:{port}" if ":" in str(host) else f"{host}:{port}"
+
+
 class Endpoint:
-    """A master's or slave's end of one association. Create it with :func:`tdtp.aio.connect` or take it
-    from a :class:`tdtp.aio.Server`; do not construct it directly."""
+    """A master's or slave's end of one association. Create it with :func:`tdtp.connect` or take it
+    from a :class:`tdtp.Server`; do not construct it directly."""
 
     def __init__(
         self,
@@ -45,8 +79,10 @@ class Endpoint:
         connected: bool,
         timer: str = "auto",
         on_data: DataCallback | None = None,
+        on_watchdog: WatchdogCallback | None = None,
         on_closed: Callable[[Endpoint], None] | None = None,
         on_established: Callable[[Endpoint], None] | None = None,
+        transport_closed: Callable[[], Awaitable[None]] | None = None,
     ) -> None:
         self._conn = conn
         self._transport = transport
@@ -55,18 +91,29 @@ class Endpoint:
         self._loop = loop
         self._timer: DeadlineTimer = create_timer(loop, self._on_timer, prefer=timer)
         self._on_data = on_data
+        self._on_watchdog = on_watchdog
         self._on_closed = on_closed
         self._on_established = on_established
+        self._transport_closed = transport_closed
         self._queue: deque[DataReceived] = deque()
         self._max_queue = conn.config.max_pending_events
-        self._waiter: asyncio.Future[None] | None = None
+        self._newest: DataReceived | None = None
+        self._data_waiters: list[asyncio.Future[None]] = []
+        self._watch_waiters: list[asyncio.Future[None]] = []
         self._established: asyncio.Future[None] = loop.create_future()
         self._closed: asyncio.Future[ConnectionClosed] = loop.create_future()
         self._close_event: ConnectionClosed | None = None
+        self._silence: PeerSilent | None = None
+        self._resumed: PeerResumed | None = None
         self.send_errors = 0
-        """Datagrams the socket refused (full buffer, ICMP unreachable): lost like any other."""
+        """Datagrams the socket refused with an error (ICMP unreachable reported on a send, no
+        buffer space): lost like any other. Datagrams held back while the send buffer is full are
+        in ``stats.samples_blocked`` instead."""
+        size = getattr(transport, "get_write_buffer_size", None)
+        if size is not None and size() > 0:
+            conn.pause_sending()  # a shared socket that is backed up already
 
-    # ------------------------------------------------------------------ public API
+    # ------------------------------------------------------------------ introspection
 
     @property
     def connection(self) -> Connection:
@@ -96,8 +143,43 @@ class Endpoint:
     def is_closed(self) -> bool:
         return self._conn.state is State.CLOSED
 
+    @property
+    def close_event(self) -> ConnectionClosed | None:
+        """Why the association ended (cause and detail), once it has."""
+        return self._conn.close_event
+
+    @property
+    def peer_silent(self) -> bool:
+        """True while nothing has arrived from the peer for ``silence_timeout`` (the watchdog)."""
+        return self._conn.peer_silent
+
+    @property
+    def write_paused(self) -> bool:
+        """True while the socket's send buffer is backed up and data is held back."""
+        return self._conn.sending_paused
+
+    @property
+    def unread(self) -> int:
+        """Samples received and not yet taken by a read (at most ``max_pending_events``)."""
+        return len(self._queue)
+
+    def __repr__(self) -> str:
+        conn = self._conn
+        state = conn.state.value
+        if conn.peer_silent:
+            state += ", peer silent"
+        if conn.sending_paused:
+            state += ", send buffer full"
+        srtt = conn.stats.srtt
+        return (
+            f"<Endpoint {conn.role.value} peer={format_address(conn.peer)} {state}"
+            f" srtt={srtt * 1e3:.3f}ms unread={len(self._queue)}>"
+        )
+
+    # ------------------------------------------------------------------ callbacks
+
     def set_data_callback(self, on_data: DataCallback | None) -> None:
-        """Deliver samples to ``on_data`` as they arrive instead of queueing them for :meth:`recv`.
+        """Deliver samples to ``on_data`` as they arrive instead of queueing them for the reads.
         Samples already queued are handed to it at once. ``None`` switches back to queueing."""
         self._on_data = on_data
         if on_data is not None:
@@ -105,48 +187,142 @@ class Endpoint:
             while queue:
                 on_data(queue.popleft())
 
-    def send(self, payload: bytes) -> None:
-        """Offer the newest sample. Never blocks: the pacer sends it when the rate controller allows,
-        and a newer sample offered before then replaces it (counted as superseded).
+    def set_watchdog_callback(self, on_watchdog: WatchdogCallback | None) -> None:
+        """Call ``on_watchdog`` with every :class:`~tdtp.PeerSilent` and :class:`~tdtp.PeerResumed`
+        (synchronously, as the event happens: hold or release the machine there)."""
+        self._on_watchdog = on_watchdog
 
-        Raises :class:`~tdtp.ConnectionClosedError` after the association ended.
+    # ------------------------------------------------------------------ sending
+
+    def send(self, payload: bytes | bytearray | memoryview) -> None:
+        """Offer the newest sample. Never blocks: the pacer sends it when the rate controller allows,
+        and a newer sample offered before then replaces it (counted as superseded). While the
+        socket's send buffer is full the sample waits too, and is superseded the same way.
+
+        Raises :class:`~tdtp.PayloadTypeError` for anything but bytes, bytearray or memoryview,
+        :class:`~tdtp.PayloadTooLargeError` above the connection's maximum, and
+        :class:`~tdtp.EndpointClosedError`, naming the cause, once the association is over.
         """
         now = monotonic()
-        self._conn.send(payload, now=now)
+        try:
+            self._conn.send(payload, now=now)
+        except ConnectionClosedError as exc:
+            event = exc.event
+            if event is None:
+                raise
+            raise EndpointClosedError(event) from None
         self._flush(now)
 
+    # ------------------------------------------------------------------ reading
+
+    def latest(self) -> DataReceived | None:
+        """The newest sample received so far, without waiting; ``None`` before the first.
+
+        It returns the same sample again until a newer one arrives (compare ``seq`` to tell). Unread
+        older samples are skipped, and counted in ``stats.samples_skipped``: this is the read for a
+        control loop that runs at its own rate.
+        """
+        self._take_newest()
+        return self._newest
+
+    async def recv_latest(self) -> DataReceived:
+        """Wait for a sample newer than any read before and return the newest, skipping (and
+        counting in ``stats.samples_skipped``) the older ones still unread. Raises
+        :class:`EndpointClosedError` once the association is over and nothing is unread."""
+        while True:
+            sample = self._take_newest()
+            if sample is not None:
+                return sample
+            if self._close_event is not None:
+                raise EndpointClosedError(self._close_event)
+            await self._wait(self._data_waiters)
+
     async def recv(self) -> DataReceived:
-        """The next sample from the peer. Raises :class:`EndpointClosedError` once the association is
-        over and every sample that arrived before has been taken."""
+        """The next sample in arrival order: every sample, oldest first.
+
+        Samples wait in a queue of at most ``max_pending_events`` (4096); an application that reads
+        slower than they arrive gets ever older samples until the queue is full, then the oldest are
+        discarded (``stats.events_discarded``). A control loop wants :meth:`recv_latest` or
+        ``async for sample in ep`` instead. Raises :class:`EndpointClosedError` once the association
+        is over and every sample that arrived before has been taken.
+        """
         queue = self._queue
         while True:
             if queue:
                 return queue.popleft()
             if self._close_event is not None:
                 raise EndpointClosedError(self._close_event)
-            waiter = self._loop.create_future()
-            self._waiter = waiter
-            try:
-                await waiter
-            finally:
-                self._waiter = None
+            await self._wait(self._data_waiters)
 
     def __aiter__(self) -> AsyncIterator[DataReceived]:
-        return self._iterate()
+        """``async for sample in ep``: the newest sample each time the loop asks (latest value);
+        samples that arrived meanwhile are skipped and counted. Ends when the association does."""
+        return self._iterate(self.recv_latest)
 
-    async def _iterate(self) -> AsyncIterator[DataReceived]:
+    def stream(self) -> AsyncIterator[DataReceived]:
+        """``async for sample in ep.stream()``: every sample in arrival order (see :meth:`recv`)."""
+        return self._iterate(self.recv)
+
+    async def _iterate(
+        self, read: Callable[[], Awaitable[DataReceived]]
+    ) -> AsyncIterator[DataReceived]:
         while True:
             try:
-                yield await self.recv()
+                sample = await read()
             except EndpointClosedError:
                 return
+            yield sample
+
+    def _take_newest(self) -> DataReceived | None:
+        queue = self._queue
+        if not queue:
+            return None
+        sample = queue[-1]
+        skipped = len(queue) - 1
+        queue.clear()
+        if skipped:
+            self._conn.stats.samples_skipped += skipped
+        return sample
+
+    # ------------------------------------------------------------------ the watchdog
+
+    async def wait_silent(self) -> PeerSilent:
+        """Wait until the peer has been silent for ``silence_timeout`` (at once if it is silent now)
+        and return that :class:`~tdtp.PeerSilent`. Raises :class:`EndpointClosedError` if the
+        association ends first: the peer is then gone for good."""
+        while True:
+            if self._close_event is not None:
+                raise EndpointClosedError(self._close_event)
+            silence = self._silence
+            if silence is not None:
+                return silence
+            await self._wait(self._watch_waiters)
+
+    async def wait_resumed(self) -> PeerResumed | None:
+        """Wait until a silent peer is heard again and return the :class:`~tdtp.PeerResumed`;
+        ``None`` at once if the peer is not silent. Raises :class:`EndpointClosedError` if the
+        association ends first (the silence outlasted ``idle_timeout``)."""
+        silence = self._silence
+        if silence is None:
+            return None
+        while self._silence is silence:
+            if self._close_event is not None:
+                raise EndpointClosedError(self._close_event)
+            await self._wait(self._watch_waiters)
+        return self._resumed
+
+    # ------------------------------------------------------------------ ending
 
     async def close(self) -> None:
-        """Send CLOSE to the peer and release the timer. Idempotent."""
+        """Send CLOSE to the peer and release the timer (and a master's socket). Idempotent."""
         if not self.is_closed:
             self._conn.close(now=monotonic())
             self._flush()
         self._release()
+        closed = self._transport_closed
+        if closed is not None:
+            self._transport_closed = None
+            await closed()
 
     async def wait_closed(self) -> ConnectionClosed:
         """Wait until the association ends, for whatever reason, and say why."""
@@ -165,6 +341,27 @@ class Endpoint:
         self._conn.receive_datagram(data, addr, now=now)
         self._flush(now)
 
+    def pause_writing(self) -> None:
+        """The socket's send buffer is backed up: hold data until :meth:`resume_writing`."""
+        if not self._conn.sending_paused:
+            self._conn.pause_sending()
+            if logger.isEnabledFor(logging.DEBUG):
+                logger.debug("%r: send buffer full, holding data", self)
+
+    def resume_writing(self) -> None:
+        """The send buffer has drained: the newest held sample may leave."""
+        if self._conn.sending_paused:
+            self._conn.resume_sending()
+            if not self.is_closed:
+                self._flush()
+
+    def fail_open(self, exc: BaseException) -> None:
+        """The transport reported an error that ends a connection still opening (e.g. ICMP port
+        unreachable): :meth:`wait_established` raises ``exc``."""
+        if not self._established.done():
+            self._established.set_exception(exc)
+            self._established.exception()  # retrieved: connect() reports it itself
+
     def _on_timer(self) -> None:
         now = monotonic()
         self._conn.handle_timer(now=now)
@@ -180,16 +377,16 @@ class Endpoint:
         datagrams = conn.datagrams_to_send(now=monotonic() if now is None else now)
         if datagrams:
             sendto = self._transport.sendto
-            try:
-                if self._connected:
-                    for data, _addr in datagrams:
+            connected = self._connected
+            for data, addr in datagrams:
+                try:
+                    if connected:
                         sendto(data)
-                else:
-                    for data, addr in datagrams:
+                    else:
                         sendto(data, addr)
-            except OSError:
-                # A full socket buffer or an ICMP error: the datagram is lost like any other.
-                self.send_errors += 1
+                except OSError:
+                    # No buffer space or an ICMP error reported on this send: lost like any other.
+                    self.send_errors += 1
         self._drain_events()
         if conn.state is State.CLOSED:
             self._release()
@@ -209,29 +406,77 @@ class Endpoint:
         queue = self._queue
         while (event := conn.next_event()) is not None:
             if isinstance(event, DataReceived):
+                self._newest = event
                 if on_data is not None:
                     on_data(event)
                     continue
                 if len(queue) >= self._max_queue:
-                    queue.popleft()  # latest-value semantics: the oldest unread sample goes
+                    queue.popleft()  # bounded: the oldest unread sample goes
                     conn.stats.events_discarded += 1
                 queue.append(event)
-            elif isinstance(event, ConnectionEstablished):
-                if not self._established.done():
-                    self._established.set_result(None)
-                if self._on_established is not None:
-                    callback, self._on_established = self._on_established, None
-                    callback(self)
+                if self._data_waiters:
+                    self._wake(self._data_waiters)
             else:
-                self._close_event = event
-                if not self._closed.done():
-                    self._closed.set_result(event)
-                if not self._established.done():
-                    self._established.set_exception(EndpointClosedError(event))
-                    self._established.exception()  # mark retrieved: connect() reports it itself
-        waiter = self._waiter
-        if waiter is not None and not waiter.done() and (queue or self._close_event is not None):
-            waiter.set_result(None)
+                self._on_other_event(event)
+
+    def _on_other_event(
+        self, event: ConnectionEstablished | ConnectionClosed | PeerSilent | PeerResumed
+    ) -> None:
+        if isinstance(event, PeerSilent):
+            self._silence = event
+            logger.warning(
+                "%s: nothing heard from the peer for %.3f s",
+                self._name(),
+                event.detected_at - event.since,
+            )
+            self._wake(self._watch_waiters)
+            if self._on_watchdog is not None:
+                self._on_watchdog(event)
+        elif isinstance(event, PeerResumed):
+            self._silence = None
+            self._resumed = event
+            logger.info("%s: peer heard again after %.3f s", self._name(), event.silent_for)
+            self._wake(self._watch_waiters)
+            if self._on_watchdog is not None:
+                self._on_watchdog(event)
+        elif isinstance(event, ConnectionEstablished):
+            logger.info("%s: connection established", self._name())
+            if not self._established.done():
+                self._established.set_result(None)
+            if self._on_established is not None:
+                callback, self._on_established = self._on_established, None
+                callback(self)
+        else:
+            self._close_event = event
+            logger.info(
+                "%s: connection closed (%s: %s)", self._name(), event.cause.value, event.detail
+            )
+            if not self._closed.done():
+                self._closed.set_result(event)
+            if not self._established.done():
+                self._established.set_exception(EndpointClosedError(event))
+                self._established.exception()  # mark retrieved: connect() reports it itself
+            self._wake(self._data_waiters)
+            self._wake(self._watch_waiters)
+
+    def _name(self) -> str:
+        return f"tdtp {self._conn.role.value} {format_address(self._conn.peer)}"
+
+    async def _wait(self, waiters: list[asyncio.Future[None]]) -> None:
+        waiter: asyncio.Future[None] = self._loop.create_future()
+        waiters.append(waiter)
+        try:
+            await waiter
+        finally:
+            if waiter in waiters:
+                waiters.remove(waiter)
+
+    @staticmethod
+    def _wake(waiters: list[asyncio.Future[None]]) -> None:
+        for waiter in waiters:
+            if not waiter.done():
+                waiter.set_result(None)
+        waiters.clear()
 
     def _release(self) -> None:
         self._drain_events()

@@ -58,6 +58,12 @@ class DelayLine:
         self.link.send(data, now, addr)
         self._run(now)
 
+    def change(self, spec: NetemSpec | str) -> None:
+        """Impair what is put from now on with ``spec`` (``tc qdisc change``); see
+        :meth:`NetemLink.change`. ``"loss 100%"`` takes the link down, the old spec brings it back."""
+        self.link.change(as_spec(spec))
+        self._run(monotonic())
+
     def close_when_drained(self, callback: Callable[[], None]) -> None:
         """Call ``callback`` once every datagram inside the link has been delivered (or now)."""
         self._on_drained = callback
@@ -113,8 +119,18 @@ class ImpairedTransport:
             return
         self.line.put(data, addr)
 
+    def change(self, spec: NetemSpec | str) -> None:
+        """Impair from now on with ``spec`` (``tc qdisc change``), e.g. ``"loss 100%"`` for an
+        outage and the original spec to end it."""
+        self.line.change(spec)
+
     def get_extra_info(self, name: str, default: object = None) -> object:
         return self._transport.get_extra_info(name, default)
+
+    def get_write_buffer_size(self) -> int:
+        """The socket's buffer (the emulated link's queue is the link's business, not a backlog)."""
+        size: int = getattr(self._transport, "get_write_buffer_size", lambda: 0)()
+        return size
 
     def is_closing(self) -> bool:
         return self._transport.is_closing()

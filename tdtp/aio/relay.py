@@ -9,11 +9,13 @@ The table of clients is bounded (``max_clients``) and idle clients are forgotten
 from __future__ import annotations
 
 import asyncio
+import socket
 from dataclasses import dataclass
 from typing import cast
 
 from tdtp.aio.impairment import DelayLine, as_spec
 from tdtp.aio.timer import monotonic
+from tdtp.errors import AddressError, InvalidArgumentError
 from tdtp.events import Address
 from tdtp.netem import NetemLink, NetemSpec
 
@@ -31,6 +33,8 @@ class RelayStats:
     """Datagrams handed to the forward link (client -> target)."""
     returned: int = 0
     """Datagrams handed to the return link (target -> client)."""
+    forward_errors: int = 0
+    """Datagrams the relay could not send on to the target (its socket failed or refused them)."""
 
 
 class _Upstream(asyncio.DatagramProtocol):
@@ -80,8 +84,8 @@ class NetemRelay:
         max_clients: int,
         idle_timeout: float,
     ) -> None:
-        if max_clients < 1:
-            raise ValueError(f"max_clients must be at least 1, got {max_clients}")
+        if isinstance(max_clients, bool) or not isinstance(max_clients, int) or max_clients < 1:
+            raise InvalidArgumentError(f"max_clients must be an integer >= 1, got {max_clients!r}")
         self.forward_to = forward_to
         self.stats = RelayStats()
         self._max_clients = max_clients
@@ -100,6 +104,13 @@ class NetemRelay:
         sockname: Address = self._listener.get_extra_info("sockname")
         return sockname
 
+    def change(self, spec: NetemSpec | str, *, return_spec: NetemSpec | str | None = None) -> None:
+        """Impair from now on with ``spec`` forward and ``return_spec`` back (default: ``spec``), as
+        ``tc qdisc change`` would: ``relay.change("loss 100%")`` is an outage both ways, and
+        changing back ends it. Datagrams already on a link keep their delivery times."""
+        self.forward.change(spec)
+        self.back.change(spec if return_spec is None else return_spec)
+
     def _from_client(self, data: bytes, client: Address) -> None:
         upstream = self._clients.get(client)
         if upstream is None:
@@ -116,18 +127,32 @@ class NetemRelay:
 
     async def _open_upstream(self, upstream: _Upstream) -> None:
         loop = asyncio.get_running_loop()
-        await loop.create_datagram_endpoint(
-            lambda: upstream, remote_addr=(str(self.forward_to[0]), int(self.forward_to[1]))
-        )
+        try:
+            await loop.create_datagram_endpoint(
+                lambda: upstream, remote_addr=(str(self.forward_to[0]), int(self.forward_to[1]))
+            )
+        except OSError:
+            # No socket towards the target for this client: what it sent is not delivered.
+            self.stats.forward_errors += len(upstream.backlog)
+            upstream.backlog.clear()
+            if self._clients.get(upstream.client) is upstream:
+                del self._clients[upstream.client]
+                self.stats.clients = len(self._clients)
 
     def _to_target(self, data: bytes, client: Address | None) -> None:
         upstream = self._clients.get(client) if client is not None else None
         if upstream is None:
+            self.stats.forward_errors += 1
             return
         if upstream.transport is not None:
-            upstream.transport.sendto(data)
+            try:
+                upstream.transport.sendto(data)
+            except OSError:
+                self.stats.forward_errors += 1
         elif len(upstream.backlog) < BACKLOG_LIMIT:
             upstream.backlog.append(data)
+        else:
+            self.stats.forward_errors += 1
 
     def _to_client(self, data: bytes, client: Address | None) -> None:
         if self._listener is not None and client is not None:
@@ -168,18 +193,40 @@ async def start_relay(
     idle_timeout: float = 60.0,
 ) -> NetemRelay:
     """Listen on ``listen`` and relay to ``forward_to``, impairing the forward direction with ``spec``
-    and the return direction with ``return_spec`` (default: the same as ``spec``)."""
+    and the return direction with ``return_spec`` (default: the same as ``spec``).
+
+    The target is resolved first: :class:`~tdtp.AddressError` if it cannot be, or if ``listen``
+    cannot be bound.
+    """
     forward_spec = as_spec(spec)
+    loop = asyncio.get_running_loop()
+    host, port = forward_to
+    try:
+        infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+    except OSError as exc:
+        raise AddressError(
+            f"cannot relay to {host}:{port}: host name not resolved ({exc.strerror or exc})"
+        ) from exc
+    target = infos[0][4]
     relay = NetemRelay(
-        forward_to,
+        (str(target[0]), int(target[1])),
         forward_spec,
         forward_spec if return_spec is None else as_spec(return_spec),
         seed=seed,
         max_clients=max_clients,
         idle_timeout=idle_timeout,
     )
-    loop = asyncio.get_running_loop()
-    transport, _ = await loop.create_datagram_endpoint(lambda: _Listener(relay), local_addr=listen)
+    try:
+        transport, _ = await loop.create_datagram_endpoint(
+            lambda: _Listener(relay), local_addr=listen
+        )
+    except OSError as exc:
+        relay.forward.close()
+        relay.back.close()
+        cause = exc.__cause__ if exc.errno is None and isinstance(exc.__cause__, OSError) else exc
+        raise AddressError(
+            f"cannot listen on {listen[0]}:{listen[1]}: {cause.strerror or cause}"
+        ) from exc
     relay._listener = transport
     relay._sweeper = loop.create_task(relay._sweep())
     return relay

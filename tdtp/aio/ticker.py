@@ -13,6 +13,7 @@ import math
 from collections.abc import AsyncIterator
 
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
+from tdtp.errors import InvalidArgumentError
 
 
 class Ticker:
@@ -25,11 +26,11 @@ class Ticker:
         timer: str = "auto",
     ) -> None:
         if not (0.0 < rate < math.inf):
-            raise ValueError(
+            raise InvalidArgumentError(
                 f"rate must be a positive, finite number of ticks per second, got {rate!r}"
             )
         if max_catch_up < 0:
-            raise ValueError(f"max_catch_up must be >= 0, got {max_catch_up}")
+            raise InvalidArgumentError(f"max_catch_up must be >= 0, got {max_catch_up}")
         self.rate = rate
         self.period = 1.0 / rate
         self._start = start

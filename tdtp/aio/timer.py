@@ -47,16 +47,20 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
+from typing import Literal, get_args
 
-from tdtp.errors import TdtpError
+from tdtp.errors import InvalidArgumentError, TdtpError
 
 __all__ = [
     "DEFAULT_SPIN_WINDOW",
     "PRECISE_SPIN_WINDOW",
     "CallAtTimer",
     "DeadlineTimer",
+    "TimerClosedError",
+    "TimerPreference",
     "TimerUnavailableError",
     "TimerfdTimer",
+    "check_timer_preference",
     "create_timer",
     "monotonic",
     "timerfd_unavailable_reason",
@@ -91,6 +95,10 @@ def monotonic() -> float:
 
 class TimerUnavailableError(TdtpError, RuntimeError):
     """The requested timer cannot run here; use ``prefer="auto"`` or ``prefer="call_at"``."""
+
+
+class TimerClosedError(TdtpError, RuntimeError):
+    """The timer was closed; create a new one."""
 
 
 class DeadlineTimer(abc.ABC):
@@ -139,14 +147,16 @@ class DeadlineTimer(abc.ABC):
         if deadline == self._deadline:
             return
         if self._closed:
-            raise RuntimeError("the timer is closed; create a new one")
+            raise TimerClosedError("the timer is closed; create a new one")
         if deadline is None or deadline == math.inf:
             if self._deadline is not None:
                 self._deadline = None
                 self._disarm()
             return
         if math.isnan(deadline):
-            raise ValueError("deadline is NaN; pass an absolute time on tdtp.aio.timer.monotonic()")
+            raise InvalidArgumentError(
+                "deadline is NaN; pass an absolute time on tdtp.aio.timer.monotonic()"
+            )
         self._deadline = deadline
         self._schedule(deadline)
 
@@ -446,7 +456,7 @@ class CallAtTimer(DeadlineTimer):
         spin_window: float = DEFAULT_SPIN_WINDOW,
     ) -> None:
         if not 0.0 <= spin_window <= _MAX_SPIN_WINDOW:
-            raise ValueError(
+            raise InvalidArgumentError(
                 f"spin_window must be within [0, {_MAX_SPIN_WINDOW}] s, not {spin_window}"
             )
         super().__init__(loop, callback)
@@ -484,7 +494,25 @@ class CallAtTimer(DeadlineTimer):
 
 # --- choice ---------------------------------------------------------------------------------------
 
-_PREFERENCES = ("auto", "timerfd", "call_at")
+TimerPreference = Literal["auto", "timerfd", "call_at"]
+"""Which deadline timer to use: the best available, timerfd only, or the portable ``call_at``."""
+
+_PREFERENCES: tuple[str, ...] = get_args(TimerPreference)
+
+
+def check_timer_preference(prefer: object) -> None:
+    """Raise at once for a misspelt preference, or for ``"timerfd"`` where timerfd cannot run
+    (rather than on every connection the endpoint opens later)."""
+    if not isinstance(prefer, str) or prefer not in _PREFERENCES:
+        raise InvalidArgumentError(
+            f"timer must be one of {', '.join(map(repr, _PREFERENCES))}, not {prefer!r}"
+        )
+    if prefer == "timerfd":
+        reason = timerfd_unavailable_reason()
+        if reason is not None:
+            raise TimerUnavailableError(
+                f"timerfd is unavailable here ({reason}); use timer='auto' or 'call_at'"
+            )
 
 
 def create_timer(
@@ -501,7 +529,7 @@ def create_timer(
     fallback.
     """
     if prefer not in _PREFERENCES:
-        raise ValueError(
+        raise InvalidArgumentError(
             f"prefer must be one of {', '.join(map(repr, _PREFERENCES))}, not {prefer!r}"
         )
     if prefer == "call_at":

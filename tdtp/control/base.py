@@ -8,6 +8,9 @@ on the caller's monotonic clock) as a keyword argument. The connection calls
   received, with the RTT estimator's state and the current loss-event rate;
 * :meth:`RateController.on_loss_event` once per loss event (all losses within one RTT are one event);
 * :meth:`RateController.on_timer` when ``now`` reaches :meth:`RateController.get_timer`;
+* :meth:`RateController.on_peer_silent` and :meth:`RateController.on_peer_resumed` when nothing at all
+  has arrived from the peer for ``silence_timeout`` (an outage, not congestion), and when it is heard
+  again (optional: the default does nothing);
 
 and asks :meth:`RateController.next_send_time` (the earliest moment the next data packet may leave) and
 :attr:`RateController.rate` (the allowed rate, packets per second).
@@ -126,3 +129,19 @@ class RateController(abc.ABC):
     @abc.abstractmethod
     def on_timer(self, *, now: float) -> None:
         """``now`` reached :meth:`get_timer` (it may be called late, or when nothing is due)."""
+
+    def on_peer_silent(self, *, now: float) -> None:  # noqa: B027 -- optional hook, no-op default
+        """Nothing at all, data, acknowledgement or keep-alive, has arrived from the peer for the
+        connection's ``silence_timeout``: the path is out (or the peer stalled). Unlike missing
+        acknowledgements alone, which may mean congestion, a total silence says nothing about the
+        path's capacity."""
+
+    def on_peer_resumed(self, *, now: float, silent_for: float) -> None:  # noqa: B027
+        """The peer is heard again after :meth:`on_peer_silent`, ``silent_for`` seconds after its
+        last datagram. A controller that backed off for lack of feedback during the outage may
+        restore what the path carried before it (the default does nothing).
+
+        The packets sent during the outage that turn out lost form one loss event: it counts in the
+        ``loss_event_rate`` passed to :meth:`on_ack`, but it is not reported through
+        :meth:`on_loss_event`, because this hook is the response to the outage.
+        """

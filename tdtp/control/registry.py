@@ -13,6 +13,7 @@ from tdtp.control.trinomial import TrinomialConfig, TrinomialController
 __all__ = [
     "DEFAULT_CONTROLLER",
     "available_controllers",
+    "controller_config_type",
     "create_controller",
     "register_controller",
 ]
@@ -48,6 +49,12 @@ def register_controller(
 def available_controllers() -> tuple[str, ...]:
     """The registered names, sorted."""
     return tuple(sorted(_registry))
+
+
+def controller_config_type(name: str) -> type[Any] | None:
+    """The config class of the controller registered as ``name``, or ``None`` if there is none."""
+    entry = _registry.get(name) if isinstance(name, str) else None
+    return None if entry is None else entry[1]
 
 
 def create_controller(name: str, config: object | None = None) -> RateController:

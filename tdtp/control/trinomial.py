@@ -192,6 +192,8 @@ class TrinomialController(RateController):
         # Blackout.
         self._nf_deadline: float | None = None
         self._blackout = False
+        self._rate_before_blackout = self._rate
+        self._resume_rate: float | None = None  # what the path carried before a peer silence
         # Counters, for tests and statistics.
         self._increases = 0
         self._decreases = 0
@@ -307,6 +309,33 @@ class TrinomialController(RateController):
         self._apply_ceiling(now)
         self._start_interval(now)  # no increase until a whole loss-free interval has passed
 
+    def on_peer_silent(self, *, now: float) -> None:
+        # The no-feedback timer may already have halved the rate a few times: remember what the
+        # path carried before the blackout began.
+        self._advance(now)
+        before = self._rate_before_blackout if self._blackout else self.rate
+        self._resume_rate = max(before, self._resume_rate or 0.0)
+
+    def on_peer_resumed(self, *, now: float, silent_for: float) -> None:
+        """After an outage, resume at ``beta`` times the rate from before it (docs/CONTROL.md 3.5).
+
+        The back-off during the silence answered a lack of feedback, not congestion: the path carried
+        nothing and its queues drained. One ``beta`` decrease stands for the loss event the outage
+        is, as TCP's fast recovery would take; the increase rules climb from there. Without this the
+        rate would climb from ``min_rate``, whose first increase interval alone lasts ``2 / min_rate``
+        (0.5 s).
+        """
+        resume, self._resume_rate = self._resume_rate, None
+        if resume is None:
+            return
+        self._advance(now)
+        target = min(self._cfg.beta * resume, self._cfg.max_rate, self._cap())
+        if target > self.rate:
+            self._set_rate(now, target)
+            self._blackout = False
+            self._nf_deadline = None  # re-armed by the next packet sent
+            self._start_interval(now)
+
     # ------------------------------------------------------------------ internals
 
     def _advance(self, now: float) -> None:
@@ -320,6 +349,8 @@ class TrinomialController(RateController):
             timeout = self._no_feedback_timeout()
             missed = min(1 + int((now - deadline) // timeout), 64)
             self._backoffs += missed
+            if not self._blackout:
+                self._rate_before_blackout = self.rate
             self._blackout = True
             self._set_rate(now, self.rate * 0.5**missed)
             self._nf_deadline = now + self._no_feedback_timeout()

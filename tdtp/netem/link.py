@@ -40,6 +40,7 @@ from dataclasses import asdict, dataclass
 from statistics import NormalDist
 from typing import Final
 
+from tdtp.errors import ArgumentTypeError, InvalidArgumentError
 from tdtp.netem.spec import (
     MAX_SEED,
     Distribution,
@@ -254,7 +255,7 @@ class NetemLink:
 
     def __init__(self, spec: NetemSpec, *, seed: int | None = None) -> None:
         if not isinstance(spec, NetemSpec):
-            raise TypeError(
+            raise ArgumentTypeError(
                 f"NetemLink needs a NetemSpec (parse_netem('delay 20ms') makes one), "
                 f"got {type(spec).__name__}"
             )
@@ -264,14 +265,34 @@ class NetemLink:
         if not (
             isinstance(chosen, int) and not isinstance(chosen, bool) and 0 <= chosen <= MAX_SEED
         ):
-            raise ValueError(f"seed must be a whole number from 0 to 2**64 - 1, got {chosen!r}")
-        self.spec: Final = spec
+            raise InvalidArgumentError(
+                f"seed must be a whole number from 0 to 2**64 - 1, got {chosen!r}"
+            )
+        self.spec = spec
         self.seed: Final[int] = chosen
         """The seed in use: same seed, same spec and same calls give the same decisions."""
         self.stats: Final = NetemStats()
+        self._rng = random.Random(chosen)
+        self._configure(spec)
 
-        rng = random.Random(chosen)
-        self._rng = rng
+        self._now = -math.inf
+        self._seq = 0
+        self._counter = 0  # netem's q->counter: packets delayed since the last reordered one
+        self._last_send_time = -math.inf  # send time of the latest rate-scheduled packet
+        self._in_flight: list[tuple[float, int, bytes, object]] = []  # heap by (send time, seq)
+        self._due: deque[tuple[float, bytes, object]] = deque()  # due, not yet collected
+
+    def change(self, spec: NetemSpec) -> None:
+        """Impair from now on with ``spec``, as ``tc qdisc change`` does: datagrams already on the
+        link keep their delivery times, the statistics and the random sequence carry on. Switching
+        to ``loss 100%`` and back is how to emulate an outage."""
+        if not isinstance(spec, NetemSpec):
+            raise ArgumentTypeError(f"change() needs a NetemSpec, got {type(spec).__name__}")
+        self._configure(spec)
+        self.spec = spec
+
+    def _configure(self, spec: NetemSpec) -> None:
+        rng = self._rng
         self._delay = spec.delay
         self._quantile = _QUANTILES[spec.delay.distribution] if spec.delay else _uniform
         self._delay_draw = _CorrelatedUniform(rng, spec.delay.correlation if spec.delay else 0.0)
@@ -286,13 +307,6 @@ class NetemLink:
         self._reorder_draw = _CorrelatedUniform(rng, reorder.correlation if reorder else 0.0)
         self._rate = spec.rate
         self._limit = spec.limit
-
-        self._now = -math.inf
-        self._seq = 0
-        self._counter = 0  # netem's q->counter: packets delayed since the last reordered one
-        self._last_send_time = -math.inf  # send time of the latest rate-scheduled packet
-        self._in_flight: list[tuple[float, int, bytes, object]] = []  # heap by (send time, seq)
-        self._due: deque[tuple[float, bytes, object]] = deque()  # due, not yet collected
 
     # -- the sans-IO interface ---------------------------------------------------------------------
 
@@ -367,9 +381,9 @@ class NetemLink:
 
     def _advance(self, now: float) -> None:
         if not math.isfinite(now):
-            raise ValueError(f"now must be a finite time in seconds, got {now!r}")
+            raise InvalidArgumentError(f"now must be a finite time in seconds, got {now!r}")
         if now < self._now:
-            raise ValueError(
+            raise InvalidArgumentError(
                 f"now went backwards ({now!r} after {self._now!r}): pass times from a monotonic clock"
             )
         self._now = now

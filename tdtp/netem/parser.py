@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from decimal import Decimal
 from typing import Final, cast
 
+from tdtp.errors import ArgumentTypeError, TdtpError
 from tdtp.netem.spec import (
     DISTRIBUTIONS,
     EXACT,
@@ -58,7 +59,7 @@ def _q(token: str) -> str:
     return repr(token if len(token) <= 40 else token[:37] + "...")
 
 
-class NetemSyntaxError(ValueError):
+class NetemSyntaxError(TdtpError, ValueError):
     """netem text that does not parse. The message names the token, its position and the fix."""
 
     def __init__(self, message: str, *, token: str | None, index: int) -> None:
@@ -471,5 +472,7 @@ def parse_netem(text: str) -> NetemSpec:
     'delay'): expected a number with a unit like 20ms``.
     """
     if not isinstance(text, str):
-        raise TypeError(f"parse_netem takes a str of netem options, got {type(text).__name__}")
+        raise ArgumentTypeError(
+            f"parse_netem takes a str of netem options, got {type(text).__name__}"
+        )
     return _Parser(text).parse()

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from decimal import Context, Decimal
 from typing import Final, Literal, TypeAlias, get_args
 
+from tdtp.errors import InvalidArgumentError
+
 __all__ = [
     "DEFAULT_LIMIT",
     "DISTRIBUTIONS",
@@ -64,14 +66,14 @@ def _is_real(value: object) -> bool:
 
 def _check_fraction(owner: str, name: str, value: float) -> None:
     if not (_is_real(value) and 0.0 <= value <= 1.0):
-        raise ValueError(
+        raise InvalidArgumentError(
             f"{owner}.{name} must be a fraction between 0 and 1 (0.01 for 1 %), got {value!r}"
         )
 
 
 def _check_time(owner: str, name: str, value: float) -> None:
     if not (_is_real(value) and math.isfinite(value) and value >= 0.0):
-        raise ValueError(
+        raise InvalidArgumentError(
             f"{owner}.{name} must be a finite, non-negative number of seconds (0.02 for 20 ms), "
             f"got {value!r}"
         )
@@ -79,7 +81,7 @@ def _check_time(owner: str, name: str, value: float) -> None:
 
 def _check_int(owner: str, name: str, value: int, low: int, high: int, hint: str) -> None:
     if not (isinstance(value, int) and not isinstance(value, bool) and low <= value <= high):
-        raise ValueError(f"{owner}.{name} must be a whole number {hint}, got {value!r}")
+        raise InvalidArgumentError(f"{owner}.{name} must be a whole number {hint}, got {value!r}")
 
 
 # -- rendering helpers (exact: parse(render(x)) == x) --------------------------------------------------
@@ -178,17 +180,17 @@ class DelaySpec:
         _check_time("DelaySpec", "jitter", self.jitter)
         _check_fraction("DelaySpec", "correlation", self.correlation)
         if self.distribution not in DISTRIBUTIONS:
-            raise ValueError(
+            raise InvalidArgumentError(
                 f"DelaySpec.distribution must be one of {', '.join(DISTRIBUTIONS)}, "
                 f"got {self.distribution!r}"
             )
         if self.correlation and not self.jitter:
-            raise ValueError(
+            raise InvalidArgumentError(
                 "DelaySpec.correlation correlates the jitter, so it needs one: "
                 "give a jitter too, e.g. 'delay 20ms 5ms 25%'"
             )
         if self.distribution != "uniform" and not (self.delay and self.jitter):
-            raise ValueError(
+            raise InvalidArgumentError(
                 f"distribution {self.distribution} needs both a delay and a jitter (tc refuses it "
                 f"otherwise): e.g. 'delay 20ms 5ms distribution {self.distribution}'"
             )
@@ -252,12 +254,12 @@ class StateLoss:
         for name in ("p13", "p31", "p32", "p23", "p14"):
             _check_fraction("StateLoss", name, getattr(self, name))
         if self.p13 + self.p14 > 1.0:
-            raise ValueError(
+            raise InvalidArgumentError(
                 "StateLoss: p13 + p14 is the chance of leaving state 1 and cannot exceed 1 "
                 f"(got {self.p13!r} + {self.p14!r}); lower one of them"
             )
         if self.p31 + self.p32 > 1.0:
-            raise ValueError(
+            raise InvalidArgumentError(
                 "StateLoss: p31 + p32 is the chance of leaving state 3 and cannot exceed 1 "
                 f"(got {self.p31!r} + {self.p32!r}); lower one of them"
             )
@@ -421,7 +423,7 @@ class RateSpec:
 
     def __post_init__(self) -> None:
         if not (_is_real(self.rate_bps) and math.isfinite(self.rate_bps) and self.rate_bps > 0):
-            raise ValueError(
+            raise InvalidArgumentError(
                 "RateSpec.rate_bps must be a positive, finite number of bits per second "
                 f"(1e6 for 1mbit), got {self.rate_bps!r}"
             )
@@ -431,7 +433,7 @@ class RateSpec:
         _check_int("RateSpec", "cell_size", self.cell_size, 0, _U32_MAX, "of bytes, 0 for no cells")
         _check_int("RateSpec", "cell_overhead", self.cell_overhead, _S32_MIN, _S32_MAX, "of bytes")
         if self.cell_overhead and not self.cell_size:
-            raise ValueError(
+            raise InvalidArgumentError(
                 "RateSpec.cell_overhead only applies to cells: set cell_size too "
                 "(e.g. 'rate 2mbit 0 48 5' for ATM)"
             )
@@ -489,13 +491,13 @@ class NetemSpec:
         )
         for name, value, kind in parts:
             if value is not None and not isinstance(value, kind):
-                raise ValueError(
+                raise InvalidArgumentError(
                     f"NetemSpec.{name} must be a {kind.__name__} or None, got {value!r}"
                 )
         if self.loss is not None and not isinstance(
             self.loss, RandomLoss | StateLoss | GilbertElliottLoss
         ):
-            raise ValueError(
+            raise InvalidArgumentError(
                 "NetemSpec.loss must be a RandomLoss, StateLoss or GilbertElliottLoss or None, "
                 f"got {self.loss!r}"
             )
@@ -507,7 +509,7 @@ class NetemSpec:
             and self.reorder.p > 0
             and not (self.delay and self.delay.delay)
         ):
-            raise ValueError(
+            raise InvalidArgumentError(
                 "reordering needs a delay: netem sends a reordered packet at once and delays the "
                 "others, so add one, e.g. 'delay 10ms reorder 25%'"
             )

@@ -17,6 +17,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from tdtp.cli_parser import CommandParser
 from tdtp.sim.scenarios import (
     MS,
     SCENARIOS,
@@ -38,7 +39,7 @@ _NAMES = (*SCENARIOS, "all")
 
 
 def build_parser(prog: str = "tdtp simulate") -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog=prog,
         description="Run a virtual-time simulation of the paper's experiments with the real protocol "
         "code; write NAME.json and PNG figures into --out.",
@@ -187,7 +188,10 @@ def simulate_main(argv: Sequence[str]) -> int:
     if args.jobs < 1:
         parser.error(f"--jobs must be at least 1, got {args.jobs}")
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        parser.error(f"--out {out}: cannot create the directory ({exc.strerror or exc})")
     if args.jobs > 1 and len(names) > 1:
         with ProcessPoolExecutor(max_workers=min(args.jobs, len(names))) as pool:
             done = list(pool.map(_timed_run, names, [args] * len(names)))

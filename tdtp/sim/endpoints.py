@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 from tdtp.config import ConnectionConfig, Role
 from tdtp.connection import Connection, State
+from tdtp.errors import InvalidArgumentError
 from tdtp.events import ConnectionClosed, ConnectionEstablished, DataReceived
 from tdtp.sim.engine import Network, Node, Packet, Timer
 from tdtp.sim.metrics import FlowRecorder
@@ -75,7 +76,9 @@ class TdtpEndpoint:
         rng: random.Random | None = None,
     ) -> None:
         if payload_size < _STAMP.size:
-            raise ValueError(f"payload_size must be at least {_STAMP.size} bytes (the time stamp)")
+            raise InvalidArgumentError(
+                f"payload_size must be at least {_STAMP.size} bytes (the time stamp)"
+            )
         self.net = net
         self.sim = net.sim
         self.host = host

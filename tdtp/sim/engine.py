@@ -34,6 +34,7 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any, Final, Protocol
 
+from tdtp.errors import InvalidArgumentError
 from tdtp.netem import NetemLink, NetemSpec, RateSpec, parse_netem
 
 __all__ = [
@@ -70,7 +71,7 @@ class Simulator:
         """Run ``callback(*args)`` at virtual time ``when`` (at or after :attr:`now`)."""
         if when < self.now:
             if when < self.now - 1e-9 or math.isnan(when):
-                raise ValueError(
+                raise InvalidArgumentError(
                     f"cannot schedule at t={when!r}, before the current time {self.now!r}: "
                     "virtual time only moves forward"
                 )
@@ -223,14 +224,16 @@ def split_spec(spec: NetemSpec) -> tuple[NetemSpec, float]:
     """
     delay = spec.delay
     if delay is not None and delay.jitter:
-        raise ValueError(
+        raise InvalidArgumentError(
             f"simulated links have a fixed propagation delay; jitter is not supported ({spec})"
         )
     for name in ("duplicate", "corrupt", "reorder"):
         if getattr(spec, name) is not None:
-            raise ValueError(f"simulated links do not support netem's {name!r} ({spec})")
+            raise InvalidArgumentError(f"simulated links do not support netem's {name!r} ({spec})")
     if spec.rate is None:
-        raise ValueError(f"a simulated link needs a rate, e.g. 'rate 1mbit delay 10ms' ({spec})")
+        raise InvalidArgumentError(
+            f"a simulated link needs a rate, e.g. 'rate 1mbit delay 10ms' ({spec})"
+        )
     return dataclasses.replace(spec, delay=None), (delay.delay if delay is not None else 0.0)
 
 
@@ -363,7 +366,7 @@ class Node:
 
     def bind(self, port: int, agent: Agent) -> None:
         if port in self.agents:
-            raise ValueError(f"port {port} of {self.name} is already bound")
+            raise InvalidArgumentError(f"port {port} of {self.name} is already bound")
         self.agents[port] = agent
 
     def send(self, packet: Packet, now: float) -> None:

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from tdtp.errors import InvalidArgumentError
 from tdtp.sim.engine import Packet
 
 __all__ = [
@@ -98,7 +99,7 @@ class FlowRecorder:
 
     def __init__(self, name: str, *, bin_width: float, duration: float) -> None:
         if not bin_width > 0:
-            raise ValueError(f"bin_width must be positive, got {bin_width!r}")
+            raise InvalidArgumentError(f"bin_width must be positive, got {bin_width!r}")
         self.name = name
         self.bin_width = bin_width
         self.duration = duration

@@ -22,8 +22,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Final, Literal
 
-from tdtp.config import AckMode, ConnectionConfig
+from tdtp.config import AckMode, ConnectionConfig, ControllerName
 from tdtp.control.equations import tcp_friendly_rate
+from tdtp.errors import InvalidArgumentError
 from tdtp.sim.endpoints import IP_HEADER, UDP_HEADER, CbrSource, TdtpEndpoint, TdtpSession
 from tdtp.sim.engine import Network, Simulator, describe
 from tdtp.sim.metrics import FlowRecorder, FlowSummary, jain_index, mean
@@ -69,7 +70,7 @@ class Scheme:
     key: str
     label: str
     ack_mode: AckMode
-    controller: str
+    controller: ControllerName
 
 
 SCHEMES: Final[dict[str, Scheme]] = {
@@ -90,7 +91,7 @@ def ip_overhead(encapsulation: Encapsulation) -> int:
         return IP_HEADER
     if encapsulation == "udp":
         return IP_HEADER + UDP_HEADER
-    raise ValueError(f"encapsulation must be 'native' or 'udp', got {encapsulation!r}")
+    raise InvalidArgumentError(f"encapsulation must be 'native' or 'udp', got {encapsulation!r}")
 
 
 def connection_config(scheme: Scheme, encapsulation: Encapsulation = "native") -> ConnectionConfig:
@@ -106,7 +107,7 @@ def connection_config(scheme: Scheme, encapsulation: Encapsulation = "native") -
 def _schemes(keys: Sequence[str]) -> list[Scheme]:
     unknown = [k for k in keys if k not in SCHEMES]
     if unknown:
-        raise ValueError(f"unknown scheme(s) {unknown}; known: {', '.join(SCHEMES)}")
+        raise InvalidArgumentError(f"unknown scheme(s) {unknown}; known: {', '.join(SCHEMES)}")
     return [SCHEMES[k] for k in keys]
 
 
@@ -580,7 +581,7 @@ def friendliness(
         for rtt_ms in rtts_ms:
             one_way = rtt_ms / 2000.0 - 2 * access_delay
             if one_way <= 0:
-                raise ValueError(f"rtt {rtt_ms} ms is below the access links' 4 ms")
+                raise InvalidArgumentError(f"rtt {rtt_ms} ms is below the access links' 4 ms")
             bdp = capacity * 1e6 * rtt_ms / 1000.0 / 8 / tcp_cfg.packet_size
             limit = max(ROUTER_QUEUE, math.ceil(bdp))
             for scheme in chosen:

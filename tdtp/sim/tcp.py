@@ -43,6 +43,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+from tdtp.errors import InvalidArgumentError
 from tdtp.sim.engine import Network, Node, Packet, Timer
 from tdtp.sim.metrics import FlowRecorder
 
@@ -82,15 +83,17 @@ class TcpConfig:
 
     def __post_init__(self) -> None:
         if self.variant not in ("reno", "newreno"):
-            raise ValueError(f"variant must be 'reno' or 'newreno', got {self.variant!r}")
+            raise InvalidArgumentError(f"variant must be 'reno' or 'newreno', got {self.variant!r}")
         for name in ("segment_size", "header_size", "ack_size", "window", "initial_window"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value > 0):
-                raise ValueError(f"TcpConfig.{name} must be a positive integer, got {value!r}")
+                raise InvalidArgumentError(
+                    f"TcpConfig.{name} must be a positive integer, got {value!r}"
+                )
         for name in ("tick", "min_rto", "max_rto", "initial_rto"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and 0 < value < math.inf):
-                raise ValueError(f"TcpConfig.{name} must be a positive number of seconds")
+                raise InvalidArgumentError(f"TcpConfig.{name} must be a positive number of seconds")
 
     @property
     def packet_size(self) -> int:

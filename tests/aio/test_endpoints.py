@@ -58,7 +58,7 @@ async def test_open_exchange_close() -> None:
         await master.close()
         closed = await asyncio.wait_for(slave.wait_closed(), 3.0)
         assert closed.cause is CloseCause.PEER_CLOSE
-        received = [first] + [sample async for sample in slave]  # drains, then ends at the close
+        received = [first] + [sample async for sample in slave.stream()]  # in order, to the close
         assert len(received) == master.stats.sent.data_packets
         assert [int(s.payload[1:6]) for s in received] == sorted(
             int(s.payload[1:6]) for s in received

@@ -447,3 +447,19 @@ def test_repr_and_stats_dict() -> None:
     link.send(b"x", 0.0)
     assert repr(link) == "NetemLink('delay 20ms', seed=3, pending=1)"
     assert link.stats.as_dict()["sent"] == 1
+
+
+def test_change_takes_the_link_down_and_back_like_tc_qdisc_change() -> None:
+    link = NetemLink(parse_netem("delay 10ms"), seed=1)
+    link.send(b"before", 0.0)
+    link.change(parse_netem("loss 100%"))
+    link.send(b"during", 0.001)  # lost
+    assert str(link.spec) == "loss 100%"
+    link.change(parse_netem("delay 1ms"))
+    link.send(b"after", 0.002)
+    # The packet already on the link keeps its 10 ms; the new delay applies to new packets only.
+    assert link.deliver(0.0031) == [(b"after", None)]
+    assert link.deliver(0.010) == [(b"before", None)]
+    assert (link.stats.sent, link.stats.lost, link.stats.delivered) == (3, 1, 2)
+    with pytest.raises(TypeError):
+        link.change("loss 1%")  # type: ignore[arg-type]
