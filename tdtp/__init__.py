@@ -7,6 +7,7 @@ points (:func:`connect`, :func:`listen`) run it over real UDP sockets.
 
 import logging
 
+from tdtp._build import BuildInfo, build_info  # first: it decides which build of the core loads
 from tdtp.aio.api import Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.ticker import Ticker
@@ -58,6 +59,7 @@ __all__ = [
     "AddressError",
     "AdmissionConfig",
     "ArgumentTypeError",
+    "BuildInfo",
     "CipherSuite",
     "CloseCause",
     "ConnectError",
@@ -93,6 +95,7 @@ __all__ = [
     "TdtpError",
     "Ticker",
     "__version__",
+    "build_info",
     "connect",
     "listen",
     "load_keys",

@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from tdtp import __version__
+from tdtp._build import build_info
 from tdtp.aio.api import Server, connect, listen
 from tdtp.aio.endpoint import Endpoint, WatchdogCallback, format_address
 from tdtp.aio.relay import start_relay
@@ -413,7 +414,8 @@ def _header(args: argparse.Namespace, ep: Endpoint) -> str:
         )
     return (
         f"tdtp {args.command}: {args.rate:g} samples/s of {args.size} B each way, "
-        f"{args.controller}, {mode}, {security}, loop {loop}, timer {ep.timer_kind}"
+        f"{args.controller}, {mode}, {security}, loop {loop}, timer {ep.timer_kind}, "
+        f"core {build_info().describe()}"
     )
 
 
@@ -600,6 +602,7 @@ def _settings(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
         "ack_mode": "separate" if args.separate_acks else "bidirectional",
         "loop": type(asyncio.get_running_loop()).__module__.split(".")[0],
         "timer": ep.timer_kind,
+        "core": build_info().as_dict(),
         "keyed": ep.connection.keyed,
         "encrypted": ep.connection.encrypted,
         "netem_ms": None if ms is None else str(ms),

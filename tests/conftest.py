@@ -6,3 +6,10 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+
+
+def pytest_report_header() -> str:
+    """Which build of the core the suite runs against (``make test`` runs it on both)."""
+    import tdtp
+
+    return f"tdtp core: {tdtp.build_info().describe()}"

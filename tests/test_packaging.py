@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def test_the_version_is_defined_once() -> None:
     pyproject = (ROOT / "pyproject.toml").read_text()
-    assert re.search(r"^version\s*=", pyproject, re.MULTILINE) is None
+    assert re.search(r"^version\s*=\s*[\"']", pyproject, re.MULTILINE) is None
     assert 'dynamic = ["version"]' in pyproject
     assert importlib.metadata.version("tdtp") == tdtp.__version__
     assert f"## {tdtp.__version__}" in (ROOT / "CHANGELOG.md").read_text() or (

@@ -22,10 +22,13 @@ import abc
 import math
 from typing import ClassVar
 
+from mypy_extensions import mypyc_attr
+
 NO_LIMIT = -math.inf
 """What :meth:`RateController.next_send_time` returns when nothing holds the next packet back."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class PacingSchedule:
     """Turns an allowed rate into departure times on an absolute schedule that does not drift.
 
@@ -72,6 +75,7 @@ class PacingSchedule:
         self._next = self._anchor = NO_LIMIT
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class RateController(abc.ABC):
     """Decides how fast data packets may leave. Subclasses register under a name in ``registry.py``."""
 

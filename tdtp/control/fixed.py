@@ -6,11 +6,14 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
+from mypy_extensions import mypyc_attr
+
 from tdtp.control.base import NO_LIMIT, PacingSchedule, RateController
 
 __all__ = ["FixedConfig", "FixedRateController"]
 
 
+@mypyc_attr(native_class=False)  # a plain class: __post_init__ judges the types
 @dataclass(frozen=True, slots=True)
 class FixedConfig:
     """Configuration of :class:`FixedRateController`."""
@@ -26,6 +29,7 @@ class FixedConfig:
             )
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class FixedRateController(RateController):
     """Paces data packets at a configured rate and ignores all feedback (no congestion control).
 

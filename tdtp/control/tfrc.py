@@ -19,6 +19,8 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
+from mypy_extensions import mypyc_attr
+
 from tdtp.control.base import PacingSchedule, RateController
 from tdtp.control.equations import padhye_rate
 
@@ -29,6 +31,12 @@ _DATA_LIMITED_FRACTION = 0.5
 _SIZE_GAIN = 1.0 / 16.0
 
 
+def _check_field(ok: bool, message: str) -> None:
+    if not ok:
+        raise ValueError(f"TfrcConfig.{message}")
+
+
+@mypyc_attr(native_class=False)  # a plain class: __post_init__ judges the types
 @dataclass(frozen=True, slots=True)
 class TfrcConfig:
     """Configuration of :class:`TfrcController` (RFC 5348 defaults)."""
@@ -45,9 +53,9 @@ class TfrcConfig:
     """Seconds before the first no-feedback halving when no RTT is known (RFC 5348: 2 s)."""
 
     def __post_init__(self) -> None:
-        def need(ok: bool, message: str) -> None:
-            if not ok:
-                raise ValueError(f"TfrcConfig.{message}")
+        need = _check_field  # module-level: mypyc compiles no closures inside a plain class
+        # Whatever the caller passed, read untyped (compiled code would check the declared type).
+        packet_size = object.__getattribute__(self, "packet_size")
 
         need(
             0.0 < self.min_rate < math.inf,
@@ -64,10 +72,9 @@ class TfrcConfig:
             f"({self.max_rate!r}), got {self.initial_rate!r}",
         )
         need(
-            self.packet_size is None
-            or (isinstance(self.packet_size, int) and self.packet_size > 0),
+            packet_size is None or (isinstance(packet_size, int) and packet_size > 0),
             f"packet_size must be None (measure it) or a positive number of bytes, "
-            f"got {self.packet_size!r}",
+            f"got {packet_size!r}",
         )
         need(
             0.0 < self.initial_no_feedback_timeout < math.inf,
@@ -76,6 +83,7 @@ class TfrcConfig:
         )
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class TfrcController(RateController):
     """RFC 5348 sender: slow start while ``p == 0``, then ``X = max(min(X_eq, 2 X_recv), s/t_mbi)``."""
 

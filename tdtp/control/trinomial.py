@@ -20,6 +20,8 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar, Final
 
+from mypy_extensions import mypyc_attr
+
 from tdtp.control.base import PacingSchedule, RateController
 from tdtp.control.equations import padhye_rate, tcp_friendly_rate
 
@@ -40,6 +42,12 @@ def _positive_finite(value: float) -> bool:
     return 0.0 < value < math.inf
 
 
+def _check_field(ok: bool, message: str) -> None:
+    if not ok:
+        raise ValueError(f"TrinomialConfig.{message}")
+
+
+@mypyc_attr(native_class=False)  # a plain class: __post_init__ judges the types
 @dataclass(frozen=True, slots=True)
 class TrinomialConfig:
     """Configuration of :class:`TrinomialController`; docs/CONTROL.md justifies every default."""
@@ -74,9 +82,9 @@ class TrinomialConfig:
     """Cap with eq. 1 (Padhye, ``t_RTO = 4 * srtt``) instead of eq. 2."""
 
     def __post_init__(self) -> None:
-        def need(ok: bool, message: str) -> None:
-            if not ok:
-                raise ValueError(f"TrinomialConfig.{message}")
+        need = _check_field  # module-level: mypyc compiles no closures inside a plain class
+        # Whatever the caller passed, read untyped (compiled code would check the declared type).
+        use_padhye = object.__getattribute__(self, "use_padhye")
 
         need(
             _positive_finite(self.min_rate),
@@ -138,8 +146,8 @@ class TrinomialConfig:
             f"initial_rtt must be a positive, finite number of seconds, got {self.initial_rtt!r}",
         )
         need(
-            isinstance(self.use_padhye, bool),
-            f"use_padhye must be True or False, got {self.use_padhye!r}",
+            isinstance(use_padhye, bool),
+            f"use_padhye must be True or False, got {use_padhye!r}",
         )
 
 
@@ -157,6 +165,7 @@ allowed rate reaches the application's demand (or ``max_rate``) within N increas
 one srtt long while at least two packets fit in an srtt."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class TrinomialController(RateController):
     """IPG controller with eqs. 9 and 10, capped by eq. 2; see the module docstring."""
 

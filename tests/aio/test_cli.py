@@ -29,6 +29,10 @@ def _demo(*extra: str) -> dict[str, object]:
 @pytest.mark.parametrize("extra", [(), ("--separate-acks", "--loop", "asyncio")])
 def test_demo_json_reports_both_directions(extra: tuple[str, ...]) -> None:
     summary = _demo(*extra)
+    import tdtp
+
+    # Which build of the core ran: the same as in this process (the same environment).
+    assert summary["core"] == tdtp.build_info().as_dict()
     for key in ("master_to_slave", "slave_to_master"):
         direction = summary[key]
         assert isinstance(direction, dict)

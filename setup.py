@@ -1,0 +1,80 @@
+"""Builds tdtp's compiled core: the sans-IO modules below, compiled to C extensions with mypyc.
+
+Everything else (the asyncio layer, the CLI, the simulator, configuration and errors) stays Python, and
+every compiled module keeps its ``.py`` source beside the extension: where the extension is missing (no
+C compiler, ``TDTP_PURE_BUILD=1`` at install time) or switched off (``TDTP_PURE_PYTHON=1`` at run time)
+the same code runs as plain Python. ``tdtp.build_info()`` says which one a process runs.
+
+``pip install .`` (a wheel) and ``pip install -e .`` (extensions built in place, beside the sources)
+both compile; ``make build`` recompiles in place after a source changed. The project metadata lives in
+pyproject.toml; this file only adds the extensions.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from setuptools import setup
+from setuptools.command.build_ext import build_ext
+
+COMPILED = [
+    "tdtp/wire/header.py",
+    "tdtp/wire/hold.py",
+    "tdtp/wire/seqnum.py",
+    "tdtp/wire/protected.py",
+    "tdtp/connection.py",
+    "tdtp/events.py",
+    "tdtp/stats.py",
+    "tdtp/sent_log.py",
+    "tdtp/receive_window.py",
+    "tdtp/rtt.py",
+    "tdtp/loss_rate.py",
+    "tdtp/protection/replay_window.py",
+    "tdtp/protection/packet_protection.py",
+    "tdtp/control/base.py",
+    "tdtp/control/equations.py",
+    "tdtp/control/fixed.py",
+    "tdtp/control/tfrc.py",
+    "tdtp/control/trinomial.py",
+    "tdtp/control/registry.py",
+]
+"""The compiled core (tdtp/_build.py lists the same modules by name; a test checks they agree)."""
+
+GROUP = "tdtp._core"
+"""One shared library for the whole core, inside the package: tdtp/_core__mypyc.*.so."""
+
+
+def _warn(message: str) -> None:
+    print(f"tdtp: {message}; installing the pure-Python build", file=sys.stderr)
+
+
+class OptionalBuildExt(build_ext):
+    """Compile the core if a C compiler works; otherwise leave the pure-Python modules in place."""
+
+    def run(self) -> None:
+        try:
+            super().run()
+        except Exception as exc:
+            _warn(f"the compiled core could not be built ({exc})")
+
+    def build_extension(self, ext: object) -> None:
+        try:
+            super().build_extension(ext)  # type: ignore[arg-type]
+        except Exception as exc:
+            _warn(f"could not compile {getattr(ext, 'name', ext)} ({exc})")
+            raise
+
+
+def _extensions() -> list[object]:
+    if os.environ.get("TDTP_PURE_BUILD"):
+        return []
+    try:
+        from mypyc.build import mypycify  # noqa: PLC0415 - a build-time dependency only
+    except ImportError:
+        _warn("mypyc is not installed")
+        return []
+    return list(mypycify(COMPILED, opt_level="3", group_name=GROUP))
+
+
+setup(ext_modules=_extensions(), cmdclass={"build_ext": OptionalBuildExt})
