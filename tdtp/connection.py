@@ -21,6 +21,7 @@ import enum
 import math
 import random
 from collections import deque
+from collections.abc import Callable
 
 from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.config import AckMode, ConnectionConfig, Role
@@ -44,6 +45,7 @@ from tdtp.events import (
     Event,
     PeerResumed,
     PeerSilent,
+    new_data_received,
 )
 from tdtp.loss_rate import LossIntervalEstimator
 from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
@@ -207,6 +209,17 @@ class Connection:
             max_tracked=self.config.max_tracked_packets,
         )
         self._rtt = RttEstimator(self.config.initial_rtt)
+        # The settings the per-packet paths read, copied out of the (plain Python) config once.
+        self._ack_delay = self.config.ack_delay
+        self._max_payload = self.config.max_payload
+        self._idle_timeout = self.config.idle_timeout
+        self._max_events = self.config.max_pending_events
+        self._deliver_late = self.config.deliver_late
+        self._deliver_duplicates = self.config.deliver_duplicates
+        self._loss_delay_value = self._loss_delay()
+        self._hint = -math.inf  # see timer_hint
+        self._controller_timer: float | None = None  # the controller's deadline at get_timer()
+        self._transmit_errors = 0
         self._loss = LossIntervalEstimator(first_seq)
         self._window: ReceiveWindow | None = None
         self._pending: bytes | None = None
@@ -215,9 +228,8 @@ class Connection:
         """Control datagrams queued for the next flush: datagram, destination, protection bytes,
         and whether it is session traffic (not: admission's COOKIE or REJECT answering an OPEN)."""
         self._separate_acks: deque[tuple[int, float]] = deque()
-        self._event_seq = 0
-        self._data_events: deque[tuple[int, Event]] = deque()
-        self._other_events: deque[tuple[int, Event]] = deque()
+        self._events: deque[Event] = deque()
+        self._data_pending = 0  # DataReceived events among them
         self._last_send = 0.0
         self._last_receive = 0.0
         self._keepalive = self.config.effective_keepalive_interval
@@ -295,6 +307,29 @@ class Connection:
         return self._close_event
 
     @property
+    def timer_hint(self) -> float:
+        """A bound on what has moved since :meth:`get_timer` was last called (which resets it to
+        ``math.inf``): no deadline of this connection moved earlier than ``timer_hint``.
+
+        A caller that keeps one timer armed at the connection's deadline, and re-arms it only for an
+        earlier one (a later deadline just wakes it early, which is harmless: :meth:`handle_timer`
+        does nothing and the timer is re-armed), needs :meth:`get_timer` only when ``timer_hint``
+        is earlier than the armed deadline, instead of after every input. ``-math.inf`` means
+        anything may have changed."""
+        return self._hint
+
+    @property
+    def pending_events(self) -> int:
+        """Events waiting for :meth:`next_event`."""
+        return len(self._events)
+
+    @property
+    def transmit_errors(self) -> int:
+        """Datagrams whose ``transmit`` in :meth:`send_direct` raised :class:`OSError` (lost like
+        any other)."""
+        return self._transmit_errors
+
+    @property
     def sending_paused(self) -> bool:
         """True between :meth:`pause_sending` and :meth:`resume_sending`."""
         return self._send_paused
@@ -328,6 +363,7 @@ class Connection:
             )
         self._peer = addr
         self._state = State.OPENING
+        self._hint = -math.inf
         self._open_deadline = now + self.config.open_timeout
         self._open_next = now
         self._last_receive = now
@@ -372,8 +408,109 @@ class Connection:
                 stats.samples_blocked += 1
             self._pending_paced = True
         else:
-            self._pending_paced = now < self._controller.next_send_time()
+            due = self._controller.next_send_time()
+            self._pending_paced = paced = now < due
+            if paced and due < self._hint:
+                self._hint = due  # the pacer's deadline for it
         self._pending = payload
+
+    def send_direct(
+        self,
+        payload: bytes | bytearray | memoryview,
+        transmit: Callable[[bytes, Address | None], object],
+        *,
+        connected: bool,
+        now: float,
+    ) -> bool:
+        """:meth:`send` for the common case, with the datagram handed straight to ``transmit``.
+
+        When the sample may leave at once as the only datagram due (established, the pacer and the
+        socket allow it, no control packet, held ACK or separate ACK waiting), it is encoded and
+        passed to ``transmit(datagram, addr)`` (``addr`` ``None`` when ``connected``, else the
+        peer's address: ``transport.sendto`` fits) *before* any bookkeeping, which follows. An
+        :class:`OSError` from ``transmit`` counts in :attr:`transmit_errors` and the datagram is
+        lost like any other. Returns False when it did not send: the sample is then offered as by
+        :meth:`send`, and :meth:`datagrams_to_send` must run. Raises what :meth:`send` raises.
+        """
+        if (
+            self._state is not State.ESTABLISHED
+            or type(payload) is not bytes
+            or self._send_paused
+            or self._control_out
+            or self._separate_acks
+            or not 0 < len(payload) <= self._send_limit
+            or now < self._controller.next_send_time()
+        ):
+            self.send(payload, now=now)
+            return False
+        window = self._window
+        assert window is not None  # ESTABLISHED implies it
+        if window.held:
+            self.send(payload, now=now)
+            return False
+        stats = self._stats
+        stats.samples_offered += 1
+        paced = False
+        if self._pending is not None:
+            stats.samples_superseded += (
+                1  # a held sample the pacer would let go now: the newer wins
+            )
+            paced = True
+            self._pending = None
+        sent = self._sent
+        if self._ack_mode is AckMode.BIDIRECTIONAL and window.has_data:
+            window.mark_reported()
+            header = encode_header(
+                _DATA,
+                sent.next_seq,
+                window.highest,
+                window.sack_below(window.highest),
+                encode_hold(now - window.highest_arrival),
+            )
+        else:
+            header = encode_header(_DATA, sent.next_seq, 0, 0, HOLD_NO_ACK)
+        sealer = self._sealer
+        datagram = header + payload if sealer is None else sealer.seal(header, payload)
+        peer = self._peer
+        try:
+            transmit(datagram, None if connected else peer)
+        except OSError:
+            self._transmit_errors += 1
+        # Bookkeeping, after the datagram has left.
+        size = len(datagram)
+        lost = self._lost
+        sent.on_sent(now, size, lost)
+        if lost:
+            self._on_losses(now)
+        controller = self._controller
+        controller.on_packet_sent(now=now, size=size, paced=paced)
+        counts = stats.sent
+        counts.data_packets += 1
+        counts.payload_bytes += len(payload)
+        counts.datagrams += 1
+        counts.bytes += size
+        counts.header_bytes += HEADER_SIZE
+        counts.protection_bytes += self._overhead
+        self._last_send = now
+        self._check_controller_timer()
+        if sealer is not None and sealer.next_number >= PACKET_LIMIT:
+            self._exhausted()
+        return True
+
+    def _check_controller_timer(self) -> None:
+        """After a controller hook: lower :attr:`timer_hint` if the controller's deadline moved
+        earlier than get_timer() last saw it."""
+        deadline = self._controller.get_timer()
+        if deadline is not None and deadline < self._hint:
+            seen = self._controller_timer
+            if seen is None or deadline < seen:
+                self._hint = deadline
+
+    def _exhausted(self) -> None:
+        self._terminate(
+            CloseCause.KEY_EXHAUSTED,
+            "the session protected as many packets as its keys may; open a new connection",
+        )
 
     def pause_sending(self) -> None:
         """The layer below cannot take datagrams now (the socket's send buffer is full).
@@ -390,6 +527,7 @@ class Connection:
     def resume_sending(self) -> None:
         """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
         self._send_paused = False
+        self._hint = -math.inf
 
     def close(self, *, now: float) -> None:
         """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`."""
@@ -409,16 +547,18 @@ class Connection:
                 f"{self._state.value}); create a new Connection for each master"
             )
         self._stats.datagrams_in += 1
+        self._hint = -math.inf
         self._open_session(admitted, addr, now)
 
     def next_event(self) -> Event | None:
         """The oldest event not yet taken, or ``None``."""
-        data, other = self._data_events, self._other_events
-        if data and (not other or data[0][0] < other[0][0]):
-            return data.popleft()[1]
-        if other:
-            return other.popleft()[1]
-        return None
+        events = self._events
+        if not events:
+            return None
+        event = events.popleft()
+        if type(event) is DataReceived:
+            self._data_pending -= 1
+        return event
 
     # ------------------------------------------------------------------ input
 
@@ -430,7 +570,7 @@ class Connection:
             stats.count_drop(DropReason.CLOSED)
             return
         peer = self._peer
-        if peer is not None and (addr[0] != peer[0] or addr[1] != peer[1]):
+        if peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
             stats.count_drop(DropReason.WRONG_ADDRESS)
             return
         size = len(data)
@@ -466,7 +606,13 @@ class Connection:
         if self._confirming:
             # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
             self._establish(now)
-        _, seq, ack, sack, hold = decode_header(data)
+        # The header, decoded in place (wire/header.py's layout) rather than into a Header tuple.
+        b1 = data[1]
+        b3 = data[3]
+        seq = ((data[0] & 0x3F) << 6) | (b1 >> 2)
+        ack = ((b1 & 0x03) << 10) | (data[2] << 2) | (b3 >> 6)
+        sack = b3 & 0x3F
+        hold = data[4]
         if ptype == _DATA:
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
@@ -514,6 +660,7 @@ class Connection:
         stats.longest_silence = max(stats.longest_silence, silent_for)
         self._push_watchdog_event(PeerResumed(silent_for, now))
         self._controller.on_peer_resumed(now=now, silent_for=silent_for)
+        self._hint = -math.inf  # the watchdog's deadline is silence_timeout again, not idle
 
     def _on_data(self, data: bytes, seq: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
@@ -521,8 +668,9 @@ class Connection:
         if self._state is not State.ESTABLISHED or window is None:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
-        payload_size = len(data) - HEADER_SIZE
-        if payload_size > self.config.max_payload:
+        size = len(data)
+        payload_size = size - HEADER_SIZE
+        if payload_size > self._max_payload:
             stats.count_drop(DropReason.OVERSIZED)
             return
         if not payload_size:
@@ -531,36 +679,58 @@ class Connection:
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)
             return
-        arrival, full_seq, gap = window.on_data(seq, now)
-        if arrival is Arrival.STALE:
+        quiet = window.unreported_since is None
+        arrival = window.classify(seq, now)
+        if window.held:
+            self._hint = -math.inf  # an ACK is due at once
+        elif quiet and window.unreported_since is not None:
+            due = now + self._ack_delay  # an ACK is due by then
+            if due < self._hint:
+                self._hint = due
+        if arrival is Arrival.NEW:
+            stats.peer_gaps += window.last_gap
+            if self._ack_mode is AckMode.SEPARATE:
+                self._separate_acks.append((window.last_seq, now))
+                self._hint = -math.inf
+        elif arrival is Arrival.STALE:
             self._heard(now)
             stats.count_drop(DropReason.STALE)
             return
-        if arrival is not Arrival.DUPLICATE and self._ack_mode is AckMode.SEPARATE:
-            # Trinomial acknowledges every arrival, whether or not the sample is delivered.
-            self._separate_acks.append((full_seq, now))
-        if arrival is Arrival.NEW:
-            stats.peer_gaps += gap
-        elif arrival is Arrival.LATE:
-            stats.reordered += 1
-            if not self.config.deliver_late:
+        else:
+            if self._ack_mode is AckMode.SEPARATE and arrival is not Arrival.DUPLICATE:
+                # Trinomial acknowledges every arrival, whether or not the sample is delivered.
+                self._separate_acks.append((window.last_seq, now))
+                self._hint = -math.inf
+            if arrival is Arrival.LATE:
+                stats.reordered += 1
+                if not self._deliver_late:
+                    self._heard(now)
+                    stats.count_drop(DropReason.LATE)
+                    return
+            elif not self._deliver_duplicates:
                 self._heard(now)
-                stats.count_drop(DropReason.LATE)
+                stats.count_drop(DropReason.DUPLICATE)
                 return
-        elif not self.config.deliver_duplicates:
-            self._heard(now)
-            stats.count_drop(DropReason.DUPLICATE)
-            return
-        size = len(data)
-        self._accept(size, size - HEADER_SIZE, now)
-        stats.received.data_packets += 1
+        received = stats.received
+        received.datagrams += 1
+        received.bytes += size + self._overhead
+        received.header_bytes += HEADER_SIZE
+        received.payload_bytes += payload_size
+        received.protection_bytes += self._overhead
+        received.data_packets += 1
+        self._last_receive = now
+        if self._silent_since is not None:
+            self._on_peer_resumed(now)
         stats.samples_delivered += 1
         rtt = self._rtt
-        self._push_data_event(
-            DataReceived(
-                data[HEADER_SIZE:], full_seq, rtt.srtt / 2 if rtt.has_sample else None, now
-            )
+        event = new_data_received(
+            data[HEADER_SIZE:], window.last_seq, rtt.srtt / 2 if rtt.has_sample else None, now
         )
+        events = self._events
+        if len(events) >= self._max_events and self._data_pending:
+            self._discard_oldest_data()
+        events.append(event)
+        self._data_pending += 1
 
     def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
@@ -581,27 +751,41 @@ class Connection:
         full = sent.expand_ack(ack, hold, now, rtt.srtt)
         if full is None:
             return False
-        outcome = sent.on_ack(full, sack, hold, now)
+        newly = sent.acknowledge(full, sack, hold, now)
         stats = self._stats
-        if outcome.spurious:
-            stats.spurious_losses += outcome.spurious
-        if outcome.rtt_sample is not None:
-            rtt.on_sample(outcome.rtt_sample)
+        if sent.spurious:
+            stats.spurious_losses += sent.spurious
+        sample = sent.rtt_sample
+        if sample is not None:
+            rtt.on_sample(sample)
             stats.rtt_samples += 1
+            delay = self._loss_delay()
+            if delay < self._loss_delay_value:
+                # A shorter loss delay brings a pending loss deadline forward.
+                due = sent.loss_deadline(delay)
+                if due is not None and due < self._hint:
+                    self._hint = due
+            self._loss_delay_value = delay
+        if sent.marked_missing:
+            sent.marked_missing = False
+            self._hint = -math.inf  # a loss deadline may be due earlier
         lost = self._lost
-        sent.detect_losses(now, self._loss_delay(), lost)
+        sent.detect_losses(now, self._loss_delay_value, lost)
         if lost:
             self._on_losses(now)
-        if outcome.newly_acked:
-            stats.packets_acked += outcome.newly_acked
+        if newly:
+            stats.packets_acked += newly
             self._controller.on_ack(
                 now=now,
-                acked=outcome.newly_acked,
-                rtt_sample=outcome.rtt_sample,
+                acked=newly,
+                rtt_sample=sample,
                 srtt=rtt.srtt,
                 rttvar=rtt.rttvar,
                 loss_event_rate=self._loss.update(sent.largest_acked),
             )
+            if self._pending is not None:
+                self._hint = -math.inf  # a new rate may let the held sample go earlier
+            self._check_controller_timer()
         return True
 
     def _on_losses(self, now: float) -> None:
@@ -629,6 +813,7 @@ class Connection:
                         now=now, srtt=srtt, loss_event_rate=estimator.loss_event_rate
                     )
         lost.clear()
+        self._hint = -math.inf
 
     def _loss_delay(self) -> float:
         """How long a packet reported absent may still turn up (RAP's timeout, mu 1.2 and phi 4).
@@ -640,7 +825,7 @@ class Connection:
         return (
             LOSS_DELAY_SRTT * rtt.srtt
             + max(LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
-            + self.config.ack_delay
+            + self._ack_delay
         )
 
     def _on_session_control(
@@ -694,6 +879,7 @@ class Connection:
 
     def _on_handshake(self, data: bytes, addr: Address, now: float) -> None:
         """OPEN, OPEN_ACK, COOKIE or REJECT: the messages whose fields travel in the clear."""
+        self._hint = -math.inf  # the opening's timers may move
         stats = self._stats
         if self.role is Role.SLAVE:
             if data[HEADER_SIZE] != _OPEN:
@@ -879,6 +1065,7 @@ class Connection:
 
     def _establish(self, now: float) -> None:
         self._state = State.ESTABLISHED
+        self._hint = -math.inf
         self._confirming = False
         self._last_receive = now
         self._last_send = now
@@ -890,6 +1077,7 @@ class Connection:
 
     def get_timer(self) -> float | None:
         """The next absolute time :meth:`handle_timer` (then :meth:`datagrams_to_send`) is due."""
+        self._hint = math.inf
         state = self._state
         if state is State.OPENING:
             if self.role is Role.SLAVE:
@@ -897,33 +1085,42 @@ class Connection:
             return min(self._open_next, self._open_deadline)
         if state is not State.ESTABLISHED:
             return None
-        config = self.config
-        deadline = min(
-            # The watchdog until the peer is silent, then the outage limit.
-            self._last_receive
-            + (self._silence if self._silent_since is None else config.idle_timeout),
-            self._last_send + self._keepalive,
+        # The watchdog until the peer is silent, then the outage limit; the keep-alive.
+        deadline = self._last_receive + (
+            self._silence if self._silent_since is None else self._idle_timeout
         )
+        candidate = self._last_send + self._keepalive
+        if candidate < deadline:
+            deadline = candidate
+        controller = self._controller
         if self._pending is not None and not self._send_paused:
-            deadline = min(deadline, self._controller.next_send_time())
+            candidate = controller.next_send_time()
+            if candidate < deadline:
+                deadline = candidate
         window = self._window
-        if self._ack_mode is AckMode.BIDIRECTIONAL:
-            if window is not None and window.unreported_since is not None:
-                deadline = min(deadline, window.unreported_since + config.ack_delay)
-            if window is not None and window.held:
-                deadline = min(deadline, window.highest_arrival)  # due since the jump
-        elif self._separate_acks:
-            deadline = min(deadline, self._separate_acks[0][1])
-        loss_deadline = self._sent.loss_deadline(self._loss_delay())
-        if loss_deadline is not None:
-            deadline = min(deadline, loss_deadline)
-        controller_deadline = self._controller.get_timer()
-        if controller_deadline is not None:
-            deadline = min(deadline, controller_deadline)
+        if window is not None:
+            if self._ack_mode is AckMode.BIDIRECTIONAL:
+                since = window.unreported_since
+                if since is not None and since + self._ack_delay < deadline:
+                    deadline = since + self._ack_delay
+                if window.held and window.highest_arrival < deadline:
+                    deadline = window.highest_arrival  # due since the jump
+            elif self._separate_acks:
+                candidate = self._separate_acks[0][1]
+                if candidate < deadline:
+                    deadline = candidate
+        loss_deadline = self._sent.loss_deadline(self._loss_delay_value)
+        if loss_deadline is not None and loss_deadline < deadline:
+            deadline = loss_deadline
+        controller_deadline = controller.get_timer()
+        self._controller_timer = controller_deadline
+        if controller_deadline is not None and controller_deadline < deadline:
+            deadline = controller_deadline
         return deadline
 
     def handle_timer(self, *, now: float) -> None:
         """Act on whatever is due at ``now``. Calling it early or late is harmless."""
+        self._hint = -math.inf
         state = self._state
         if state is State.OPENING:
             if now >= self._open_deadline:
@@ -938,7 +1135,7 @@ class Connection:
             return
         if state is not State.ESTABLISHED:
             return
-        if now >= self._last_receive + self.config.idle_timeout:
+        if now >= self._last_receive + self._idle_timeout:
             self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer_address())
             self._terminate(
                 CloseCause.IDLE_TIMEOUT,
@@ -951,7 +1148,7 @@ class Connection:
             self._push_watchdog_event(PeerSilent(self._last_receive, now))
             self._controller.on_peer_silent(now=now)
         lost = self._lost
-        self._sent.detect_losses(now, self._loss_delay(), lost)
+        self._sent.detect_losses(now, self._loss_delay_value, lost)
         if lost:
             self._on_losses(now)
         controller_deadline = self._controller.get_timer()
@@ -1003,10 +1200,10 @@ class Connection:
             sent.payload_bytes += len(payload)
             self._count_sent(size, now, self._overhead)
             out.append((datagram, peer))
+            self._check_controller_timer()
         if bidirectional:
             if window.unreported_since is not None and (
-                now >= window.unreported_since + self.config.ack_delay
-                or window.coverage_exhausted()
+                now >= window.unreported_since + self._ack_delay or window.coverage_exhausted()
             ):
                 ack, sack, hold = self._piggyback(window, now)
                 self._emit_ack(out, ack, sack, hold, peer, now)
@@ -1032,10 +1229,7 @@ class Connection:
             )
         sealer = self._sealer
         if sealer is not None and sealer.next_number >= PACKET_LIMIT:
-            self._terminate(
-                CloseCause.KEY_EXHAUSTED,
-                "the session protected as many packets as its keys may; open a new connection",
-            )
+            self._exhausted()
         return out
 
     def _protect(self, prefix: bytes, body: bytes) -> bytes:
@@ -1153,36 +1347,38 @@ class Connection:
 
     def _terminate(self, cause: CloseCause, detail: str) -> None:
         self._state = State.CLOSED
+        self._hint = -math.inf
         self._confirming = False
         self._pending = None
         self._separate_acks.clear()
         self._close_event = event = ConnectionClosed(cause, detail)
         self._push_other_event(event)
 
-    def _push_data_event(self, event: DataReceived) -> None:
-        events = self._data_events
-        if len(events) + len(self._other_events) >= self.config.max_pending_events and events:
-            events.popleft()
-            self._stats.events_discarded += 1
-        self._event_seq += 1
-        events.append((self._event_seq, event))
+    def _discard_oldest_data(self) -> None:
+        """The event queue is full: the oldest data event goes (the application is not reading)."""
+        events = self._events
+        for index, pending in enumerate(events):
+            if type(pending) is DataReceived:
+                del events[index]
+                self._data_pending -= 1
+                self._stats.events_discarded += 1
+                return
 
     def _push_other_event(self, event: Event) -> None:
-        self._event_seq += 1
-        self._other_events.append((self._event_seq, event))
+        self._events.append(event)
+        self._hint = -math.inf
 
     def _push_watchdog_event(self, event: PeerSilent | PeerResumed) -> None:
         """Watchdog events share the ``max_pending_events`` bound: an application that never takes
         events loses the oldest data event, or failing that the oldest watchdog event."""
-        data, other = self._data_events, self._other_events
-        if len(data) + len(other) >= self.config.max_pending_events:
-            if data:
-                data.popleft()
-                self._stats.events_discarded += 1
+        events = self._events
+        if len(events) >= self._max_events:
+            if self._data_pending:
+                self._discard_oldest_data()
             else:
-                for index, (_, pending) in enumerate(other):
+                for index, pending in enumerate(events):
                     if isinstance(pending, PeerSilent | PeerResumed):
-                        del other[index]
+                        del events[index]
                         self._stats.events_discarded += 1
                         break
         self._push_other_event(event)

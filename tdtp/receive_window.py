@@ -65,7 +65,9 @@ class ReceiveWindow:
         "held",
         "highest",
         "highest_arrival",
+        "last_gap",
         "last_reported",
+        "last_seq",
         "pending_low",
         "silence_guard",
         "unreported_since",
@@ -89,6 +91,10 @@ class ReceiveWindow:
         self._coverage = coverage
         self._stale_next = 0
         self._stale_run = 0
+        self.last_seq = self.highest
+        """The full sequence number of the packet :meth:`classify` saw last."""
+        self.last_gap = 0
+        """Sequence numbers it skipped (a new packet after a gap), else 0."""
         self.silence_guard = DEFAULT_SILENCE_GUARD
         """After this long without a new packet, a run of consecutive numbers that look like
         duplicates or late packets re-anchors the window like a stale run (the connection sets it to
@@ -100,7 +106,14 @@ class ReceiveWindow:
 
     def on_data(self, truncated_seq: int, now: float) -> tuple[Arrival, int, int]:
         """Classify an arriving data packet; returns (arrival kind, full sequence number, gap)."""
+        arrival = self.classify(truncated_seq, now)
+        return arrival, self.last_seq, self.last_gap
+
+    def classify(self, truncated_seq: int, now: float) -> Arrival:
+        """:meth:`on_data` without the result tuple (the connection's per-packet path): the full
+        sequence number and the gap are left in :attr:`last_seq` and :attr:`last_gap`."""
         highest = self.highest
+        self.last_gap = 0
         seq = expand_seq(truncated_seq, highest + 1)
         distance = seq - highest
         if distance <= 0:  # (new packets skip all of this)
@@ -108,7 +121,8 @@ class ReceiveWindow:
                 self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
                 self._stale_next = seq + 1
                 if self._stale_run < RESYNC_RUN:
-                    return Arrival.STALE, seq, 0
+                    self.last_seq = seq
+                    return Arrival.STALE
                 self._stale_run = 0
                 seq += SEQ_MODULUS  # now ahead of highest: expand_seq put it at most 2048 behind
                 distance = seq - highest
@@ -146,11 +160,14 @@ class ReceiveWindow:
             self.highest_arrival = now
             if self.unreported_since is None:
                 self.unreported_since = now
-            return Arrival.NEW, seq, distance - 1
+            self.last_seq = seq
+            self.last_gap = distance - 1
+            return Arrival.NEW
+        self.last_seq = seq
         behind = -distance
         bit = 1 << behind
         if self._mask & bit:
-            return Arrival.DUPLICATE, seq, 0
+            return Arrival.DUPLICATE
         self._mask |= bit
         if self._coverage and behind <= SACK_SPAN:
             # Within reach of an ACK of the highest: the next one must report it. (A packet
@@ -160,7 +177,7 @@ class ReceiveWindow:
                 self.pending_low = seq
         if self.unreported_since is None:
             self.unreported_since = now
-        return Arrival.LATE, seq, 0
+        return Arrival.LATE
 
     def sack_below(self, seq: int) -> int:
         """SACK bits for the six sequence numbers below ``seq`` (which must be within the window)."""

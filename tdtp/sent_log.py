@@ -55,7 +55,10 @@ class SentPacketLog:
         "_reorder_threshold",
         "first_seq",
         "largest_acked",
+        "marked_missing",
         "next_seq",
+        "rtt_sample",
+        "spurious",
         "unknown",
     )
 
@@ -72,6 +75,13 @@ class SentPacketLog:
         self._recently_lost_order: deque[int] = deque()
         self.unknown = 0
         """Packets retired with no verdict: every ACK that could have reported them was lost."""
+        self.rtt_sample: float | None = None
+        """The RTT sample of the last :meth:`acknowledge` (``None``: it gave none)."""
+        self.spurious = 0
+        """Declared losses the last :meth:`acknowledge` found received after all."""
+        self.marked_missing = False
+        """Set when an ACK reports a packet absent for the first time (a loss deadline may now be
+        due); the connection clears it."""
 
     @property
     def in_flight(self) -> int:
@@ -135,6 +145,13 @@ class SentPacketLog:
 
     def on_ack(self, ack: int, sack: int, hold: float | None, now: float) -> AckOutcome:
         """Mark ``ack`` and the SACK-reported packets below it as received."""
+        newly = self.acknowledge(ack, sack, hold, now)
+        return AckOutcome(newly, self.rtt_sample, self.spurious)
+
+    def acknowledge(self, ack: int, sack: int, hold: float | None, now: float) -> int:
+        """:meth:`on_ack` without the result tuple (the connection's per-packet path): returns the
+        packets newly acknowledged and leaves the RTT sample and the spurious-loss count in
+        :attr:`rtt_sample` and :attr:`spurious`."""
         records = self._records
         base = self._base
         count = len(records)
@@ -154,21 +171,29 @@ class SentPacketLog:
                     self._largest_send_time = record.send_time
         elif index < 0 and ack in self._recently_lost:
             spurious += self._forget_loss(ack)
+        recently_lost = self._recently_lost
         bit = 1
         for distance in range(1, SACK_SPAN + 1):
-            index = ack - distance - base
-            if sack & bit:
-                if 0 <= index < count:
-                    record = records[index]
+            below = index - distance
+            if below < 0:
+                # Resolved already (acknowledged or declared lost): only a spurious loss to find.
+                if not recently_lost:
+                    break
+                if sack & bit and (ack - distance) in recently_lost:
+                    spurious += self._forget_loss(ack - distance)
+            elif below < count:
+                record = records[below]
+                if sack & bit:
                     if not record.acked:
                         record.acked = True
                         newly += 1
-                elif index < 0 and (ack - distance) in self._recently_lost:
-                    spurious += self._forget_loss(ack - distance)
-            elif 0 <= index < count:
-                records[index].missing = True
+                elif not record.missing:
+                    record.missing = True
+                    self.marked_missing = True
             bit <<= 1
-        return AckOutcome(newly, rtt_sample, spurious)
+        self.rtt_sample = rtt_sample
+        self.spurious = spurious
+        return newly
 
     def detect_losses(self, now: float, loss_delay: float, lost: list[LostPacket]) -> None:
         """Retire resolved records from the front of the log.

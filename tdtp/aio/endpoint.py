@@ -27,7 +27,8 @@ from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Protocol
 
-from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
+from tdtp.aio.loop_timers import TimerEntry, loop_timers
+from tdtp.aio.timer import monotonic
 from tdtp.connection import Connection, State
 from tdtp.errors import ConnectionClosedError, EndpointClosedError
 from tdtp.events import (
@@ -57,6 +58,9 @@ logger = logging.getLogger("tdtp")
 
 class DatagramSender(Protocol):
     def sendto(self, data: bytes, addr: Address | None = ..., /) -> None: ...
+
+
+_NEVER = float("inf")
 
 
 def format_address(addr: Address | None) -> str:
@@ -89,7 +93,8 @@ class Endpoint:
         self._connected = connected
         loop = asyncio.get_running_loop()
         self._loop = loop
-        self._timer: DeadlineTimer = create_timer(loop, self._on_timer, prefer=timer)
+        # One timer per loop for all endpoints (tdtp.aio.loop_timers); this is our entry in it.
+        self._timer: TimerEntry = loop_timers(loop, timer).entry(self._on_timer)
         self._on_data = on_data
         self._on_watchdog = on_watchdog
         self._on_closed = on_closed
@@ -105,10 +110,7 @@ class Endpoint:
         self._close_event: ConnectionClosed | None = None
         self._silence: PeerSilent | None = None
         self._resumed: PeerResumed | None = None
-        self.send_errors = 0
-        """Datagrams the socket refused with an error (ICMP unreachable reported on a send, no
-        buffer space): lost like any other. Datagrams held back while the send buffer is full are
-        in ``stats.samples_blocked`` instead."""
+        self._send_errors = 0
         size = getattr(transport, "get_write_buffer_size", None)
         if size is not None and size() > 0:
             conn.pause_sending()  # a shared socket that is backed up already
@@ -128,6 +130,17 @@ class Endpoint:
     def stats(self) -> ConnectionStats:
         """The core's live counters plus srtt, loss-event rate p and the allowed rate."""
         return self._conn.stats
+
+    @property
+    def send_errors(self) -> int:
+        """Datagrams the socket refused with an error (ICMP unreachable reported on a send, no
+        buffer space): lost like any other. Datagrams held back while the send buffer is full are
+        in ``stats.samples_blocked`` instead."""
+        return self._send_errors + self._conn.transmit_errors
+
+    @send_errors.setter
+    def send_errors(self, value: int) -> None:
+        self._send_errors = value - self._conn.transmit_errors
 
     @property
     def timer_kind(self) -> str:
@@ -204,14 +217,20 @@ class Endpoint:
         :class:`~tdtp.EndpointClosedError`, naming the cause, once the association is over.
         """
         now = monotonic()
+        conn = self._conn
         try:
-            self._conn.send(payload, now=now)
+            # The common case leaves at once: encoded and handed to the socket before the
+            # connection's bookkeeping (the round trip does not wait for it).
+            sent = conn.send_direct(
+                payload, self._transport.sendto, connected=self._connected, now=now
+            )
         except ConnectionClosedError as exc:
             event = exc.event
             if event is None:
                 raise
             raise EndpointClosedError(event) from None
-        self._flush(now)
+        if not sent or conn.timer_hint < self._timer.deadline:
+            self._flush(now)
 
     # ------------------------------------------------------------------ reading
 
@@ -386,19 +405,21 @@ class Endpoint:
                         sendto(data, addr)
                 except OSError:
                     # No buffer space or an ICMP error reported on this send: lost like any other.
-                    self.send_errors += 1
-        self._drain_events()
-        if conn.state is State.CLOSED:
-            self._release()
-            return
-        deadline = conn.get_timer()
-        armed = self._timer.deadline
-        if armed is None or (deadline is not None and deadline < armed):
-            # Only an earlier deadline re-arms. Most inputs push the deadline *later* (keep-alive
-            # and idle timers move with every packet); an expiry at the older, earlier time just runs
-            # handle_timer, which is harmless, and re-arms then. That saves a timerfd_settime
-            # system call per packet.
-            self._timer.arm(deadline)
+                    self._send_errors += 1
+        if conn.pending_events:
+            self._drain_events()
+        timer = self._timer
+        if conn.timer_hint < timer.deadline:
+            # Something may be due before the armed deadline (the connection says so instead of
+            # being asked after every input). Only an earlier deadline re-arms: most inputs push
+            # deadlines *later* (keep-alive and watchdog move with every packet); an expiry at the
+            # older, earlier time just runs handle_timer, which is harmless, and re-arms then.
+            if conn.state is State.CLOSED:
+                self._release()
+                return
+            deadline = conn.get_timer()
+            if deadline is not None and deadline < timer.deadline:
+                timer.arm(deadline)
 
     def _drain_events(self) -> None:
         conn = self._conn

@@ -4,6 +4,13 @@
 ... on the precise deadline timer. Deadlines never drift with wake-up lateness: 1000 ticks per second
 means 1000. After a stall longer than ``max_catch_up`` periods the missed ticks are skipped and counted
 (a teleoperation sample that old is worth nothing) instead of being fired in a burst.
+
+Tickers of the same rate on one loop share their wake-ups: without ``start=``, a ticker joins the loop's
+:class:`~tdtp.aio.loop_timers.TickGroup` for its rate, whose deadlines are one schedule for all of them,
+so a slave that runs a 1 kHz loop per master wakes once per millisecond, not once per master at
+scattered phases. Its first tick is the group's tick at or just before the moment iteration starts
+(due at once, as an ungrouped ticker's first tick is). ``start=`` gives a ticker its own schedule and
+timer.
 """
 
 from __future__ import annotations
@@ -12,6 +19,7 @@ import asyncio
 import math
 from collections.abc import AsyncIterator
 
+from tdtp.aio.loop_timers import TickGroup, tick_group
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
 from tdtp.errors import InvalidArgumentError
 
@@ -44,7 +52,7 @@ class Ticker:
         """Largest delay between a deadline and the moment its tick was delivered, seconds."""
 
     def __aiter__(self) -> AsyncIterator[int]:
-        return self._run()
+        return self._run() if self._start is not None else self._run_grouped()
 
     async def _run(self) -> AsyncIterator[int]:
         loop = asyncio.get_running_loop()
@@ -77,3 +85,28 @@ class Ticker:
                 index += 1
         finally:
             timer.close()
+
+    async def _run_grouped(self) -> AsyncIterator[int]:
+        """The same schedule rules on the loop's shared tick group for this rate."""
+        group: TickGroup = tick_group(asyncio.get_running_loop(), self.rate, self._timer_kind)
+        group.join()
+        try:
+            first = group.current_tick(monotonic())
+            index = 0
+            while True:
+                deadline = group.deadline(first + index)
+                now = monotonic()
+                if now < deadline:
+                    await group.wait(first + index)
+                    now = monotonic()
+                behind = int((now - deadline) * self.rate)
+                if behind > self._max_catch_up:
+                    self.skipped += behind
+                    index += behind
+                    deadline = group.deadline(first + index)
+                self.max_lateness = max(self.max_lateness, now - deadline)
+                self.ticks += 1
+                yield index
+                index += 1
+        finally:
+            group.leave()
