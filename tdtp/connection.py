@@ -202,6 +202,7 @@ class Connection:
         )
         # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
         self._controller.feedback_delay = self.config.ack_delay
+        self._controller.sample_waiting = False  # kept up to date below
         first_seq = rng.randrange(SEQ_MODULUS)
         self._sent = SentPacketLog(
             first_seq,
@@ -408,10 +409,13 @@ class Connection:
                 stats.samples_blocked += 1
             self._pending_paced = True
         else:
-            due = self._controller.next_send_time()
+            controller = self._controller
+            due = controller.next_send_time()
             self._pending_paced = paced = now < due
             if paced and due < self._hint:
                 self._hint = due  # the pacer's deadline for it
+            controller.sample_waiting = True
+            self._check_controller_timer()
         self._pending = payload
 
     def send_direct(
@@ -452,11 +456,11 @@ class Connection:
         stats.samples_offered += 1
         paced = False
         if self._pending is not None:
-            stats.samples_superseded += (
-                1  # a held sample the pacer would let go now: the newer wins
-            )
+            # A held sample the pacer would let go now: the newer one wins.
+            stats.samples_superseded += 1
             paced = True
             self._pending = None
+            self._controller.sample_waiting = False
         sent = self._sent
         if self._ack_mode is AckMode.BIDIRECTIONAL and window.has_data:
             window.mark_reported()
@@ -1186,6 +1190,7 @@ class Connection:
             and now >= self._controller.next_send_time()
         ):
             self._pending = None
+            self._controller.sample_waiting = False
             ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
             header = encode_header(_DATA, self._sent.next_seq, ack, sack, hold)
             sealer = self._sealer
@@ -1350,6 +1355,7 @@ class Connection:
         self._hint = -math.inf
         self._confirming = False
         self._pending = None
+        self._controller.sample_waiting = False
         self._separate_acks.clear()
         self._close_event = event = ConnectionClosed(cause, detail)
         self._push_other_event(event)

@@ -86,6 +86,12 @@ class RateController(abc.ABC):
     connection sets it. A feedback gap this much longer than the RTT is not yet a blackout, so
     no-feedback timers add it."""
 
+    sample_waiting: bool = True
+    """Whether a sample is waiting to leave (held by the pacer, or by a full socket buffer): the
+    connection keeps it up to date. A controller may leave a deadline untimed while nothing waits,
+    if settling it at the next hook, at the deadline's own time, gives the same result (trinomial's
+    interval ends). ``True`` by default: a controller driven on its own times everything."""
+
     @property
     @abc.abstractmethod
     def rate(self) -> float:

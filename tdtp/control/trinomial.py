@@ -192,6 +192,7 @@ class TrinomialController(RateController):
         self._iv_alpha = cfg.alpha_min
         self._iv_w = math.inf
         self._iv_sent = 0
+        self._last_hook = -math.inf  # the now of the last hook, when _advance last ran
         self._last_send: float | None = None
         self._gap_avg: float | None = None  # moving average of departure gaps
         self._paced_avg = 0.0  # moving share of departures the pacer held back
@@ -261,8 +262,12 @@ class TrinomialController(RateController):
         if not self._started:
             return None
         deadline = self._nf_deadline
-        if self._iv_sent:  # an interval without packets is settled lazily by the next hook
-            deadline = self._iv_end if deadline is None else min(deadline, self._iv_end)
+        # The end of an increase interval is settled lazily by the next hook, at the interval's
+        # own end (see _advance), unless that could change what happens before the hook: an
+        # interval without packets never increases, and the increase at its end can only bring
+        # forward a departure, which matters only to a sample waiting for one.
+        if self._iv_sent and self.sample_waiting and (deadline is None or self._iv_end < deadline):
+            deadline = self._iv_end
         return deadline
 
     def on_timer(self, *, now: float) -> None:
@@ -351,9 +356,17 @@ class TrinomialController(RateController):
         """Settle whatever fell due by ``now`` (timers may be served late, or not at all)."""
         if not self._started:
             self._started = True
+            self._last_hook = now
             self._start_interval(now)
             return
         deadline = self._nf_deadline
+        iv_end = self._iv_end
+        if self._iv_sent and iv_end <= now and (deadline is None or iv_end < deadline):
+            # An interval with packets ends at its own end, whenever the hook comes: as if its
+            # timer had fired on time (get_timer leaves it untimed when nothing depends on it),
+            # which is never before the hook that last moved it (a new srtt shortens it).
+            self._end_interval(iv_end if iv_end > self._last_hook else self._last_hook)
+        self._last_hook = now
         if deadline is not None and now >= deadline:
             timeout = self._no_feedback_timeout()
             missed = min(1 + int((now - deadline) // timeout), 64)
