@@ -17,6 +17,7 @@ import errno
 import logging
 import random
 import socket
+import sys
 from collections import deque
 from collections.abc import AsyncIterator, Callable, Coroutine, Generator
 from dataclasses import dataclass, field
@@ -637,6 +638,7 @@ def listen(
     key: KeyInput | None = None,
     keys: KeysInput | None = None,
     pcap: CaptureTarget | None = None,
+    reuse_port: bool = False,
 ) -> Opener[Server]:
     """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
 
@@ -658,9 +660,21 @@ def listen(
     ``netem`` impairs everything the slave sends (all its masters share the one emulated link).
     ``pcap`` (a path, or a shared :class:`~tdtp.pcap.PcapWriter`) records every datagram the
     socket sends and receives, every master's and the strangers' alike, until the server closes.
+
+    ``reuse_port=True`` (Linux, BSD) binds with ``SO_REUSEPORT``, so that several processes can
+    each listen on the same port: the kernel hands a master's datagrams, by its address, always to
+    the same one. A process per core, each with its own server, spreads the masters over every core
+    (README, "Sessions at scale"). Every process must pass ``reuse_port=True``.
     """
     if host is not None and not isinstance(host, str):
         raise InvalidArgumentError(f"host must be an address, a host name or None, got {host!r}")
+    if not isinstance(reuse_port, bool):
+        raise ArgumentTypeError(f"reuse_port must be True or False, got {reuse_port!r}")
+    if reuse_port and not hasattr(socket, "SO_REUSEPORT"):
+        raise InvalidArgumentError(
+            f"reuse_port=True needs SO_REUSEPORT, which {sys.platform} does not have; run one "
+            "process per port instead"
+        )
     _check_port(port, allow_zero=True)
     spec = _check_common(config, timer, on_data, on_watchdog, netem)
     if key is not None and keys is not None:
@@ -676,7 +690,7 @@ def listen(
         backlog=backlog,
         keys=ring,
     )
-    return Opener(lambda: _listen(server, host, port, spec, netem_seed, timer, pcap))
+    return Opener(lambda: _listen(server, host, port, spec, netem_seed, timer, pcap, reuse_port))
 
 
 async def _listen(
@@ -687,6 +701,7 @@ async def _listen(
     netem_seed: int | None,
     timer: TimerPreference,
     pcap: CaptureTarget | None,
+    reuse_port: bool = False,
 ) -> Server:
     loop = asyncio.get_running_loop()
     family = socket.AF_INET6 if host is not None and ":" in host else socket.AF_UNSPEC
@@ -694,7 +709,10 @@ async def _listen(
     protocol_class = _ServerProtocol if capture is None else _CapturingServerProtocol
     try:
         transport, protocol = await loop.create_datagram_endpoint(
-            lambda: protocol_class(server), local_addr=(host or "0.0.0.0", port), family=family
+            lambda: protocol_class(server),
+            local_addr=(host or "0.0.0.0", port),
+            family=family,
+            reuse_port=reuse_port or None,
         )
     except OSError as exc:
         if capture is not None and capture[1]:
