@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 BENCH_STAMP := $(VENV)/.installed-bench
 BUILD_STAMP := $(VENV)/.built
 # What setup.py may compile (a superset of its list: any change here recompiles the core in place).
-CORE_SOURCES := $(wildcard tdtp/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py) setup.py
+CORE_SOURCES := $(wildcard tdtp/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) setup.py
 # The pure-Python build's share of `make test`: the sans-IO core, its wire format and controllers, the
 # conformance vectors and the packaging checks (the asyncio layer and the simulator run on the
 # compiled build, with the rest of the suite).

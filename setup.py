@@ -38,6 +38,8 @@ COMPILED = [
     "tdtp/control/tfrc.py",
     "tdtp/control/trinomial.py",
     "tdtp/control/registry.py",
+    "tdtp/aio/loop_timers.py",
+    "tdtp/aio/endpoint.py",
 ]
 """The compiled core (tdtp/_build.py lists the same modules by name; a test checks they agree)."""
 

@@ -52,6 +52,8 @@ COMPILED_MODULES: Final = (
     "tdtp.control.tfrc",
     "tdtp.control.trinomial",
     "tdtp.control.registry",
+    "tdtp.aio.loop_timers",
+    "tdtp.aio.endpoint",
 )
 """The modules setup.py compiles (a test checks that both lists agree)."""
 

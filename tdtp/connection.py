@@ -22,6 +22,7 @@ import math
 import random
 from collections import deque
 from collections.abc import Callable
+from typing import Final
 
 from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.config import AckMode, ConnectionConfig, Role
@@ -87,12 +88,12 @@ from tdtp.wire.hold import HOLD_NO_ACK, decode_hold, encode_hold
 from tdtp.wire.protected import PROTECTION_OVERHEAD, TAG_SIZE
 from tdtp.wire.seqnum import SEQ_MODULUS
 
-_DATA = int(PacketType.DATA)
-_ACK = int(PacketType.ACK)
-_CONTROL = int(PacketType.CONTROL)
-_NO_ACK = (0, 0, HOLD_NO_ACK)
-_OPEN = int(ControlCode.OPEN)
-_HANDSHAKE = frozenset(
+_DATA: Final = int(PacketType.DATA)
+_ACK: Final = int(PacketType.ACK)
+_CONTROL: Final = int(PacketType.CONTROL)
+_NO_ACK: Final = (0, 0, HOLD_NO_ACK)
+_OPEN: Final = int(ControlCode.OPEN)
+_HANDSHAKE: Final = frozenset(
     (
         int(ControlCode.OPEN),
         int(ControlCode.OPEN_ACK),
@@ -100,14 +101,14 @@ _HANDSHAKE = frozenset(
         int(ControlCode.REJECT),
     )
 )
-_CLOSE_PREFIX = bytes((ControlCode.CLOSE,))
-_KEEPALIVE_PREFIX = encode_keepalive()
-_LARGEST_CONTROL = OPEN_BODY_SIZE + TAG_SIZE
+_CLOSE_PREFIX: Final = bytes((ControlCode.CLOSE,))
+_KEEPALIVE_PREFIX: Final = encode_keepalive()
+_LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 """The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
 ``max_payload`` is."""
-LOSS_DELAY_SRTT = 1.2
-LOSS_DELAY_RTTVAR = 4.0
-TIMER_GRANULARITY = 0.001
+LOSS_DELAY_SRTT: Final = 1.2
+LOSS_DELAY_RTTVAR: Final = 4.0
+TIMER_GRANULARITY: Final = 0.001
 """Slack for timers firing late (RFC 9002's kGranularity)."""
 
 

@@ -7,6 +7,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final
 
+from mypy_extensions import mypyc_attr
+
 Address = tuple[Any, ...]
 """A socket address as asyncio reports it: ``(host, port)`` or ``(host, port, flowinfo, scope_id)``."""
 
@@ -34,6 +36,7 @@ class ConnectionEstablished:
     peer: Address
 
 
+@mypyc_attr(native_class=False)  # compiled, a frozen dataclass's __init__ would stay Python
 @dataclass(frozen=True, slots=True)
 class DataReceived:
     """One supermedia sample from the peer.
@@ -63,17 +66,11 @@ class DataReceived:
         return None if estimate is None else estimate + (now - self.received_at)
 
 
-def _compiled_constructor(
-    payload: bytes, seq: int, estimated_age: float | None, received_at: float
-) -> DataReceived:
-    return DataReceived(payload, seq, estimated_age, received_at)
-
-
-def _pure_constructor() -> Callable[[bytes, int, float | None, float], DataReceived]:
+def _constructor() -> Callable[[bytes, int, float | None, float], DataReceived]:
     """A :class:`DataReceived` without the frozen dataclass's ``__init__``, which sets each field
-    through ``object.__setattr__``: the same object (equal, hashed and printed alike) for half the
-    cost, set through the slots' own descriptors. Only for the pure-Python build; compiled, the
-    class is native and its constructor is already cheap."""
+    through ``object.__setattr__``: the same object (equal, hashed and printed alike) for a fraction
+    of the cost, set through the slots' own descriptors. One per sample received, in both builds
+    (the class stays a plain Python class when compiled, so that it remains a frozen dataclass)."""
     new = object.__new__
     slots = vars(DataReceived)  # the member descriptors of the four slots
     set_payload = slots["payload"].__set__
@@ -84,7 +81,7 @@ def _pure_constructor() -> Callable[[bytes, int, float | None, float], DataRecei
     def construct(
         payload: bytes, seq: int, estimated_age: float | None, received_at: float
     ) -> DataReceived:
-        event = new(DataReceived)
+        event: DataReceived = new(DataReceived)
         set_payload(event, payload)
         set_seq(event, seq)
         set_age(event, estimated_age)
@@ -94,12 +91,7 @@ def _pure_constructor() -> Callable[[bytes, int, float | None, float], DataRecei
     return construct
 
 
-COMPILED: Final = not __file__.endswith(".py")
-"""Whether this module runs compiled (mypyc) rather than as Python source."""
-
-new_data_received: Final[Callable[[bytes, int, float | None, float], DataReceived]] = (
-    _compiled_constructor if COMPILED else _pure_constructor()
-)
+new_data_received: Final = _constructor()
 """``DataReceived(payload, seq, estimated_age, received_at)``, the connection's per-sample way."""
 
 

@@ -15,24 +15,24 @@ from __future__ import annotations
 
 import enum
 from collections import deque
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from tdtp.wire.seqnum import SEQ_MODULUS, expand_seq
 
-WINDOW = 64
-_WINDOW_MASK = (1 << WINDOW) - 1
-SACK_SPAN = 6
+WINDOW: Final = 64
+_WINDOW_MASK: Final = (1 << WINDOW) - 1
+SACK_SPAN: Final = 6
 """Sequence numbers below ACK that the SACK bits describe."""
-SACK_COVERAGE = SACK_SPAN + 1
+SACK_COVERAGE: Final = SACK_SPAN + 1
 """One ACK reports the ACK value and the 6 below it."""
-RESYNC_RUN = 3
+RESYNC_RUN: Final = 3
 """Consecutive sequence numbers that all look older than the window: the peer's numbering has moved on by
 more than half the 12-bit space (a loss burst of over 2047 packets), so the window re-anchors one wrap
 ahead instead of discarding a live flow as stale. After a silence the same rule covers numbers that look
 like duplicates or late packets within the window (an outage just short of a multiple of 4096)."""
-DEFAULT_SILENCE_GUARD = 0.1
+DEFAULT_SILENCE_GUARD: Final = 0.1
 """Seconds without a new packet after which in-window "old" numbers may be a wrapped live flow."""
-MAX_HELD = 8
+MAX_HELD: Final = 8
 """Jump ACKs kept for the next flush. The caller flushes after every input, so one is the most ever
 waiting; the bound only protects against a caller that does not (the oldest is then forgotten)."""
 

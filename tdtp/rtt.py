@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-MIN_RTT_SAMPLE = 1e-6
+from typing import Final
+
+MIN_RTT_SAMPLE: Final = 1e-6
 """Samples are clamped to at least one microsecond (a hold time can only make a sample shorter)."""
 
 

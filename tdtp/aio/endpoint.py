@@ -25,9 +25,10 @@ import asyncio
 import logging
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import Protocol
+from typing import Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
+from tdtp.aio.sample_iteration import samples_until_closed
 from tdtp.aio.timer import monotonic
 from tdtp.connection import Connection, State
 from tdtp.errors import ConnectionClosedError, EndpointClosedError
@@ -57,10 +58,10 @@ logger = logging.getLogger("tdtp")
 
 
 class DatagramSender(Protocol):
-    def sendto(self, data: bytes, addr: Address | None = ..., /) -> None: ...
+    def sendto(self, data: bytes, addr: Address | None = None, /) -> None: ...
 
 
-_NEVER = float("inf")
+_NEVER: Final = float("inf")
 
 
 def format_address(addr: Address | None) -> str:
@@ -276,21 +277,11 @@ class Endpoint:
     def __aiter__(self) -> AsyncIterator[DataReceived]:
         """``async for sample in ep``: the newest sample each time the loop asks (latest value);
         samples that arrived meanwhile are skipped and counted. Ends when the association does."""
-        return self._iterate(self.recv_latest)
+        return samples_until_closed(self.recv_latest)
 
     def stream(self) -> AsyncIterator[DataReceived]:
         """``async for sample in ep.stream()``: every sample in arrival order (see :meth:`recv`)."""
-        return self._iterate(self.recv)
-
-    async def _iterate(
-        self, read: Callable[[], Awaitable[DataReceived]]
-    ) -> AsyncIterator[DataReceived]:
-        while True:
-            try:
-                sample = await read()
-            except EndpointClosedError:
-                return
-            yield sample
+        return samples_until_closed(self.recv)
 
     def _take_newest(self) -> DataReceived | None:
         queue = self._queue

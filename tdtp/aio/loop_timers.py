@@ -19,12 +19,13 @@ import heapq
 import math
 import weakref
 from collections.abc import Callable
+from typing import Final
 
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
 
 __all__ = ["LoopTimers", "TickGroup", "TimerEntry", "loop_timers", "tick_group"]
 
-_NEVER = math.inf
+_NEVER: Final = math.inf
 
 
 class TimerEntry:

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import abc
 import math
-from typing import ClassVar
+from typing import ClassVar, Final
 
 from mypy_extensions import mypyc_attr
 
-NO_LIMIT = -math.inf
+NO_LIMIT: Final = -math.inf
 """What :meth:`RateController.next_send_time` returns when nothing holds the next packet back."""
 
 

@@ -17,22 +17,22 @@ from __future__ import annotations
 
 import enum
 import struct
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from tdtp.wire.errors import MalformedPacketError
 
-HEADER_SIZE = 5
+HEADER_SIZE: Final = 5
 """Bytes of the TDTP base header on every datagram."""
 
-TYPE_BITS = 2
-SEQ_BITS = 12
-ACK_BITS = 12
-SACK_BITS = 6
-HOLD_BITS = 8
+TYPE_BITS: Final = 2
+SEQ_BITS: Final = 12
+ACK_BITS: Final = 12
+SACK_BITS: Final = 6
+HOLD_BITS: Final = 8
 
-SEQ_MASK = (1 << SEQ_BITS) - 1
-SACK_MASK = (1 << SACK_BITS) - 1
-HOLD_MASK = (1 << HOLD_BITS) - 1
+SEQ_MASK: Final = (1 << SEQ_BITS) - 1
+SACK_MASK: Final = (1 << SACK_BITS) - 1
+HOLD_MASK: Final = (1 << HOLD_BITS) - 1
 
 
 class PacketType(enum.IntEnum):
@@ -46,7 +46,7 @@ class PacketType(enum.IntEnum):
     """Connection management; the first payload byte is a :class:`~tdtp.wire.control.ControlCode`."""
 
 
-RESERVED_TYPE = 3
+RESERVED_TYPE: Final = 3
 """TYPE value kept for a future revision; receivers drop it as an unknown type."""
 
 
@@ -60,7 +60,7 @@ class Header(NamedTuple):
     hold: int
 
 
-_WORD = struct.Struct(">BI")
+_WORD: Final = struct.Struct(">BI")
 _pack = _WORD.pack
 _unpack_from = _WORD.unpack_from
 

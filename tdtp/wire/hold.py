@@ -19,11 +19,13 @@ exponent went on, are therefore code 253. Two codes are reserved:
 
 from __future__ import annotations
 
-HOLD_UNIT = 8e-6
+from typing import Final
+
+HOLD_UNIT: Final = 8e-6
 """Seconds per unit of the mini-float (8 microseconds)."""
-HOLD_SATURATED = 254
-HOLD_NO_ACK = 255
-HOLD_MAX_CODE = 253
+HOLD_SATURATED: Final = 254
+HOLD_NO_ACK: Final = 255
+HOLD_MAX_CODE: Final = 253
 
 
 def _decode(code: int) -> float:
@@ -34,9 +36,11 @@ def _decode(code: int) -> float:
 
 _DECODE_TABLE: tuple[float, ...] = tuple(_decode(code) for code in range(HOLD_MAX_CODE + 1))
 
-HOLD_MAX = _DECODE_TABLE[HOLD_MAX_CODE]
+HOLD_MAX: Final = _DECODE_TABLE[HOLD_MAX_CODE]
 """The longest hold a code can express (31.232 ms)."""
-HOLD_SATURATES_AT = ((32 + (HOLD_SATURATED & 0x1F)) << ((HOLD_SATURATED >> 5) - 1)) * HOLD_UNIT
+HOLD_SATURATES_AT: Final = (
+    (32 + (HOLD_SATURATED & 0x1F)) << ((HOLD_SATURATED >> 5) - 1)
+) * HOLD_UNIT
 """The shortest hold that encodes as :data:`HOLD_SATURATED`: 31.744 ms, the value code 254 would have
 if it were not reserved. Anything shorter rounds down to a code (253 from 31.232 ms)."""
 

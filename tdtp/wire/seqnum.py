@@ -8,10 +8,12 @@ expectation, which is what ``docs/PROTOCOL.md`` turns into limits on loss bursts
 
 from __future__ import annotations
 
+from typing import Final
+
 from tdtp.wire.header import SEQ_BITS, SEQ_MASK
 
-SEQ_MODULUS = 1 << SEQ_BITS
-SEQ_HALF = SEQ_MODULUS >> 1
+SEQ_MODULUS: Final = 1 << SEQ_BITS
+SEQ_HALF: Final = SEQ_MODULUS >> 1
 
 
 def expand_seq(truncated: int, expected: int) -> int:
