@@ -145,6 +145,54 @@ def test_droptail_counts_waiting_packets_not_those_propagating() -> None:
     assert link.stats.max_queue == 1
 
 
+def test_byte_counted_droptail_charges_bytes_not_slots() -> None:
+    # ns-2's queue_in_bytes_: an arrival is dropped when the bytes waiting (the packet being
+    # serialised not counted) plus its own reach the limit.
+    net = Network()
+    net.connect("A", "B", "rate 1mbit delay 10ms", byte_limit=3000)
+    net.compute_routes()
+    sink = Collector()
+    net.node("B").bind(1, sink)
+    link = net.link("A", "B")
+    assert link.byte_limit == 3000 and net.link("B", "A").byte_limit == 3000
+    owner = Collector()
+    link.send(packet(1040, owner=owner, tag="first"), 0.0)  # on the wire at once: not counted
+    link.send(packet(1040, owner=owner, tag="a"), 0.0)  # 1040 waiting
+    link.send(packet(1040, owner=owner, tag="b"), 0.0)  # 2080 waiting
+    link.send(packet(1040, owner=owner, tag="c"), 0.0)  # 2080 + 1040 >= 3000: dropped
+    for i in range(20):  # ...but 40-byte packets still fit, up to 2080 + 40 k < 3000
+        link.send(packet(40, owner=owner, tag=i), 0.0)
+    net.run(1.0)
+    assert [p.payload for p in owner.drops] == ["c"]  # 2080 + 20 x 40 < 3000: every small one fits
+    assert [p.payload for _, p in sink.arrivals][:3] == ["first", "a", "b"]
+    assert link.stats.dropped == 1 and link.stats.delivered == 23
+    # The same queue counted in packets (limit 3) drops the 40-byte packets too.
+    net2, sink2 = two_nodes("rate 1mbit delay 10ms limit 3")
+    link2 = net2.link("A", "B")
+    for i in range(10):
+        link2.send(packet(40 if i else 1040, tag=i), 0.0)
+    net2.run(1.0)
+    assert len(sink2.arrivals) == 3
+    with pytest.raises(ValueError, match="byte_limit"):
+        Network().connect("A", "B", "rate 1mbit", byte_limit=0)
+
+
+def test_random_loss_before_the_queue() -> None:
+    net, sink = two_nodes("rate 100mbit delay 1ms loss 20%")
+    owner = Collector()
+    link = net.link("A", "B")
+    for i in range(2000):
+        net.run(i * 0.001)
+        link.send(packet(100, now=i * 0.001, owner=owner, tag=i), i * 0.001)
+    net.run(3.0)
+    assert len(owner.drops) + len(sink.arrivals) == 2000
+    assert 0.17 < len(owner.drops) / 2000 < 0.23
+    with pytest.raises(ValueError, match="uncorrelated random loss"):
+        split_spec(parse_netem("rate 1mbit loss 1% 25%"))
+    with pytest.raises(ValueError, match="uncorrelated random loss"):
+        split_spec(parse_netem("rate 1mbit loss gemodel 1% 10%"))
+
+
 def test_link_spec_is_split_into_queue_and_propagation() -> None:
     queue, delay = split_spec(parse_netem("rate 2mbit delay 7ms limit 9"))
     assert delay == 0.007 and queue.delay is None and queue.limit == 9
