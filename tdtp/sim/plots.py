@@ -19,18 +19,18 @@ from tdtp.sim.scenarios import (
     BestEffortResult,
     FairnessResult,
     FriendlinessResult,
-    PaperResult,
-    PaperRun,
 )
+from tdtp.sim.study import LockoutStudy, PaperStudy
 
 __all__ = [
     "PlotUnavailableError",
     "plot_best_effort",
     "plot_fairness",
     "plot_friendliness",
-    "plot_paper",
-    "plot_paper_comparison",
-    "plot_paper_run",
+    "plot_lockout",
+    "plot_ratios",
+    "plot_study",
+    "plot_study_run",
 ]
 
 _COLORS = {
@@ -70,92 +70,206 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
-def plot_paper_run(
-    result: PaperResult, scheme: str, path: str | Path, *, title: str | None = None
-) -> Path:
-    """Figures 7/8: throughput, packet loss and delay vs time, both directions, for one scheme."""
+def _band(
+    ax: Any,
+    times: Sequence[float],
+    band: dict[str, list[float | None]],
+    scale: float,
+    color: str,
+    label: str,
+    *,
+    linestyle: str = "-",
+    alpha: float = 0.25,
+) -> None:
+    ax.fill_between(
+        times,
+        _nan(band["low"], scale),
+        _nan(band["high"], scale),
+        color=color,
+        alpha=alpha,
+        linewidth=0,
+    )
+    ax.plot(times, _nan(band["median"], scale), color=color, linestyle=linestyle, label=label)
+
+
+def _bin_times(study_params: dict[str, Any]) -> list[float]:
+    width = study_params["bin_width"]
+    n = round(study_params["duration"] / width)
+    return [(i + 0.5) * width for i in range(n)]
+
+
+def plot_study_run(study: PaperStudy, reading: str, scheme: str, path: str | Path) -> Path:
+    """Figures 7/8 over the seeds: goodput, packet loss and delay vs time, both directions; the line
+    is the per-bin median of the seeds, the band their 10th-90th percentiles."""
     plt = _pyplot()
-    run: PaperRun = result.runs[scheme]
-    free = result.params["tcp_ms_paused"]
+    summary = study.readings[reading].schemes[scheme]
+    params = study.params
+    times = _bin_times(params)
+    free = params["tcp_ms_paused"]
     fig, axes = plt.subplots(3, 1, figsize=(9.0, 8.0), sharex=True)
     for direction in (MS, SM):
-        series = run.series[direction]
-        t = series["time"]
+        bands = summary.bands[direction]
         color = _COLORS[direction]
-        axes[0].plot(t, _nan(series["goodput_kbps"]), color=color, label=f"{direction} goodput")
-        axes[1].plot(t, _nan(series["loss_ratio"], 100), color=color, label=direction)
-        axes[2].plot(t, _nan(series["mean_delay"], 1000), color=color, label=direction)
-    for direction, style in (("tcp M->S", ":"), ("tcp S->M", "--")):
-        series = run.series[direction]
-        axes[0].plot(
-            series["time"],
-            _nan(series["goodput_kbps"]),
-            color="0.55",
-            linestyle=style,
-            linewidth=1,
-            label=f"TCP {direction[4:]}",
+        mean = summary.goodput_kbps[direction]["all"]
+        _band(
+            axes[0],
+            times,
+            bands["goodput_kbps"],
+            1.0,
+            color,
+            f"{direction} goodput, median {mean.median:.0f} kbit/s",
         )
+        _band(axes[1], times, bands["loss_ratio"], 100.0, color, direction)
+        _band(axes[2], times, bands["mean_delay"], 1000.0, color, direction)
+    for direction, style in ((MS, ":"), (SM, "--")):
+        band = summary.bands[f"tcp {direction}"]["goodput_kbps"]
+        if any(v for v in band["high"]):
+            _band(
+                axes[0], times, band, 1.0, "0.45", f"TCP {direction}", linestyle=style, alpha=0.15
+            )
     for ax in axes:
         ax.axvspan(free[0], free[1], color="0.9", zorder=0)
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("goodput (kbit/s)")
     axes[1].set_ylabel("packet loss (%)")
     axes[2].set_ylabel("one-way delay (ms)")
-    axes[2].set_xlabel("time (s)")
+    axes[2].set_xlabel("time (s); shaded: no TCP master-to-slave")
     axes[0].legend(loc="upper right", fontsize=8, ncol=2)
     axes[1].legend(loc="upper right", fontsize=8)
-    axes[0].text(
-        (free[0] + free[1]) / 2,
-        0.97,
-        "no TCP M->S",
-        transform=axes[0].get_xaxis_transform(),
-        ha="center",
-        va="top",
-        fontsize=8,
+    how = study.readings[reading].reading
+    starved = sum(len(v) for v in summary.starved_seeds.values())
+    fig.suptitle(
+        f"{SCHEMES[scheme].label}, reading '{reading}' ({len(summary.seeds)} seeds: median, "
+        f"10-90 % band; {starved} with starved TCP)\n{how.describe()}",
+        fontsize=10,
     )
-    fig.suptitle(title or f"{run.label}: figure 6 topology, 1 Mbit/s bottleneck, TCP both ways")
     fig.tight_layout()
     return _save(fig, Path(path))
 
 
-def plot_paper_comparison(result: PaperResult, path: str | Path) -> Path:
-    """Goodput of every scheme, one panel per direction."""
+def plot_ratios(study: PaperStudy, path: str | Path, pair: str = "tdtp/trinomial") -> Path:
+    """The goodput ratio of every seed under every reading (dots), its median and 95 % interval."""
     plt = _pyplot()
-    free = result.params["tcp_ms_paused"]
-    fig, axes = plt.subplots(2, 1, figsize=(9.0, 6.0), sharex=True)
+    names = [n for n, r in study.readings.items() if pair in r.ratios]
+    fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.2), sharey=True)
     for ax, direction in zip(axes, (MS, SM), strict=True):
-        for key, run in result.runs.items():
-            series = run.series[direction]
-            mean_kbps = run.summaries[direction]["all"].goodput_kbps
-            ax.plot(
-                series["time"],
-                _nan(series["goodput_kbps"]),
-                color=_COLORS.get(key),
-                label=f"{SCHEMES[key].label}: mean {mean_kbps:.0f} kbit/s",
+        for x, name in enumerate(names):
+            ratio = study.readings[name].ratios[pair]
+            values = ratio.per_seed[direction]["all"]
+            seeds = study.readings[name].schemes["trinomial"].seeds
+            for i, (seed, v) in enumerate(zip(seeds, values, strict=True)):
+                starved = seed in ratio.starved_seeds
+                ax.plot(
+                    x - 0.15 + 0.3 * i / max(1, len(values) - 1),
+                    v,
+                    "o",
+                    color="tab:red" if starved else _COLORS["tdtp"],
+                    markersize=4,
+                    alpha=0.7,
+                )
+            m = ratio.all_seeds[direction]["all"]
+            ax.errorbar(
+                x + 0.28,
+                m.median,
+                yerr=[[m.median - m.low], [m.high - m.median]],
+                fmt="D",
+                color="k",
+                capsize=4,
+                markersize=5,
             )
-        ax.axvspan(free[0], free[1], color="0.9", zorder=0)
-        ax.set_ylabel(f"{direction} goodput (kbit/s)")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
-    axes[-1].set_xlabel("time (s)")
-    fig.suptitle("Samples delivered (100-byte payloads): TDTP vs Trinomial vs TDTP+TFRC")
+            ax.annotate(f"{m.median:.2f}", (x + 0.33, m.median), fontsize=8, va="center")
+        ax.axhline(1.0, color="0.4", linewidth=1, linestyle="--")
+        ax.axhline(2.0, color="0.7", linewidth=1, linestyle=":")
+        ax.set_xticks(range(len(names)))
+        ax.set_xticklabels(names, fontsize=9)
+        ax.set_title(f"{direction} goodput, {pair}", fontsize=10)
+        ax.set_yscale("log")
+        ax.grid(True, axis="y", alpha=0.3, which="both")
+    axes[0].set_ylabel("ratio (log scale); 2 = the paper's claim")
+    fig.suptitle(
+        "Goodput ratio per seed (dots; red: a TCP flow starved), median and 95 % interval (black)",
+        fontsize=10,
+    )
     fig.tight_layout()
     return _save(fig, Path(path))
 
 
-def plot_paper(result: PaperResult, out_dir: str | Path) -> list[Path]:
-    """Every figure of the paper scenario into ``out_dir``."""
+def plot_study(study: PaperStudy, out_dir: str | Path) -> list[Path]:
+    """Every figure of the paper study into ``out_dir``: figures 7 and 8 per reading, TFRC's, and
+    the ratios."""
     out = Path(out_dir)
     paths = []
-    names = {
-        "tdtp": "figure7_tdtp.png",
-        "trinomial": "figure8_trinomial.png",
-        "tfrc": "paper_tfrc.png",
-    }
-    for key in result.runs:
-        paths.append(plot_paper_run(result, key, out / names.get(key, f"paper_{key}.png")))
-    paths.append(plot_paper_comparison(result, out / "paper_comparison.png"))
+    for name, summary in study.readings.items():
+        suffix = "" if name == "literal" else f"_{name.replace('-', '_')}"
+        files = {
+            "tdtp": f"figure7_tdtp{suffix}.png",
+            "trinomial": f"figure8_trinomial{suffix}.png",
+            "tfrc": f"paper_tfrc{suffix}.png",
+        }
+        for key in summary.schemes:
+            paths.append(
+                plot_study_run(study, name, key, out / files.get(key, f"paper_{key}{suffix}.png"))
+            )
+    if any("tdtp/trinomial" in r.ratios for r in study.readings.values()):
+        paths.append(plot_ratios(study, out / "paper_ratios.png"))
     return paths
+
+
+def plot_lockout(study: LockoutStudy, path: str | Path) -> Path:
+    """Master-to-slave goodput of the 1 kHz flow and of TCP over the seeds, earlier and current
+    controllers side by side."""
+    plt = _pyplot()
+    schemes = list(dict.fromkeys(o.scheme for o in study.outcomes))
+    fig, axes = plt.subplots(
+        len(schemes),
+        2,
+        figsize=(11.0, 3.2 * len(schemes)),
+        sharex=True,
+        sharey=True,
+        squeeze=False,
+    )
+    params = study.params
+    times = _bin_times(params)
+    free = params["tcp_ms_paused"]
+    for row, scheme in enumerate(schemes):
+        for col, controllers in enumerate(("earlier", "current")):
+            ax = axes[row, col]
+            outcome = next(
+                o for o in study.outcomes if o.scheme == scheme and o.controllers == controllers
+            )
+            _band(
+                ax, times, outcome.bands[MS], 1.0, _COLORS.get(scheme, "tab:blue"), f"{scheme} M->S"
+            )
+            _band(
+                ax,
+                times,
+                outcome.bands[f"tcp {MS}"],
+                1.0,
+                "0.35",
+                "TCP M->S",
+                linestyle="--",
+                alpha=0.2,
+            )
+            ax.axvspan(free[0], free[1], color="0.9", zorder=0)
+            ax.grid(True, alpha=0.3)
+            m = outcome.share_ratio
+            ax.set_title(
+                f"{scheme}, {controllers} controller: TCP starved in {len(outcome.starved_seeds)} "
+                f"of {len(outcome.seeds)} seeds;\nshare after/before {m.median:.2f} "
+                f"[{m.low:.2f}, {m.high:.2f}]",
+                fontsize=9,
+            )
+            if col == 0:
+                ax.set_ylabel("goodput (kbit/s)")
+            if row == 0 and col == 1:
+                ax.legend(fontsize=8, loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s); shaded: TCP paused")
+    fig.suptitle(
+        "Lock-out check, literal reading: median and 10-90 % band over the seeds", fontsize=10
+    )
+    fig.tight_layout()
+    return _save(fig, Path(path))
 
 
 def plot_friendliness(result: FriendlinessResult, path: str | Path) -> Path:
