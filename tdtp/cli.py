@@ -21,6 +21,7 @@ from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
+from tdtp.bandwidth_cli import bandwidth_main
 from tdtp.config import AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
 from tdtp.control.registry import available_controllers
@@ -147,6 +148,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="reproduce the paper's experiments in virtual time (tdtp simulate --help)",
     )
     simulate.add_argument("arguments", nargs=argparse.REMAINDER)
+    bandwidth = commands.add_parser(
+        "bandwidth",
+        add_help=False,
+        help="the paper's figure-5 bandwidth model: table, CSV, PNG (tdtp bandwidth --help)",
+    )
+    bandwidth.add_argument("arguments", nargs=argparse.REMAINDER)
     return parser
 
 
@@ -509,6 +516,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if arguments[:1] == ["simulate"]:
         # Its own parser (tdtp.sim.cli); the subcommand below only lists it in --help.
         return simulate_main(arguments[1:])
+    if arguments[:1] == ["bandwidth"]:
+        return bandwidth_main(arguments[1:])
     args = build_parser().parse_args(arguments)
     if getattr(args, "size", SAMPLE_SIZE) < SAMPLE_SIZE:
         print(f"tdtp: --size must be at least {SAMPLE_SIZE} bytes", file=sys.stderr)
