@@ -20,7 +20,7 @@ from tdtp.sim.scenarios import (
     FairnessResult,
     FriendlinessResult,
 )
-from tdtp.sim.study import LockoutStudy, PaperStudy
+from tdtp.sim.study import BOTH, LockoutStudy, PaperStudy
 
 __all__ = [
     "PlotUnavailableError",
@@ -151,8 +151,8 @@ def plot_ratios(study: PaperStudy, path: str | Path, pair: str = "tdtp/trinomial
     """The goodput ratio of every seed under every reading (dots), its median and 95 % interval."""
     plt = _pyplot()
     names = [n for n, r in study.readings.items() if pair in r.ratios]
-    fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.2), sharey=True)
-    for ax, direction in zip(axes, (MS, SM), strict=True):
+    fig, axes = plt.subplots(1, 3, figsize=(14.0, 4.4), sharey=True)
+    for ax, direction in zip(axes, (MS, SM, BOTH), strict=True):
         for x, name in enumerate(names):
             ratio = study.readings[name].ratios[pair]
             values = ratio.per_seed[direction]["all"]
@@ -181,8 +181,9 @@ def plot_ratios(study: PaperStudy, path: str | Path, pair: str = "tdtp/trinomial
         ax.axhline(1.0, color="0.4", linewidth=1, linestyle="--")
         ax.axhline(2.0, color="0.7", linewidth=1, linestyle=":")
         ax.set_xticks(range(len(names)))
-        ax.set_xticklabels(names, fontsize=9)
-        ax.set_title(f"{direction} goodput, {pair}", fontsize=10)
+        ax.set_xticklabels(names, fontsize=8, rotation=15)
+        what = "both directions together" if direction == BOTH else direction
+        ax.set_title(f"goodput {pair}, {what}", fontsize=10)
         ax.set_yscale("log")
         ax.grid(True, axis="y", alpha=0.3, which="both")
     axes[0].set_ylabel("ratio (log scale); 2 = the paper's claim")

@@ -3,15 +3,17 @@
 The paper (section 4) fixes the topology, the rates, the queue limits, the sampling and the ACK size,
 but not the direction of the TCP cross traffic, the TCP variant, the form of Trinomial's ACKs, whether
 the queues count packets or bytes, or whether the senders are cycle-exact. A :class:`Reading` states one
-answer to each. Three are named (:data:`READINGS`):
+answer to each. Four are named (:data:`READINGS`):
 
 * ``literal``: what the text says, and ns-2's defaults where it says nothing. TCP congests the
   master-to-slave direction only ("no congestion is simulated between 20 and 30 seconds in the Master
   to Slave direction"), with ns-2's default ``Agent/TCP`` (Tahoe, ``window_`` 20, 1000-byte
   segments, 10 ms ``tcpTick_``, 0.2 s ``minrto_``); Trinomial answers every data packet with one plain
   40-byte ACK that reports that packet only (eq. 4); DropTail queues count packets; senders are exact.
-* ``both-ways``: the same, with TCP congesting both directions throughout, the other way to read
-  "hard bottleneck congestion due TCP traffic".
+* ``redundant-acks``: the same, but Trinomial's ACKs repeat the status of the 6 packets below, as
+  this project's separate-ACK mode does by default: a lost ACK costs the sender nothing.
+* ``both-ways``: the literal reading with TCP congesting both directions throughout, the other way
+  to read "hard bottleneck congestion due TCP traffic".
 * ``project``: what this project's simulator did before it had readings: TCP both ways, NewReno, ACKs
   that repeat the status of the 6 packets below (a lost ACK costs nothing), and a 0-0.5 ms send jitter
   that breaks the phase lock of periodic senders at a DropTail queue.
@@ -121,6 +123,11 @@ READINGS: Final[dict[str, Reading]] = {
     "literal": Reading(
         "literal",
         summary="the paper's text, ns-2's defaults where it is silent",
+    ),
+    "redundant-acks": Reading(
+        "redundant-acks",
+        ack_form="redundant",
+        summary="as literal, but Trinomial's ACKs repeat the 6 packets below (a lost ACK is free)",
     ),
     "both-ways": Reading(
         "both-ways",

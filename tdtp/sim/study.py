@@ -19,6 +19,7 @@ TCP starved, so a lock-out is never averaged away silently.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -27,11 +28,13 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from typing import Any, Final, Literal
 
+from tdtp.config import AckMode
 from tdtp.control import TfrcConfig, TrinomialConfig
 from tdtp.sim.readings import DEFAULT_READING, READINGS, Reading
 from tdtp.sim.scenarios import (
     DEFAULT_SCHEMES,
     MS,
+    SCHEMES,
     SM,
     STARVATION_SHARE,
     WINDOWS,
@@ -42,8 +45,10 @@ from tdtp.sim.scenarios import (
 from tdtp.sim.spread import INTERVAL_METHOD, MedianInterval, median_interval, quantile
 
 __all__ = [
+    "BOTH",
     "CONTROLLER_VARIANTS",
     "DEFAULT_SEEDS",
+    "EARLIER_SEEDS",
     "LOCKOUT_SEEDS",
     "LockoutStudy",
     "PaperStudy",
@@ -59,11 +64,17 @@ __all__ = [
 
 DEFAULT_SEEDS: Final = 10
 LOCKOUT_SEEDS: Final = 20
+EARLIER_SEEDS: Final = 10
+"""The lock-out check runs the earlier controllers on the first this-many seeds only: enough to show
+how often they locked TCP out, at half the cost (make figures has five minutes)."""
 DIRECTIONS: Final = (MS, SM)
+BOTH: Final = "both"
+"""Both directions together: the paper's "TDTP sends approximately the double of data" may mean this."""
+RATIO_DIRECTIONS: Final = (MS, SM, BOTH)
 Controllers = Literal["current", "earlier"]
 CONTROLLER_VARIANTS: Final[dict[str, dict[str, object]]] = {
     "current": {},
-    # The controllers before the lock-out fix (docs/CONTROL.md, section 3.6 and 5.1).
+    # The controllers before the lock-out fix (docs/CONTROL.md, sections 3.8 and 5.1).
     "earlier": {
         "trinomial": TrinomialConfig(decrease_in_use=False),
         "tfrc": TfrcConfig(data_limited_decrease=None),
@@ -86,8 +97,13 @@ class PaperTask:
     bin_width: float = 1.0
 
     def key(self) -> tuple[Any, ...]:
+        """What decides the run: two tasks with equal keys give the same record. A reading's name
+        does not, nor does the ACK form for a scheme that sends no stand-alone ACKs."""
+        effective = dataclasses.replace(self.reading, name="-", summary="")
+        if SCHEMES[self.scheme].ack_mode is not AckMode.SEPARATE:
+            effective = dataclasses.replace(effective, ack_form="redundant")
         return (
-            self.reading,
+            effective,
             self.scheme,
             self.seed,
             self.duration,
@@ -114,7 +130,7 @@ class RunRecord:
     seed: int
     controllers: str
     goodput_kbps: dict[str, dict[str, float]]
-    """By direction, then window (:data:`~tdtp.sim.scenarios.WINDOWS`)."""
+    """By direction (and :data:`BOTH`), then window (:data:`~tdtp.sim.scenarios.WINDOWS`)."""
     loss_ratio: dict[str, float]
     mean_delay_ms: dict[str, float]
     ack_packets: dict[str, int]
@@ -157,8 +173,12 @@ def run_task(task: PaperTask) -> RunRecord:
         scheme=task.scheme,
         seed=task.seed,
         controllers=task.controllers,
-        goodput_kbps={
-            d: {w: run.summaries[d][w].goodput_kbps for w in WINDOWS} for d in DIRECTIONS
+        goodput_kbps={d: {w: run.summaries[d][w].goodput_kbps for w in WINDOWS} for d in DIRECTIONS}
+        | {
+            BOTH: {
+                w: run.summaries[MS][w].goodput_kbps + run.summaries[SM][w].goodput_kbps
+                for w in WINDOWS
+            }
         },
         loss_ratio={d: run.summaries[d]["all"].loss_ratio for d in DIRECTIONS},
         mean_delay_ms={d: run.summaries[d]["all"].mean_delay * 1000 for d in DIRECTIONS},
@@ -269,7 +289,8 @@ def summarise_scheme(records: Sequence[RunRecord], duration: float) -> SchemeSum
         scheme=records[0].scheme,
         seeds=seeds,
         goodput_kbps={
-            d: {w: _mi(r.goodput_kbps[d][w] for r in records) for w in WINDOWS} for d in DIRECTIONS
+            d: {w: _mi(r.goodput_kbps[d][w] for r in records) for w in WINDOWS}
+            for d in RATIO_DIRECTIONS
         },
         loss_ratio={d: _mi(r.loss_ratio[d] for r in records) for d in DIRECTIONS},
         mean_delay_ms={d: _mi(r.mean_delay_ms[d] for r in records) for d in DIRECTIONS},
@@ -320,14 +341,17 @@ def summarise_ratio(top: Sequence[RunRecord], bottom: Sequence[RunRecord]) -> Ra
         den = b.goodput_kbps[d][w]
         return a.goodput_kbps[d][w] / den if den > 0 else math.nan
 
-    per_seed = {d: {w: [ratio(a, b, d, w) for a, b in pairs] for w in WINDOWS} for d in DIRECTIONS}
+    per_seed = {
+        d: {w: [ratio(a, b, d, w) for a, b in pairs] for w in WINDOWS} for d in RATIO_DIRECTIONS
+    }
     clean = [(a, b) for a, b in pairs if a.seed not in starved]
     return RatioSummary(
         pair=f"{top[0].scheme}/{bottom[0].scheme}" if top and bottom else "",
         per_seed=per_seed,
-        all_seeds={d: {w: _mi(per_seed[d][w]) for w in WINDOWS} for d in DIRECTIONS},
+        all_seeds={d: {w: _mi(per_seed[d][w]) for w in WINDOWS} for d in RATIO_DIRECTIONS},
         without_starved={
-            d: {w: _mi(ratio(a, b, d, w) for a, b in clean) for w in WINDOWS} for d in DIRECTIONS
+            d: {w: _mi(ratio(a, b, d, w) for a, b in clean) for w in WINDOWS}
+            for d in RATIO_DIRECTIONS
         },
         starved_seeds=starved,
     )
@@ -376,7 +400,7 @@ class PaperStudy:
                 }
                 per[f"seeds with starved TCP ({pair})"] = ratio.starved_seeds
             per["goodput_kbps"] = {
-                key: {d: s.goodput_kbps[d]["all"].to_dict(1) for d in DIRECTIONS}
+                key: {d: s.goodput_kbps[d]["all"].to_dict(1) for d in RATIO_DIRECTIONS}
                 for key, s in summary.schemes.items()
             }
             per["tcp_starved_seeds"] = {key: s.starved_seeds for key, s in summary.schemes.items()}
@@ -396,18 +420,28 @@ class PaperStudy:
         return json.dumps(_clean(self.to_dict()), indent=indent, allow_nan=False)
 
 
+SchemeChoice = Sequence[str] | Mapping[str, Sequence[str]]
+"""The schemes to run: the same for every reading, or by reading name."""
+
+
+def _schemes_of(reading: Reading, schemes: SchemeChoice) -> Sequence[str]:
+    if isinstance(schemes, Mapping):
+        return schemes.get(reading.name, DEFAULT_SCHEMES)
+    return schemes
+
+
 def paper_tasks(
     readings: Sequence[Reading],
     *,
     seeds: Sequence[int],
-    schemes: Sequence[str] = DEFAULT_SCHEMES,
+    schemes: SchemeChoice = DEFAULT_SCHEMES,
     duration: float = 100.0,
     bin_width: float = 1.0,
 ) -> list[PaperTask]:
     return [
         PaperTask(reading, scheme, seed, duration, "current", bin_width)
         for reading in readings
-        for scheme in schemes
+        for scheme in _schemes_of(reading, schemes)
         for seed in seeds
     ]
 
@@ -416,13 +450,16 @@ def paper_study(
     readings: Sequence[Reading] = (READINGS[DEFAULT_READING],),
     *,
     seeds: Sequence[int] = tuple(range(1, DEFAULT_SEEDS + 1)),
-    schemes: Sequence[str] = DEFAULT_SCHEMES,
+    schemes: SchemeChoice = DEFAULT_SCHEMES,
     duration: float = 100.0,
     bin_width: float = 1.0,
     jobs: int = 1,
     records: Mapping[tuple[Any, ...], RunRecord] | None = None,
 ) -> PaperStudy:
-    """Run (or take from ``records``) every reading x scheme x seed and summarise them."""
+    """Run (or take from ``records``) every reading x scheme x seed and summarise them.
+
+    ``schemes`` may differ by reading (``{"literal": ("tdtp", "trinomial", "tfrc")}``; a reading
+    not named gets all three)."""
     started = time.perf_counter()
     tasks = paper_tasks(
         readings, seeds=seeds, schemes=schemes, duration=duration, bin_width=bin_width
@@ -434,18 +471,22 @@ def paper_study(
     summaries: dict[str, ReadingSummary] = {}
     kept: list[RunRecord] = []
     for reading in readings:
+        chosen = _schemes_of(reading, schemes)
         by_scheme = {
             scheme: [
-                done[PaperTask(reading, scheme, s, duration, "current", bin_width).key()]
+                dataclasses.replace(
+                    done[PaperTask(reading, scheme, s, duration, "current", bin_width).key()],
+                    reading=reading.name,
+                )
                 for s in seeds
             ]
-            for scheme in schemes
+            for scheme in chosen
         }
         for recs in by_scheme.values():
             kept.extend(recs)
         ratios = {}
         if "trinomial" in by_scheme:
-            for scheme in schemes:
+            for scheme in chosen:
                 if scheme != "trinomial":
                     ratios[f"{scheme}/trinomial"] = summarise_ratio(
                         by_scheme[scheme], by_scheme["trinomial"]
@@ -458,7 +499,7 @@ def paper_study(
     params = {
         "readings": {r.name: r.to_dict() for r in readings},
         "seeds": list(seeds),
-        "schemes": list(schemes),
+        "schemes": {r.name: list(_schemes_of(r, schemes)) for r in readings},
         "duration": duration,
         "bin_width": bin_width,
         "tcp_ms_paused": list(tcp_pause(duration)),
@@ -489,9 +530,9 @@ def lockout_tasks(
     bin_width: float = 1.0,
 ) -> list[PaperTask]:
     """The literal reading (a 1 kHz flow alone on the link in the pause), current and earlier
-    controllers; the earlier ones on ``earlier_seeds`` (default: the same seeds)."""
+    controllers; the earlier ones on ``earlier_seeds`` (default: the first :data:`EARLIER_SEEDS`)."""
     how = reading if reading is not None else READINGS["literal"]
-    before = seeds if earlier_seeds is None else earlier_seeds
+    before = seeds[:EARLIER_SEEDS] if earlier_seeds is None else earlier_seeds
     return [
         PaperTask(how, scheme, seed, duration, controllers, bin_width)
         for controllers, chosen in (("current", seeds), ("earlier", before))
