@@ -78,7 +78,7 @@ class TrinomialConfig:
     """Eq. 10 lengthens the gap *in use*: it decreases the smaller of the allowed rate and the measured
     send rate. ``False`` decreases the allowance alone; an application-limited sender, allowed up to
     ``app_headroom`` times what it sends, then does not slow down at all, and a 1 kHz loop that fills
-    a link locks TCP out (docs/CONTROL.md, section 3.6). Kept to reproduce that."""
+    a link locks TCP out (docs/CONTROL.md, section 3.8). Kept to reproduce that."""
 
     def __post_init__(self) -> None:
         def need(ok: bool, message: str) -> None:

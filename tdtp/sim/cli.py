@@ -45,6 +45,7 @@ from tdtp.sim.scenarios import (
 from tdtp.sim.study import (
     BOTH,
     DEFAULT_SEEDS,
+    EARLIER_SEEDS,
     LOCKOUT_SEEDS,
     LockoutStudy,
     PaperStudy,
@@ -104,6 +105,12 @@ def build_parser(prog: str = "tdtp simulate") -> argparse.ArgumentParser:
         default=None,
         help=f"comma-separated schemes among {', '.join(SCHEMES)} "
         "(default: all three; lockout: tdtp,tfrc)",
+    )
+    parser.add_argument(
+        "--earlier-seeds",
+        type=int,
+        default=None,
+        help=f"lockout: seeds for the controllers before the fix (default {EARLIER_SEEDS})",
     )
     parser.add_argument("--no-plots", action="store_true", help="write the JSON only")
     parser.add_argument(
@@ -252,8 +259,18 @@ def _execute(names: list[str], args: argparse.Namespace) -> tuple[dict[str, Any]
     lockout_schemes = _schemes(args, ("tdtp", "tfrc"))
     if "paper" in names:
         tasks += paper_tasks(readings, seeds=paper_seeds, schemes=paper_schemes, duration=duration)
+    earlier_seeds = None
+    if args.earlier_seeds is not None:
+        if args.earlier_seeds < 1:
+            raise _UsageError(f"--earlier-seeds must be at least 1, got {args.earlier_seeds}")
+        earlier_seeds = list(range(args.seed, args.seed + args.earlier_seeds))
     if "lockout" in names:
-        tasks += lockout_tasks(seeds=lockout_seeds, schemes=lockout_schemes, duration=duration)
+        tasks += lockout_tasks(
+            seeds=lockout_seeds,
+            earlier_seeds=earlier_seeds,
+            schemes=lockout_schemes,
+            duration=duration,
+        )
     unique = {t.key(): t for t in tasks}
     jobs: list[tuple[float, str, Any]] = [(t.cost(), "task", t) for t in unique.values()]
     single = [n for n in names if n in _SINGLE]
@@ -293,7 +310,11 @@ def _execute(names: list[str], args: argparse.Namespace) -> tuple[dict[str, Any]
         )
     if "lockout" in names:
         results["lockout"] = lockout_study(
-            seeds=lockout_seeds, schemes=lockout_schemes, duration=duration, records=records
+            seeds=lockout_seeds,
+            earlier_seeds=earlier_seeds,
+            schemes=lockout_schemes,
+            duration=duration,
+            records=records,
         )
     for name in single:
         results[name] = _merge(name, [out for _, out in sorted(parts[name], key=lambda x: x[0])])
@@ -309,7 +330,10 @@ def _plot(name: str, result: Any, out: Path) -> list[Path]:
     if name == "paper":
         return plots.plot_study(result, out)
     if name == "lockout":
-        return [plots.plot_lockout(result, out / "lockout.png")]
+        return [
+            plots.plot_lockout(result, out / "lockout.png"),
+            plots.plot_lockout_trace(result, out / "lockout_trace.png"),
+        ]
     if name == "friendliness":
         return [plots.plot_friendliness(result, out / "friendliness.png")]
     if name == "fairness":

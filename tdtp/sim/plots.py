@@ -28,6 +28,7 @@ __all__ = [
     "plot_fairness",
     "plot_friendliness",
     "plot_lockout",
+    "plot_lockout_trace",
     "plot_ratios",
     "plot_study",
     "plot_study_run",
@@ -185,7 +186,11 @@ def plot_ratios(study: PaperStudy, path: str | Path, pair: str = "tdtp/trinomial
         what = "both directions together" if direction == BOTH else direction
         ax.set_title(f"goodput {pair}, {what}", fontsize=10)
         ax.set_yscale("log")
-        ax.grid(True, axis="y", alpha=0.3, which="both")
+        ticks = [0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0]
+        ax.set_yticks(ticks)
+        ax.set_yticklabels([f"{t:g}" for t in ticks])
+        ax.minorticks_off()
+        ax.grid(True, axis="y", alpha=0.3)
     axes[0].set_ylabel("ratio (log scale); 2 = the paper's claim")
     fig.suptitle(
         "Goodput ratio per seed (dots; red: a TCP flow starved), median and 95 % interval (black)",
@@ -200,6 +205,7 @@ def plot_study(study: PaperStudy, out_dir: str | Path) -> list[Path]:
     the ratios."""
     out = Path(out_dir)
     paths = []
+    drawn: list[Any] = []  # a run a reading does not change (TDTP's under another ACK form) once
     for name, summary in study.readings.items():
         suffix = "" if name == "literal" else f"_{name.replace('-', '_')}"
         files = {
@@ -207,7 +213,11 @@ def plot_study(study: PaperStudy, out_dir: str | Path) -> list[Path]:
             "trinomial": f"figure8_trinomial{suffix}.png",
             "tfrc": f"paper_tfrc{suffix}.png",
         }
-        for key in summary.schemes:
+        for key, scheme_summary in summary.schemes.items():
+            same = (key, scheme_summary.seeds, scheme_summary.goodput_kbps)
+            if same in drawn:
+                continue
+            drawn.append(same)
             paths.append(
                 plot_study_run(study, name, key, out / files.get(key, f"paper_{key}{suffix}.png"))
             )
@@ -268,6 +278,70 @@ def plot_lockout(study: LockoutStudy, path: str | Path) -> Path:
         ax.set_xlabel("time (s); shaded: TCP paused")
     fig.suptitle(
         "Lock-out check, literal reading: median and 10-90 % band over the seeds", fontsize=10
+    )
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+def plot_lockout_trace(study: LockoutStudy, path: str | Path) -> Path:
+    """One seed that the earlier controller locked out, run by both: what the 1 kHz flow was allowed
+    and what it sent (packets/s, left axis), and what TCP got (kbit/s, right axis)."""
+    plt = _pyplot()
+    schemes = [
+        k for k in study.traces if "earlier" in study.traces[k] and "current" in study.traces[k]
+    ]
+    fig, axes = plt.subplots(
+        len(schemes), 1, figsize=(10.0, 3.3 * max(1, len(schemes))), sharex=True, squeeze=False
+    )
+    params = study.params
+    times = _bin_times(params)
+    free = params["tcp_ms_paused"]
+    shown = [t for t in times if free[0] - 5 <= t <= free[1] + 20]
+    lo, hi = times.index(shown[0]), times.index(shown[-1]) + 1
+    for ax, scheme in zip(axes[:, 0], schemes, strict=True):
+        trace = study.traces[scheme]
+        tcp_ax = ax.twinx()
+        for controllers, style in (("earlier", "--"), ("current", "-")):
+            series = trace[controllers]
+            color = "tab:orange" if controllers == "earlier" else _COLORS.get(scheme, "tab:blue")
+            ax.plot(
+                shown,
+                series["delivered_pps"][lo:hi],
+                color=color,
+                linestyle=style,
+                label=f"{controllers}: sent",
+            )
+            ax.plot(
+                shown,
+                series["allowed_pps"][lo:hi],
+                color=color,
+                linestyle=":",
+                linewidth=1,
+                label=f"{controllers}: allowed",
+            )
+            tcp_ax.plot(
+                shown,
+                _nan(series["tcp_goodput_kbps"][lo:hi]),
+                color="0.4",
+                linestyle=style,
+                linewidth=1.5,
+                label=f"TCP, {controllers} {scheme}",
+            )
+        ax.axvspan(free[0], free[1], color="0.9", zorder=0)
+        ax.set_ylabel(f"{scheme} M->S (packets/s)")
+        tcp_ax.set_ylabel("TCP M->S goodput (kbit/s)")
+        ax.set_ylim(0, 2200)
+        tcp_ax.set_ylim(0, 1000)
+        ax.grid(True, alpha=0.3)
+        ax.set_title(f"{scheme}, seed {trace['seed']}", fontsize=9)
+        lines = ax.get_legend_handles_labels()
+        more = tcp_ax.get_legend_handles_labels()
+        ax.legend(lines[0] + more[0], lines[1] + more[1], fontsize=7, loc="upper right", ncol=3)
+    axes[-1, 0].set_xlabel("time (s); shaded: TCP paused")
+    fig.suptitle(
+        "The lock-out, one seed: allowed twice what it sends, the 1 kHz flow does not slow down on"
+        " the earlier controller's halving",
+        fontsize=10,
     )
     fig.tight_layout()
     return _save(fig, Path(path))

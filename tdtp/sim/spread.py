@@ -36,11 +36,12 @@ class MedianInterval:
     """Values counted (NaN values are left out)."""
 
     def to_dict(self, digits: int = 4) -> dict[str, Any]:
-        """JSON-ready: floats rounded to ``digits``, NaN as ``None``."""
+        """JSON-ready: the median and bounds rounded to ``digits``, the coverage to 3, NaN as None."""
         out: dict[str, Any] = {}
         for key, value in asdict(self).items():
             if isinstance(value, float):
-                out[key] = round(value, digits) if math.isfinite(value) else None
+                places = 3 if key == "coverage" else digits
+                out[key] = round(value, places) if math.isfinite(value) else None
             else:
                 out[key] = value
         return out

@@ -38,6 +38,7 @@ from tdtp.sim.scenarios import (
     SM,
     STARVATION_SHARE,
     WINDOWS,
+    PaperRun,
     paper,
     tail_window,
     tcp_pause,
@@ -82,7 +83,18 @@ CONTROLLER_VARIANTS: Final[dict[str, dict[str, object]]] = {
 }
 BAND = (0.1, 0.9)
 """The per-bin band drawn around the median of the seeds in figures 7 and 8 (10th-90th percentile)."""
+MECHANISM: Final = {
+    "declared_lost": "data packets the sender declared lost",
+    "network_drops": "data packets the network dropped",
+    "ack_drops": "stand-alone ACKs for this direction's data the network dropped",
+    "mean_p": "the sender's loss-event rate, mean of its per-bin samples",
+    "mean_srtt_ms": "the sender's srtt, mean of its per-bin samples",
+    "ack_share": "share of the packets offered to the bottleneck queue this data crosses that are "
+    "stand-alone ACKs (for the other direction's data)",
+}
+"""The per-run figures that explain the ratios; in :attr:`RunRecord.mechanism`."""
 SERIES: Final = ("goodput_kbps", "loss_ratio", "mean_delay")
+"""The per-bin series that figures 7 and 8 draw as bands."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,10 +152,12 @@ class RunRecord:
     starved: list[str]
     bin_width: float
     series: dict[str, dict[str, list[float | None]]]
-    """Per-bin ``goodput_kbps``, ``loss_ratio`` and ``mean_delay`` by direction, and ``tcp M->S`` /
-    ``tcp S->M`` goodput."""
+    """Per-bin ``goodput_kbps``, ``loss_ratio``, ``mean_delay``, ``delivered_pps`` and the sender's
+    ``allowed_pps`` (at the end of the bin) by direction, and ``tcp M->S`` / ``tcp S->M`` goodput."""
     wall_time: float
     events: int
+    mechanism: dict[str, dict[str, float]] = field(default_factory=dict)
+    """What explains a ratio, by name then direction of the data (see :data:`MECHANISM`)."""
 
     def to_dict(self, *, series: bool = False) -> dict[str, Any]:
         data = asdict(self)
@@ -168,6 +182,12 @@ def run_task(task: PaperTask) -> RunRecord:
     }
     for d in DIRECTIONS:
         series[f"tcp {d}"] = {"goodput_kbps": run.series[f"tcp {d}"]["goodput_kbps"]}
+    # The allowed rate at the end of each bin, packets/s: what the controller permitted, next to
+    # what was sent (delivered_pps), shows an allowance that a loss event halves to no effect.
+    for d, side in ((MS, "master"), (SM, "slave")):
+        series[d]["allowed_pps"] = list(run.probes[side]["rate"])
+        series[d]["delivered_pps"] = run.series[d]["delivered_pps"]
+    mechanism = _mechanism(run)
     return RunRecord(
         reading=task.reading.name,
         scheme=task.scheme,
@@ -183,6 +203,7 @@ def run_task(task: PaperTask) -> RunRecord:
         loss_ratio={d: run.summaries[d]["all"].loss_ratio for d in DIRECTIONS},
         mean_delay_ms={d: run.summaries[d]["all"].mean_delay * 1000 for d in DIRECTIONS},
         ack_packets={MS: int(run.acks[MS].sent_packets), SM: int(run.acks[SM].sent_packets)},
+        mechanism=mechanism,
         tcp={d: o.to_dict() for d, o in run.tcp_outcome.items()},
         starved=run.starved,
         bin_width=task.bin_width,
@@ -190,6 +211,29 @@ def run_task(task: PaperTask) -> RunRecord:
         wall_time=run.wall_time,
         events=run.events,
     )
+
+
+def _mean(values: Sequence[float]) -> float:
+    return math.fsum(values) / len(values) if values else math.nan
+
+
+def _mechanism(run: PaperRun) -> dict[str, dict[str, float]]:
+    """:data:`MECHANISM` for one run, by direction of the data."""
+    links = {link["link"]: link for link in run.links}
+    sender = {MS: "master", SM: "slave"}
+    other = {MS: SM, SM: MS}
+    bottleneck = {MS: "R1->R2", SM: "R2->R1"}
+    out: dict[str, dict[str, float]] = {name: {} for name in MECHANISM}
+    for d in DIRECTIONS:
+        probe = run.probes[sender[d]]
+        out["declared_lost"][d] = float(run.connection[sender[d]]["packets_lost"])
+        out["network_drops"][d] = float(run.summaries[d]["all"].dropped_packets)
+        out["ack_drops"][d] = float(run.acks[other[d]].dropped_packets)
+        out["mean_p"][d] = _mean(probe["p"])
+        out["mean_srtt_ms"][d] = 1000 * _mean(probe["srtt"])
+        offered = links[bottleneck[d]]["packets"]
+        out["ack_share"][d] = run.acks[d].sent_packets / offered if offered else math.nan
+    return out
 
 
 def run_tasks(
@@ -248,6 +292,8 @@ class SchemeSummary:
     loss_ratio: dict[str, MedianInterval]
     mean_delay_ms: dict[str, MedianInterval]
     ack_packets_per_s: dict[str, MedianInterval]
+    mechanism: dict[str, dict[str, MedianInterval]]
+    """:data:`MECHANISM` by name then direction."""
     tcp_goodput_kbps: dict[str, MedianInterval]
     tcp_share_ratio: dict[str, MedianInterval]
     """TCP's share of the bottleneck after the pause over its share before it."""
@@ -264,6 +310,9 @@ class SchemeSummary:
             "loss_ratio": {d: m.to_dict() for d, m in self.loss_ratio.items()},
             "mean_delay_ms": {d: m.to_dict() for d, m in self.mean_delay_ms.items()},
             "ack_packets_per_s": {d: m.to_dict() for d, m in self.ack_packets_per_s.items()},
+            "mechanism": {
+                name: {d: m.to_dict() for d, m in ds.items()} for name, ds in self.mechanism.items()
+            },
             "tcp_goodput_kbps": {d: m.to_dict() for d, m in self.tcp_goodput_kbps.items()},
             "tcp_share_after_over_before": {
                 d: m.to_dict() for d, m in self.tcp_share_ratio.items()
@@ -281,7 +330,9 @@ def summarise_scheme(records: Sequence[RunRecord], duration: float) -> SchemeSum
     keys = [*DIRECTIONS, *(f"tcp {d}" for d in DIRECTIONS)]
     bands = {
         key: {
-            name: _band([r.series[key][name] for r in records]) for name in records[0].series[key]
+            name: _band([r.series[key][name] for r in records])
+            for name in records[0].series[key]
+            if name in SERIES or key.startswith("tcp")
         }
         for key in keys
     }
@@ -296,6 +347,10 @@ def summarise_scheme(records: Sequence[RunRecord], duration: float) -> SchemeSum
         mean_delay_ms={d: _mi(r.mean_delay_ms[d] for r in records) for d in DIRECTIONS},
         ack_packets_per_s={
             d: _mi(r.ack_packets[d] / duration for r in records) for d in DIRECTIONS
+        },
+        mechanism={
+            name: {d: _mi(r.mechanism[name][d] for r in records if r.mechanism) for d in DIRECTIONS}
+            for name in MECHANISM
         },
         tcp_goodput_kbps={d: _mi(r.tcp[d]["goodput_kbps"] for r in records) for d in tcp_dirs},
         tcp_share_ratio={d: _mi(r.tcp[d]["share_ratio"] for r in records) for d in tcp_dirs},
@@ -509,6 +564,7 @@ def paper_study(
             "tcp_off": "master-to-slave TCP paused (both directions)",
         },
         "interval": f"95 % {INTERVAL_METHOD} over the seeds (exact coverage given per interval)",
+        "mechanism": dict(MECHANISM),
         "band": f"figures: per-bin median and {BAND[0]:.0%}-{BAND[1]:.0%} range over the seeds",
         "starvation": f"TCP below {STARVATION_SHARE:.0%} of its fair share of the bottleneck over "
         f"{tail_window(duration)[0]:g}-{duration:g} s",
@@ -576,6 +632,10 @@ class LockoutOutcome:
 class LockoutStudy:
     params: dict[str, Any]
     outcomes: list[LockoutOutcome]
+    traces: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """By scheme: one seed that the earlier controller locked out (or the first seed), run by both:
+    ``{"seed": n, "earlier": series, "current": series}`` with master-to-slave ``delivered_pps``,
+    ``allowed_pps`` and TCP ``goodput_kbps`` per bin."""
 
     def headline(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -594,6 +654,7 @@ class LockoutStudy:
             "params": self.params,
             "headline": self.headline(),
             "outcomes": [o.to_dict() for o in self.outcomes],
+            "traces": self.traces,
         }
 
     def to_json(self, *, indent: int | None = None) -> str:
@@ -651,6 +712,23 @@ def lockout_study(
                     },
                 )
             )
+    traces: dict[str, dict[str, Any]] = {}
+    for scheme in schemes:
+        earlier = next(o for o in outcomes if o.scheme == scheme and o.controllers == "earlier")
+        both = [seed for seed in earlier.seeds if seed in seeds]
+        if not both:
+            continue
+        seed = next((x for x in earlier.starved_seeds if x in both), both[0])
+        trace: dict[str, Any] = {"seed": seed}
+        for t in tasks:
+            if t.scheme == scheme and t.seed == seed:
+                rec = done[t.key()]
+                trace[t.controllers] = {
+                    "delivered_pps": rec.series[MS]["delivered_pps"],
+                    "allowed_pps": rec.series[MS]["allowed_pps"],
+                    "tcp_goodput_kbps": rec.series[f"tcp {MS}"]["goodput_kbps"],
+                }
+        traces[scheme] = trace
     params = {
         "reading": READINGS["literal"].to_dict(),
         "duration": duration,
@@ -668,4 +746,4 @@ def lockout_study(
         "interval": f"95 % {INTERVAL_METHOD}",
         "wall_time_s": round(time.perf_counter() - started, 1),
     }
-    return LockoutStudy(params=params, outcomes=outcomes)
+    return LockoutStudy(params=params, outcomes=outcomes, traces=traces)

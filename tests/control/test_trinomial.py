@@ -510,7 +510,7 @@ def test_a_loss_slows_an_application_limited_sender_down_from_what_it_sends(
     """A 1 kHz application after a long loss-free run is allowed twice what it sends. Eq. 10 must
     lengthen the gap in use: halving the unused allowance (the controller before the lock-out fix,
     ``decrease_in_use=False``) leaves it sending 1000 packets/s into the queue that just
-    overflowed, which is how it locked TCP out (docs/CONTROL.md, section 3.6)."""
+    overflowed, which is how it locked TCP out (docs/CONTROL.md, section 3.8)."""
     rtt, demand, lost_seq = 0.04, 1000.0, 3000
     c = TrinomialController(TrinomialConfig(decrease_in_use=decrease_in_use))
     trace = run(c, Path(rtt=rtt, demand=demand, loss=lambda seq, t: seq == lost_seq), 5.0)

@@ -217,6 +217,7 @@ def test_cli_reading_overrides_and_text(tmp_path: Path, capsys: pytest.CaptureFi
         (["paper", "--send-jitter", "50"], "send_jitter"),
         (["fairness", "--seeds", "3"], "runs once"),
         (["lockout", "--duration", "-1"], "--duration"),
+        (["lockout", "--earlier-seeds", "0"], "--earlier-seeds"),
     ],
 )
 def test_cli_refuses_bad_arguments_with_one_line(

@@ -3,6 +3,7 @@ and the lock-out check itself on the paper's scenario."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -13,6 +14,8 @@ from tdtp.sim.study import (
     CONTROLLER_VARIANTS,
     PaperTask,
     RunRecord,
+    lockout_study,
+    lockout_tasks,
     paper_study,
     summarise_ratio,
     summarise_scheme,
@@ -90,6 +93,25 @@ def test_study_takes_records_it_already_has() -> None:
     assert headline["literal"]["goodput ratio tdtp/trinomial"][MS]["all"]["median"] == 1.5
     assert "order-statistic" in headline["interval"]
     assert '"runs"' in study.to_json() and math.isfinite(study.params["wall_time_s"])
+
+
+def test_lockout_study_counts_starved_seeds_and_traces_one() -> None:
+    records = {}
+    for task in lockout_tasks(seeds=(1, 2, 3), earlier_seeds=(1, 2), schemes=("tdtp",)):
+        rec = record(
+            "tdtp", task.seed, 150.0, starved=task.controllers == "earlier" and task.seed == 2
+        )
+        rec.series[MS] |= {"allowed_pps": [2000.0, 1000.0], "delivered_pps": [1000.0, 1000.0]}
+        records[task.key()] = dataclasses.replace(rec, controllers=task.controllers)
+    study = lockout_study(seeds=(1, 2, 3), earlier_seeds=(1, 2), schemes=("tdtp",), records=records)
+    current, earlier = study.outcomes
+    assert (current.controllers, earlier.controllers) == ("current", "earlier")
+    assert current.seeds == [1, 2, 3] and earlier.seeds == [1, 2]
+    assert current.starved_seeds == [] and earlier.starved_seeds == [2]
+    assert earlier.outside_factor_two == [2]  # share after / before 0: TCP got nothing back
+    assert study.traces["tdtp"]["seed"] == 2  # the locked-out seed, run by both controllers
+    assert study.traces["tdtp"]["earlier"]["allowed_pps"] == [2000.0, 1000.0]
+    assert study.headline()["earlier"]["tdtp"]["starved"] == [2]
 
 
 @pytest.mark.parametrize(("scheme", "seeds"), [("tdtp", (5, 6, 15)), ("tfrc", (1, 2, 3))])
