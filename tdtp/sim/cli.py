@@ -324,21 +324,48 @@ def _execute(names: list[str], args: argparse.Namespace) -> tuple[dict[str, Any]
 # -- output -------------------------------------------------------------------------------------------
 
 
-def _plot(name: str, result: Any, out: Path) -> list[Path]:
+def _figure_jobs(name: str, result: Any, out: Path) -> list[Any]:
+    """The figures of one scenario as (function, arguments) pairs."""
     from tdtp.sim import plots  # noqa: PLC0415 - matplotlib only when figures are wanted
 
     if name == "paper":
-        return plots.plot_study(result, out)
+        return plots.study_figure_jobs(result, out)
     if name == "lockout":
         return [
-            plots.plot_lockout(result, out / "lockout.png"),
-            plots.plot_lockout_trace(result, out / "lockout_trace.png"),
+            (plots.plot_lockout, (result, out / "lockout.png")),
+            (plots.plot_lockout_trace, (result, out / "lockout_trace.png")),
         ]
-    if name == "friendliness":
-        return [plots.plot_friendliness(result, out / "friendliness.png")]
-    if name == "fairness":
-        return [plots.plot_fairness(result, out / "fairness.png")]
-    return [plots.plot_best_effort(result, out / "best_effort.png")]
+    function = {
+        "friendliness": plots.plot_friendliness,
+        "fairness": plots.plot_fairness,
+        "best-effort": plots.plot_best_effort,
+    }[name]
+    return [(function, (result, out / f"{name.replace('-', '_')}.png"))]
+
+
+def _draw(job: Any) -> Path:
+    function, args = job
+    path: Path = function(*args)
+    return path
+
+
+def _draw_all(results: dict[str, Any], out: Path, jobs: int) -> dict[str, list[Path]]:
+    """Every figure of every scenario, ``jobs`` processes at a time; raises ImportError without
+    matplotlib."""
+    from tdtp.sim.plots import ensure_matplotlib  # noqa: PLC0415 - matplotlib only when wanted
+
+    ensure_matplotlib()
+    per_name = {name: _figure_jobs(name, result, out) for name, result in results.items()}
+    flat = [(name, job) for name, figure_jobs in per_name.items() for job in figure_jobs]
+    if jobs > 1 and len(flat) > 1:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(flat))) as pool:
+            paths = list(pool.map(_draw, [job for _, job in flat]))
+    else:
+        paths = [_draw(job) for _, job in flat]
+    drawn: dict[str, list[Path]] = {name: [] for name in results}
+    for (name, _), path in zip(flat, paths, strict=True):
+        drawn[name].append(path)
+    return drawn
 
 
 def _paper_text(study: PaperStudy) -> list[str]:
@@ -467,24 +494,24 @@ def simulate_main(argv: Sequence[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     summaries: dict[str, Any] = {}
     status = 0
+    figures: dict[str, list[Path]] = {name: [] for name in results}
+    if not args.no_plots:
+        try:
+            figures = _draw_all(results, out, args.jobs)
+        except ImportError as exc:
+            print(f"tdtp simulate: {exc}", file=sys.stderr)
+            status = 1
     for name, result in results.items():
         json_path = out / f"{name.replace('-', '_')}.json"
         json_path.write_text(result.to_json() + "\n")
-        figures: list[Path] = []
-        if not args.no_plots:
-            try:
-                figures = _plot(name, result, out)
-            except ImportError as exc:
-                print(f"tdtp simulate: {exc}", file=sys.stderr)
-                status = 1
         summaries[name] = {
             "json": str(json_path),
-            "figures": [str(p) for p in figures],
+            "figures": [str(p) for p in figures[name]],
             "headline": result.headline(),
         }
         if not args.json:
             print(summary_text(result))
-            print(f"  wrote {json_path}" + "".join(f", {p}" for p in figures))
+            print(f"  wrote {json_path}" + "".join(f", {p}" for p in figures[name]))
     if args.json:
         payload = summaries if len(names) > 1 else summaries[names[0]]
         print(json.dumps(payload | {"wall_time_s": round(wall, 1)}, indent=2))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +24,7 @@ from tdtp.sim.study import BOTH, LockoutStudy, PaperStudy
 
 __all__ = [
     "PlotUnavailableError",
+    "ensure_matplotlib",
     "plot_best_effort",
     "plot_fairness",
     "plot_friendliness",
@@ -32,6 +33,7 @@ __all__ = [
     "plot_ratios",
     "plot_study",
     "plot_study_run",
+    "study_figure_jobs",
 ]
 
 _COLORS = {
@@ -58,6 +60,11 @@ def _pyplot() -> Any:
         ) from exc
     matplotlib.use("Agg")  # files only, no display needed
     return importlib.import_module("matplotlib.pyplot")
+
+
+def ensure_matplotlib() -> None:
+    """Raise :class:`PlotUnavailableError` at once if matplotlib is missing."""
+    _pyplot()
 
 
 def _nan(values: Sequence[float | None], scale: float = 1.0) -> list[float]:
@@ -200,12 +207,16 @@ def plot_ratios(study: PaperStudy, path: str | Path, pair: str = "tdtp/trinomial
     return _save(fig, Path(path))
 
 
-def plot_study(study: PaperStudy, out_dir: str | Path) -> list[Path]:
-    """Every figure of the paper study into ``out_dir``: figures 7 and 8 per reading, TFRC's, and
-    the ratios."""
+FigureJob = tuple[Callable[..., Path], tuple[Any, ...]]
+"""One figure to draw: a plotting function and its arguments (picklable, for a process pool)."""
+
+
+def study_figure_jobs(study: PaperStudy, out_dir: str | Path) -> list[FigureJob]:
+    """The figures of the paper study: figures 7 and 8 per reading, TFRC's, and the ratios. A run
+    that a reading does not change (TDTP's under another ACK form) is drawn once."""
     out = Path(out_dir)
-    paths = []
-    drawn: list[Any] = []  # a run a reading does not change (TDTP's under another ACK form) once
+    jobs: list[FigureJob] = []
+    drawn: list[Any] = []
     for name, summary in study.readings.items():
         suffix = "" if name == "literal" else f"_{name.replace('-', '_')}"
         files = {
@@ -218,12 +229,16 @@ def plot_study(study: PaperStudy, out_dir: str | Path) -> list[Path]:
             if same in drawn:
                 continue
             drawn.append(same)
-            paths.append(
-                plot_study_run(study, name, key, out / files.get(key, f"paper_{key}{suffix}.png"))
-            )
+            path = out / files.get(key, f"paper_{key}{suffix}.png")
+            jobs.append((plot_study_run, (study, name, key, path)))
     if any("tdtp/trinomial" in r.ratios for r in study.readings.values()):
-        paths.append(plot_ratios(study, out / "paper_ratios.png"))
-    return paths
+        jobs.append((plot_ratios, (study, out / "paper_ratios.png")))
+    return jobs
+
+
+def plot_study(study: PaperStudy, out_dir: str | Path) -> list[Path]:
+    """Every figure of :func:`study_figure_jobs` into ``out_dir``, one after the other."""
+    return [function(*args) for function, args in study_figure_jobs(study, out_dir)]
 
 
 def plot_lockout(study: LockoutStudy, path: str | Path) -> Path:
