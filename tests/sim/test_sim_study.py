@@ -121,10 +121,10 @@ def test_no_lockout_after_the_pause(scheme: str, seeds: tuple[int, ...]) -> None
     TCP out with the controllers before the fix; the first one still does with the earlier
     controller (so the scenario reproduces the defect), and none may with the current one: TCP's
     share over 30-50 s within a factor of 2 of its share over 0-20 s."""
-    run = paper(
+    run = paper(  # to 40 s: ten seconds after the pause tell a lock-out well enough
         seed=seeds[0],
         schemes=(scheme,),
-        duration=50.0,
+        duration=40.0,
         pause=(20.0, 30.0),
         controller_configs=CONTROLLER_VARIANTS["earlier"],
     ).runs[scheme]
