@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -368,9 +369,14 @@ def _draw_all(results: dict[str, Any], out: Path, jobs: int) -> dict[str, list[P
     return drawn
 
 
+def _num(value: float, spec: str = ".0f") -> str:
+    return format(value, spec) if math.isfinite(value) else "-"
+
+
 def _paper_text(study: PaperStudy) -> list[str]:
+    seeds = len(study.params["seeds"])
     lines = [
-        f"paper (figures 6-8): {len(study.params['seeds'])} seeds per configuration; "
+        f"paper (figures 6-8): {seeds} seed{'' if seeds == 1 else 's'} per configuration; "
         "median [95 % interval] over the seeds"
     ]
     for name, summary in study.readings.items():
@@ -380,9 +386,9 @@ def _paper_text(study: PaperStudy) -> list[str]:
             for d in (MS, SM):
                 g = s.goodput_kbps[d]
                 parts.append(
-                    f"{d} {g['all'].format('.0f')} kbit/s (TCP on {g['tcp_on'].median:.0f}, "
-                    f"off {g['tcp_off'].median:.0f}), loss {100 * s.loss_ratio[d].median:.1f} %, "
-                    f"delay {s.mean_delay_ms[d].median:.0f} ms"
+                    f"{d} {g['all'].format('.0f')} kbit/s (TCP on {_num(g['tcp_on'].median)}, "
+                    f"off {_num(g['tcp_off'].median)}), loss {_num(100 * s.loss_ratio[d].median, '.1f')} %, "
+                    f"delay {_num(s.mean_delay_ms[d].median)} ms"
                 )
             lines.append(f"    {key:9s} " + "; ".join(parts))
             starved = {d: v for d, v in s.starved_seeds.items() if v}

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -218,7 +219,9 @@ def study_figure_jobs(study: PaperStudy, out_dir: str | Path) -> list[FigureJob]
     jobs: list[FigureJob] = []
     drawn: list[Any] = []
     for name, summary in study.readings.items():
-        suffix = "" if name == "literal" else f"_{name.replace('-', '_')}"
+        suffix = (
+            "" if name == "literal" else "_" + re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+        )
         files = {
             "tdtp": f"figure7_tdtp{suffix}.png",
             "trinomial": f"figure8_trinomial{suffix}.png",
