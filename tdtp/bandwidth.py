@@ -8,17 +8,21 @@ gives the cost of separate ACKs relative to piggybacked ones::
 
     C_total(separate ACKs) = (1 + SH / (SD + SH)) * C_total(bidirectional)
 
-This module computes the on-wire bandwidth of the four schemes of the paper's figure 5, each in two
+This module computes the on-wire bandwidth of the four schemes of the paper's figure 5, each in three
 encapsulations:
 
-=============  =====================================  ======================================
-scheme         native (the paper: TDTP right on IP)   over UDP (this implementation)
-=============  =====================================  ======================================
-TCP            IP 20 + TCP 20, separate 40-byte ACKs  same
-UDP            IP 20 + UDP 8, no ACKs                 same
-Trinomial      IP 20 + 5, separate 25-byte ACKs       IP 20 + UDP 8 + 5, separate 33-byte ACKs
-TDTP           IP 20 + 5, ACKs piggybacked            IP 20 + UDP 8 + 5, ACKs piggybacked
-=============  =====================================  ======================================
+=========  ===================================  ====================================  ================
+scheme     native (the paper: TDTP right on     UDP/IPv4 (this implementation)        UDP/IPv6
+           IPv4)
+=========  ===================================  ====================================  ================
+TCP        IPv4 20 + TCP 20, 40-byte ACKs       same                                  IPv6 40 + 20
+UDP        IPv4 20 + UDP 8, no ACKs             same                                  IPv6 40 + 8
+Trinomial  IPv4 20 + 5, separate 25-byte ACKs   IPv4 20 + UDP 8 + 5, 33-byte ACKs     40 + 8 + 5
+TDTP       IPv4 20 + 5, ACKs piggybacked        IPv4 20 + UDP 8 + 5, piggybacked      40 + 8 + 5
+=========  ===================================  ====================================  ================
+
+Over IPv6 every scheme pays the 40-byte IPv6 header, TCP and UDP included: the comparison is between
+transports on the same network.
 
 Rates are in bits per second on the wire (IP packets: link-layer framing is not counted), for both
 directions together unless a function says otherwise. The paper's worked example (100-byte data at its
@@ -43,6 +47,7 @@ from tdtp.errors import InvalidArgumentError
 
 __all__ = [
     "FIGURE5_SIZES",
+    "IPV6_HEADER",
     "IP_HEADER",
     "PAPER_APP_RATE",
     "TCP_HEADER",
@@ -67,6 +72,8 @@ __all__ = [
 
 IP_HEADER = 20
 """IPv4 header without options, bytes."""
+IPV6_HEADER = 40
+"""IPv6 header without extension headers, bytes."""
 TCP_HEADER = 20
 """TCP header without options, bytes."""
 UDP_HEADER = 8
@@ -87,6 +94,18 @@ class Encapsulation(enum.Enum):
     """The paper's: the 5-byte header directly on IP (20 + 5 = 25 bytes per packet)."""
     UDP = "udp"
     """This implementation's: over UDP over IPv4 (20 + 8 + 5 = 33 bytes per packet)."""
+    UDP6 = "udp6"
+    """Over UDP over IPv6 (40 + 8 + 5 = 53 bytes per packet); TCP and UDP over IPv6 too."""
+
+    @property
+    def ip_header(self) -> int:
+        """Bytes of the IP header every packet carries in this encapsulation."""
+        return IPV6_HEADER if self is Encapsulation.UDP6 else IP_HEADER
+
+    @property
+    def label(self) -> str:
+        """What sits under the 5-byte header, for tables and figures."""
+        return {"native": "IPv4", "udp": "UDP/IPv4", "udp6": "UDP/IPv6"}[self.value]
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,16 +132,18 @@ class Scheme:
 def schemes(encapsulation: Encapsulation = Encapsulation.NATIVE) -> tuple[Scheme, ...]:
     """The four schemes of figure 5, in the paper's order: TCP, UDP, Trinomial, TDTP.
 
-    TCP and UDP do not depend on ``encapsulation``. Trinomial and TDTP carry the 5-byte header on IP
-    (``NATIVE``) or on UDP (``UDP``); Trinomial's separate ACK is a bare header (``SA = 0``, as in eq. 8).
+    Trinomial and TDTP carry the 5-byte header on IPv4 (``NATIVE``), on UDP over IPv4 (``UDP``) or on
+    UDP over IPv6 (``UDP6``); TCP and UDP use the encapsulation's IP version. Trinomial's separate ACK
+    is a bare header (``SA = 0``, as in eq. 8).
     """
-    tdtp = IP_HEADER + TDTP_HEADER
-    if encapsulation is Encapsulation.UDP:
+    ip = encapsulation.ip_header
+    tdtp = ip + TDTP_HEADER
+    if encapsulation is not Encapsulation.NATIVE:
         tdtp += UDP_HEADER
-    tcp = IP_HEADER + TCP_HEADER
+    tcp = ip + TCP_HEADER
     return (
         Scheme("TCP", tcp, tcp),
-        Scheme("UDP", IP_HEADER + UDP_HEADER, 0),
+        Scheme("UDP", ip + UDP_HEADER, 0),
         Scheme("Trinomial", tdtp, tdtp),
         Scheme("TDTP", tdtp, 0),
     )
@@ -319,8 +340,9 @@ def plot_figure5(
         1, len(encapsulations), figsize=(6.0 * len(encapsulations), 4.5), squeeze=False
     )
     titles = {
-        Encapsulation.NATIVE: "native: TDTP/Trinomial header on IP (20 + 5)",
-        Encapsulation.UDP: "ours: TDTP/Trinomial over UDP (20 + 8 + 5)",
+        Encapsulation.NATIVE: "native: TDTP/Trinomial header on IPv4 (20 + 5)",
+        Encapsulation.UDP: "ours: TDTP/Trinomial over UDP/IPv4 (20 + 8 + 5)",
+        Encapsulation.UDP6: "over UDP/IPv6 (40 + 8 + 5), TCP and UDP on IPv6",
     }
     for ax, encapsulation in zip(axes[0], encapsulations, strict=True):
         rows = figure5_table(sizes, app_rate=app_rate, encapsulations=[encapsulation])

@@ -29,6 +29,7 @@ from tdtp.aio.endpoint import Endpoint, WatchdogCallback, format_address
 from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import check_timer_preference, monotonic
+from tdtp.bandwidth_cli import bandwidth_main
 from tdtp.cli_keys import (
     KeyArgumentError,
     SessionKeys,
@@ -262,6 +263,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="reproduce the paper's experiments in virtual time (tdtp simulate --help)",
     )
     simulate.add_argument("arguments", nargs=argparse.REMAINDER)
+    bandwidth = commands.add_parser(
+        "bandwidth",
+        add_help=False,
+        help="the paper's figure-5 bandwidth model: table, CSV, PNG (tdtp bandwidth --help)",
+    )
+    bandwidth.add_argument("arguments", nargs=argparse.REMAINDER)
     return parser
 
 
@@ -927,6 +934,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return simulate_main(arguments[1:])
     if arguments[:1] == ["keygen"]:
         return keygen_main(arguments[1:])
+    if arguments[:1] == ["bandwidth"]:
+        return bandwidth_main(arguments[1:])
     args = build_parser().parse_args(arguments)  # exits 2 with argparse's message on its own
     try:
         if args.command in ("demo", "master", "slave"):

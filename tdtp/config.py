@@ -100,6 +100,10 @@ class ConnectionConfig:
     ack_size: int = HEADER_SIZE
     """Bytes of a stand-alone ACK datagram, header included (padding is zeros). The paper's Trinomial
     simulation used 40-byte ACK packets at the IP layer, i.e. ``ack_size`` 20 over raw IP."""
+    plain_acks: bool = False
+    """Separate-ACK mode only: each stand-alone ACK reports its own packet and nothing else (SACK bits
+    zero), the paper's one-ACK-per-packet Trinomial, so a lost ACK reads as a lost packet. ``False``
+    repeats the receiver's knowledge of the 6 packets below it, so a lost ACK costs nothing."""
     ack_delay: float = 0.020
     """Longest a received packet waits for a reverse packet to carry its ACK before a stand-alone ACK
     goes out (bidirectional mode). At most 31.232 ms, so every ACK can report its hold time."""
@@ -170,6 +174,10 @@ class ConnectionConfig:
             and HEADER_SIZE <= self.ack_size <= HEADER_SIZE + self.max_payload,
             f"ack_size must be an integer in {HEADER_SIZE}..{HEADER_SIZE + self.max_payload} "
             f"(header plus at most max_payload of padding), got {self.ack_size!r}",
+        )
+        _require(
+            isinstance(self.plain_acks, bool),
+            f"plain_acks must be True or False, got {self.plain_acks!r}",
         )
         _positive_finite("ack_delay", self.ack_delay)
         _require(

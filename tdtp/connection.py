@@ -1215,11 +1215,11 @@ class Connection:
                 self._emit_ack(out, ack, sack, hold, peer, now)
         else:
             acks = self._separate_acks
+            plain = self.config.plain_acks
             while acks:
                 seq, arrival = acks.popleft()
-                self._emit_ack(
-                    out, seq, window.sack_below(seq), encode_hold(now - arrival), peer, now
-                )
+                sack = 0 if plain else window.sack_below(seq)  # plain: this packet only
+                self._emit_ack(out, seq, sack, encode_hold(now - arrival), peer, now)
         if now >= self._last_send + self._keepalive:
             ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
             self._emit_control(

@@ -49,6 +49,10 @@ def test_header_sizes_per_encapsulation() -> None:
     ours = {s.name: (s.header, s.ack) for s in schemes(UDP)}
     assert ours == {"TCP": (40, 40), "UDP": (28, 0), "Trinomial": (33, 33), "TDTP": (33, 0)}
     assert scheme("tdtp", UDP).header == 20 + 8 + HEADER_SIZE
+    # Over IPv6 every scheme carries the 40-byte IPv6 header, TCP and UDP included.
+    six = {s.name: (s.header, s.ack) for s in schemes(Encapsulation.UDP6)}
+    assert six == {"TCP": (60, 60), "UDP": (48, 0), "Trinomial": (53, 53), "TDTP": (53, 0)}
+    assert [e.label for e in Encapsulation] == ["IPv4", "UDP/IPv4", "UDP/IPv6"]
 
 
 def test_protocol_md_example_over_udp_at_1000_packets_per_second() -> None:

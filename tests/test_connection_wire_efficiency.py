@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from tdtp import AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
 from tdtp.wire import HEADER_SIZE, PacketType, decode_header
@@ -45,6 +47,49 @@ def test_separate_ack_mode_sends_one_ack_per_received_data_packet() -> None:
         assert all(len(a) == 20 for a in acks)
         data = [d for d in direction.wire if decode_header(d).ptype == PacketType.DATA]
         assert all(decode_header(d).hold == 255 for d in data)  # data carries no ACK
+
+
+@pytest.mark.parametrize("plain", [False, True])
+def test_plain_acks_report_their_own_packet_only(plain: bool) -> None:
+    # Master to slave at 1000/s; every 50th ACK the slave sends back is lost.
+    config = ConnectionConfig(
+        ack_mode=AckMode.SEPARATE,
+        plain_acks=plain,
+        controller="fixed",
+        controller_config=FixedConfig(rate=float("inf")),
+    )
+    pair = Pair(
+        config,
+        config,
+        sm=Direction(keep_wire=True, drop=lambda i: i > 10 and i % 50 == 0),
+    )
+    pair.open()
+    pair.start_samples(1000, 0)
+    pair.run_for(2.0)
+    pair.drain()
+    acks = [decode_header(d) for d in pair.sm.wire if decode_header(d).ptype == PacketType.ACK]
+    assert len(acks) > 1900 and pair.sm.dropped >= 38
+    master = pair.master.conn.stats
+    if plain:
+        # Each ACK names its packet and nothing else (SACK zero): a lost ACK reads as a lost
+        # packet, as with the paper's one-ACK-per-packet Trinomial.
+        assert all(a.sack == 0 for a in acks)
+        assert master.packets_lost == pair.sm.dropped
+    else:
+        # Each ACK repeats the 6 packets below it: a lost ACK costs nothing.
+        assert sum(a.sack == 0b111111 for a in acks) > 0.99 * len(acks)
+        assert master.packets_lost == 0
+    assert pair.slave.conn.stats.received.data_packets == master.sent.data_packets  # none lost
+
+
+def test_plain_acks_is_validated_and_ignored_with_piggybacked_acks() -> None:
+    with pytest.raises(ValueError, match="plain_acks"):
+        ConnectionConfig(plain_acks=1)  # type: ignore[arg-type]
+    pair = _run(ConnectionConfig(plain_acks=True), 1.0)  # bidirectional: SACK as always
+    data = [decode_header(d) for d in pair.ms.wire if decode_header(d).ptype == PacketType.DATA]
+    reports = [d for d in data if d.hold != 255]  # all but the few before the reverse flow began
+    assert len(reports) > 950
+    assert sum(d.sack == 0b111111 for d in reports) > 0.99 * len(reports)
 
 
 def test_slave_adopts_the_masters_ack_mode() -> None:

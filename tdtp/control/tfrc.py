@@ -29,6 +29,8 @@ __all__ = ["TfrcConfig", "TfrcController"]
 _W_INIT_BYTES = 4380.0
 _DATA_LIMITED_FRACTION = 0.5
 _SIZE_GAIN = 1.0 / 16.0
+_PACED_GAIN = 1.0 / 8.0
+"""Gain of the moving share of departures the pacer held back (about the last eight packets)."""
 
 
 def _check_field(ok: bool, message: str) -> None:
@@ -51,6 +53,13 @@ class TfrcConfig:
     """Bytes per packet for ``W_init``; ``None`` uses a running mean of the sizes sent."""
     initial_no_feedback_timeout: float = 2.0
     """Seconds before the first no-feedback halving when no RTT is known (RFC 5348: 2 s)."""
+    data_limited_decrease: float | None = 0.85
+    """RFC 5348 section 4.3 step 4 for a loss in a data-limited interval: ``X_recv_set`` is halved,
+    the new receive-rate sample multiplied by this (the RFC's 0.85), and ``recv_limit`` is
+    ``max(X_recv_set)``, not twice it, until a window without a new loss. ``None`` turns the rule off:
+    ``recv_limit`` is always ``2 X_recv`` and only a sender using less than half its allowance counts
+    as data-limited; an application-limited sender whose equation rate is above what it sends then
+    never slows down, which locked TCP out (docs/CONTROL.md, section 5.1). Kept to reproduce that."""
 
     def __post_init__(self) -> None:
         need = _check_field  # module-level: mypyc compiles no closures inside a plain class
@@ -75,6 +84,10 @@ class TfrcConfig:
             packet_size is None or (isinstance(packet_size, int) and packet_size > 0),
             f"packet_size must be None (measure it) or a positive number of bytes, "
             f"got {packet_size!r}",
+        )
+        need(
+            self.data_limited_decrease is None or 0.0 < self.data_limited_decrease <= 1.0,
+            f"data_limited_decrease must be None or in (0, 1], got {self.data_limited_decrease!r}",
         )
         need(
             0.0 < self.initial_no_feedback_timeout < math.inf,
@@ -110,6 +123,9 @@ class TfrcController(RateController):
         self._win_allowance = 0.0
         self._win_mark = 0.0
         self._win_p = 0.0
+        self._paced_avg = 1.0  # moving share of departures the pacer held back
+        self._recv_factor = 2.0  # recv_limit = this x max(X_recv_set) (RFC 5348 4.3 step 4)
+        self._loss_unreported = False  # a loss event not yet in a closed receive-rate window
         # No-feedback timer.
         self._nf_deadline: float | None = None
         self._sent_since_nf = False
@@ -155,6 +171,7 @@ class TfrcController(RateController):
             mean = self._mean_size
             self._mean_size = float(size) if mean is None else mean + (size - mean) * _SIZE_GAIN
         self._win_sent += 1
+        self._paced_avg += _PACED_GAIN * ((1.0 if paced else 0.0) - self._paced_avg)
         self._sent_since_nf = True
         if self._nf_deadline is None:
             self._nf_deadline = now + self._cfg.initial_no_feedback_timeout
@@ -174,7 +191,7 @@ class TfrcController(RateController):
         self._set_r(srtt)
         self._set_p(loss_event_rate)
         r = self._r if self._r is not None else self._cfg.initial_no_feedback_timeout / 4.0
-        self._measure_receive_rate(now, max(acked, 0), r)
+        self._measure_receive_rate(now, max(acked, 0), r, new_loss=self._loss_unreported)
         if not self._had_feedback:
             # First feedback: start from the RFC 3390 initial window per RTT.
             self._had_feedback = True
@@ -195,6 +212,9 @@ class TfrcController(RateController):
         self._set_p(loss_event_rate)
         if self._p > 0.0 and self._r is not None:
             # RFC 5348 receivers report a new loss event at once; act on it as on that report.
+            # The report also closes the receive-rate interval under way: the feedback that
+            # revealed the loss does so in on_ack.
+            self._loss_unreported = self._cfg.data_limited_decrease is not None
             self._set_rate(now, self._equation_rate(self._r))
 
     # ------------------------------------------------------------------ internals
@@ -202,15 +222,18 @@ class TfrcController(RateController):
     def _equation_rate(self, r: float) -> float:
         """``max(min(X_eq, recv_limit), s/t_mbi)`` in packets/s (RFC 5348 section 4.3 step 4)."""
         x_eq = padhye_rate(r, self._p, 4.0 * r)
-        return max(min(x_eq, 2.0 * self.x_recv), self._cfg.min_rate)
+        return max(min(x_eq, self._recv_factor * self.x_recv), self._cfg.min_rate)
 
     def _initial_window(self) -> float:
         """RFC 3390's initial window in packets: ``min(4 s, max(2 s, 4380)) / s``."""
         s = self._mean_size if self._mean_size is not None else 1.0
         return min(4.0 * s, max(2.0 * s, _W_INIT_BYTES)) / s
 
-    def _measure_receive_rate(self, now: float, acked: int, r: float) -> None:
-        """Close a receive-rate window once it spans an RTT and update ``X_recv_set`` (4.3 step 4)."""
+    def _measure_receive_rate(
+        self, now: float, acked: int, r: float, *, new_loss: bool = False
+    ) -> None:
+        """Close a receive-rate window once it spans an RTT (or at once when it reports a new loss
+        event), update ``X_recv_set`` and ``recv_limit`` (RFC 5348 section 4.3 step 4)."""
         if self._win_start is None:
             self._win_start = self._win_mark = now
             self._win_p = self._p
@@ -220,28 +243,45 @@ class TfrcController(RateController):
             return
         self._win_acked += acked
         duration = now - self._win_start
-        if duration < r:
+        if duration < r and not new_loss:
             return
         self._integrate(now)
-        sample = self._win_acked / duration
+        decrease = self._cfg.data_limited_decrease
+        # A window shorter than a quarter RTT (a loss reported just after a window closed) is too
+        # short to measure a rate; its loss still counts.
+        sample = self._win_acked / duration if duration >= 0.25 * r else None
         data_limited = self._win_sent < _DATA_LIMITED_FRACTION * self._win_allowance
+        if decrease is not None:
+            # The application, not the pacer, set the pace: most packets left as offered.
+            data_limited = data_limited or self._paced_avg < 0.5
         if data_limited:
             values = [value for _, value in self._recv_set if value < math.inf]
-            if self._p > self._win_p:
+            loss = new_loss or self._p > self._win_p
+            if loss:
                 # A loss in a data-limited interval: halve the history, decay the new sample.
                 values = [value / 2.0 for value in values]
-                sample *= 0.85
-            self._recv_set = [(now, max([*values, sample]))]
-        else:
+                if sample is not None:
+                    sample *= decrease if decrease is not None else 0.85
+            if sample is not None:
+                values.append(sample)
+            top = max(values) if values else math.inf
+            self._recv_set = [(now, top)]
+            if decrease is not None:
+                self._recv_factor = 1.0 if loss else 2.0
+        elif sample is not None:
             self._recv_set = [
                 (t, value) for t, value in self._recv_set if t >= now - 2.0 * r and value < math.inf
             ]
             self._recv_set.append((now, sample))
+            self._recv_factor = 2.0
+        else:
+            return  # a loss too soon after the last window closed, while the pacer sets the pace
         self._win_start = self._win_mark = now
         self._win_p = self._p
         self._win_acked = 0
         self._win_sent = 0
         self._win_allowance = 0.0
+        self._loss_unreported = False
 
     def _advance(self, now: float) -> None:
         deadline = self._nf_deadline

@@ -5,8 +5,10 @@ The state is the inter-packet gap (IPG). Time is cut into *increase intervals*, 
 per RTT) and ``W = srtt / alpha``; at its end, if the interval saw feedback, no loss event, and the
 sender used its allowance, the gap shrinks by eq. 9, ``IPG' = IPG * W / (IPG + W)`` (the rate grows
 by ``alpha / srtt``). A loss event lengthens the gap by eq. 10, ``IPG' = IPG / beta``, at most once
-per srtt. The rate never exceeds eq. 2 (or eq. 1 with ``use_padhye``) for the loss event rate the
-connection reports, nor ``max_rate``, and never falls below ``min_rate``.
+per srtt, applied to the gap in use: an application sending less than it is allowed is slowed down
+from what it sends, not from its unused allowance. The rate never exceeds eq. 2 (or eq. 1 with
+``use_padhye``) for the loss event rate the connection reports, nor ``max_rate``, and never falls
+below ``min_rate``.
 
 ``alpha`` is where the paper's gamma enters: below the TCP-friendly cap an interval closes the
 fraction ``gamma`` of the distance to the cap (at least ``alpha_min`` packets per RTT, at most
@@ -80,6 +82,11 @@ class TrinomialConfig:
     """srtt assumed before the first feedback (gives RFC 5348's initial 2 s no-feedback timer)."""
     use_padhye: bool = False
     """Cap with eq. 1 (Padhye, ``t_RTO = 4 * srtt``) instead of eq. 2."""
+    decrease_in_use: bool = True
+    """Eq. 10 lengthens the gap *in use*: it decreases the smaller of the allowed rate and the measured
+    send rate. ``False`` decreases the allowance alone; an application-limited sender, allowed up to
+    ``app_headroom`` times what it sends, then does not slow down at all, and a 1 kHz loop that fills
+    a link locks TCP out (docs/CONTROL.md, section 3.8). Kept to reproduce that."""
 
     def __post_init__(self) -> None:
         need = _check_field  # module-level: mypyc compiles no closures inside a plain class
@@ -148,6 +155,10 @@ class TrinomialConfig:
         need(
             isinstance(use_padhye, bool),
             f"use_padhye must be True or False, got {use_padhye!r}",
+        )
+        need(
+            isinstance(self.decrease_in_use, bool),
+            f"decrease_in_use must be True or False, got {self.decrease_in_use!r}",
         )
 
 
@@ -317,7 +328,15 @@ class TrinomialController(RateController):
         self._acked_since_loss = 0
         self._cap_lifted = False
         if now - self._last_decrease >= self._srtt:
-            self._set_rate(now, 1.0 / (self.ipg / self._cfg.beta))  # eq. 10
+            rate = self.rate
+            if self._cfg.decrease_in_use and self._paced_avg < 0.5:
+                # The application sets the pace (most packets left as soon as offered): the gap
+                # in use is the application's, not the unused allowance. (A paced sender's gap in
+                # use is the allowed one; its moving average would lag behind a recent increase.)
+                sending = self._send_rate()
+                if sending > 0.0:
+                    rate = min(rate, sending)
+            self._set_rate(now, rate * self._cfg.beta)  # eq. 10: IPG / beta
             self._decreases += 1
             self._last_decrease = now
         self._apply_ceiling(now)

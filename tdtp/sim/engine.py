@@ -4,25 +4,32 @@
   the same instant run in the order they were scheduled, so a run is a pure function of its inputs.
 * :class:`Timer` is a re-armable deadline on top of it (a TCP retransmission timer, a connection's
   ``get_timer()``): re-arming it later costs nothing, earlier pushes one event.
-* :class:`Link` is one direction of a wire: a :class:`~tdtp.netem.NetemLink` does the serialisation
-  (``rate``) and the DropTail queue (``limit``, in packets), then the packet propagates for a fixed
-  delay. :meth:`Network.connect` makes the two directions of a symmetric link.
+* :class:`Link` is one direction of a wire: a DropTail queue (``limit``, in packets) served at the
+  link ``rate``, then a fixed propagation delay, both given in netem syntax
+  (``"rate 1mbit delay 10ms limit 15"``). :meth:`Network.connect` makes the two directions of a
+  symmetric link. With ``byte_limit`` the queue counts bytes instead, as ns-2's ``Queue/DropTail``
+  with ``queue_in_bytes_`` does.
 * :class:`Node` is a host or a router: packets addressed to it go to the agent bound to their
   destination port; others are forwarded on the static route to their destination
   (:meth:`Network.compute_routes`: fewest hops, ties broken by the order links were created).
 
-Why the propagation delay is not the NetemLink's own ``delay``: netem's ``limit`` counts every packet
-held, including those still in their delay (netem's tfifo holds them), while a router's DropTail
-queue (ns-2's ``Queue/DropTail``, a real router) holds only the packets waiting for the wire. On a
-1 Mbit/s link with 10 ms of delay, about ten 125-byte packets are on the wire at any time; counting
-them would shrink a 15-packet queue to five. So each :class:`Link` gives its NetemLink the rate and
-the limit (and any random loss) and adds the delay itself. With ``limit`` N the link then holds at
-most N packets, the one being serialised included, exactly as ns-2's DropTail with ``limit_`` N
-(it drops an arrival when ``length + 1 >= limit_``, the packet on the wire not counted).
+The queue holds only the packets waiting for the wire and the one being serialised, as a router's
+DropTail queue (ns-2's ``Queue/DropTail``) does; packets propagating are not counted. (netem's own
+``delay`` would count them: its tfifo holds every delayed packet, so on a 1 Mbit/s link with 10 ms of
+delay, about ten 125-byte packets on the wire would shrink a 15-packet queue to five.) With ``limit``
+N the link holds at most N packets, the one being serialised included, exactly as ns-2's DropTail
+with ``limit_`` N (it drops an arrival when ``length + 1 >= limit_``, the packet on the wire not
+counted). Serialisation follows netem's rate rule, and the drop decision is the one a
+:class:`~tdtp.netem.NetemLink` with the same rate and limit makes; the link does it itself, one event
+per busy period rather than two per packet, because the simulator spends most of its time here.
+
+A byte-counted queue (``byte_limit`` B) drops an arrival of ``size`` bytes when the bytes *waiting*
+(the packet being serialised not counted) plus ``size`` reach B: ns-2's test
+``byteLength() + size >= limit_ * mean_pktsize_``. A packet-counted queue gives a 40-byte ACK the same
+slot as a 1040-byte segment; a byte-counted one charges it 40 bytes.
 
 Packets do not need real bytes: a :class:`Packet` carries its size in bytes on the wire (IP header
-included) and any payload object (a TDTP datagram, a TCP segment). The NetemLink gets a blank
-``bytes`` object of that size, shared between packets of equal size, with the packet as its tag.
+included) and any payload object (a TDTP datagram, a TCP segment).
 """
 
 from __future__ import annotations
@@ -30,12 +37,14 @@ from __future__ import annotations
 import dataclasses
 import heapq
 import math
+import random
 from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any, Final, Protocol
 
 from tdtp.errors import InvalidArgumentError
-from tdtp.netem import NetemLink, NetemSpec, RateSpec, parse_netem
+from tdtp.netem import NetemSpec, RateSpec, parse_netem
+from tdtp.netem.spec import RandomLoss
 
 __all__ = [
     "Agent",
@@ -189,17 +198,6 @@ class Agent(Protocol):
     def receive(self, packet: Packet, now: float) -> None: ...
 
 
-_BLANKS: dict[int, bytes] = {}
-
-
-def _blank(size: int) -> bytes:
-    """A shared zero-filled ``bytes`` of ``size``: what the NetemLink serialises for a packet."""
-    blank = _BLANKS.get(size)
-    if blank is None:
-        blank = _BLANKS[size] = bytes(size)
-    return blank
-
-
 @dataclasses.dataclass(slots=True)
 class LinkStats:
     """What one direction of a link carried."""
@@ -217,10 +215,11 @@ class LinkStats:
 
 
 def split_spec(spec: NetemSpec) -> tuple[NetemSpec, float]:
-    """``spec`` without its delay (for the NetemLink) and the delay as a propagation time.
+    """``spec`` without its delay (the queue and the serialisation) and the delay as a propagation time.
 
-    Only what a wired router link does is supported: a fixed delay, a rate, a limit and random loss
-    before the queue. Jitter, reordering, duplication and corruption raise :class:`ValueError`.
+    Only what a wired router link does is supported: a fixed delay, a rate, a limit and uncorrelated
+    random loss before the queue. Jitter, reordering, duplication, corruption and bursty or correlated
+    loss raise :class:`ValueError`.
     """
     delay = spec.delay
     if delay is not None and delay.jitter:
@@ -230,6 +229,11 @@ def split_spec(spec: NetemSpec) -> tuple[NetemSpec, float]:
     for name in ("duplicate", "corrupt", "reorder"):
         if getattr(spec, name) is not None:
             raise InvalidArgumentError(f"simulated links do not support netem's {name!r} ({spec})")
+    loss = spec.loss
+    if loss is not None and not (isinstance(loss, RandomLoss) and not loss.correlation):
+        raise InvalidArgumentError(
+            f"simulated links support uncorrelated random loss only ({spec})"
+        )
     if spec.rate is None:
         raise InvalidArgumentError(
             f"a simulated link needs a rate, e.g. 'rate 1mbit delay 10ms' ({spec})"
@@ -238,14 +242,28 @@ def split_spec(spec: NetemSpec) -> tuple[NetemSpec, float]:
 
 
 class Link:
-    """One direction of a wire from ``src`` to ``dst``: DropTail queue, serialisation, propagation."""
+    """One direction of a wire from ``src`` to ``dst``: DropTail queue, serialisation, propagation.
+
+    The queue is a FIFO served at the link rate, so a packet's departure time is known when it joins:
+    ``max(now, departure of the packet before it) + size * 8 / rate`` (netem's rate rule). The link
+    keeps the departure times of the packets it holds; a packet counts against ``limit`` until its
+    last bit has left, exactly what a :class:`~tdtp.netem.NetemLink` with the same rate and limit does,
+    and arrives at ``dst`` one propagation delay after it left. One event per link and busy period
+    delivers the packets in order.
+    """
 
     __slots__ = (
-        "_armed",
-        "_drops_seen",
-        "_netem",
+        "_byte_limit",
+        "_departures",
+        "_held_bytes",
+        "_held_sizes",
+        "_limit",
+        "_loss",
         "_on_wire",
+        "_rng",
         "_sim",
+        "_transmit",
+        "_tx_times",
         "delay",
         "dst",
         "name",
@@ -262,87 +280,101 @@ class Link:
         spec: NetemSpec,
         *,
         seed: int = 0,
+        byte_limit: int | None = None,
     ) -> None:
         queue_spec, delay = split_spec(spec)
+        if byte_limit is not None and not (isinstance(byte_limit, int) and byte_limit > 0):
+            raise ValueError(f"byte_limit must be a positive number of bytes, got {byte_limit!r}")
         self._sim = sim
         self.src = src
         self.dst = dst
         self.name = f"{src.name}->{dst.name}"
         self.delay: Final = delay
-        assert queue_spec.rate is not None
-        self.rate_bps: Final = queue_spec.rate.rate_bps
-        self._netem = NetemLink(queue_spec, seed=seed)
-        self._armed = False
-        self._drops_seen = 0
-        self._on_wire: deque[tuple[float, Packet]] = deque()  # propagating: (arrival time, packet)
+        rate = queue_spec.rate
+        assert rate is not None  # split_spec insists
+        self.rate_bps: Final = rate.rate_bps
+        self._transmit = rate.transmit_time
+        self._tx_times: dict[int, float] = {}  # serialisation time by packet size
+        self._limit = queue_spec.limit
+        self._byte_limit = byte_limit
+        loss = queue_spec.loss
+        self._loss = loss.p if isinstance(loss, RandomLoss) else 0.0
+        self._rng = random.Random(seed)
+        self._departures: deque[float] = deque()  # of the packets held, oldest first
+        self._held_sizes: deque[int] = deque()  # byte-counted queue only
+        self._held_bytes = 0
+        self._on_wire: deque[tuple[float, Packet]] = deque()  # (arrival time at dst, packet)
         self.stats = LinkStats()
-
-    @property
-    def netem(self) -> NetemLink:
-        """The NetemLink doing this direction's queue and serialisation."""
-        return self._netem
 
     @property
     def queued(self) -> int:
         """Packets in the queue now, the one being serialised included."""
-        return self._netem.in_flight
+        now = self._sim.now
+        return sum(1 for departure in self._departures if departure > now)
+
+    @property
+    def limit(self) -> int:
+        """The queue's limit in packets (ignored when :attr:`byte_limit` is set)."""
+        return self._limit
+
+    @property
+    def byte_limit(self) -> int | None:
+        """The queue's limit in bytes, or ``None`` when it counts packets (:attr:`limit`)."""
+        return self._byte_limit
 
     def send(self, packet: Packet, now: float) -> None:
         """Offer ``packet`` to the link at ``now``: queued, or dropped (and its owner told)."""
-        netem = self._netem
         stats = self.stats
+        size = packet.size
         stats.packets += 1
-        stats.bytes += packet.size
-        netem.send(_blank(packet.size), now, packet)
-        nstats = netem.stats
-        drops = nstats.queue_dropped + nstats.lost
-        if drops != self._drops_seen:
-            self._drops_seen = drops
+        stats.bytes += size
+        departures = self._departures
+        byte_limit = self._byte_limit
+        while departures and departures[0] <= now:  # these have left: no longer queued
+            departures.popleft()
+            if byte_limit is not None:
+                self._held_bytes -= self._held_sizes.popleft()
+        held = len(departures)
+        if self._loss and self._rng.random() < self._loss:
+            dropped = True
+        elif byte_limit is None:
+            dropped = held >= self._limit
+        else:
+            waiting = self._held_bytes - self._held_sizes[0] if held else 0
+            dropped = waiting + size >= byte_limit
+        if dropped:
             stats.dropped += 1
             owner = packet.owner
             if owner is not None:
                 owner.on_drop(packet, now)
             return
-        held = netem.in_flight
-        stats.max_queue = max(stats.max_queue, held)
-        if not self._armed:
-            due = netem.next_delivery()
-            if due is not None:
-                self._armed = True
-                self._sim.call_at(due, self._serialised)
-
-    def _serialised(self) -> None:
-        """Packets whose last bit left: on to the far end after the propagation delay."""
-        sim = self._sim
-        now = sim.now
-        netem = self._netem
-        stats = self.stats
-        delay = self.delay
-        for _, tag in netem.deliver(now):
-            packet: Packet = tag  # type: ignore[assignment]
-            stats.delivered += 1
-            stats.delivered_bytes += packet.size
-            if delay:
-                on_wire = self._on_wire
-                on_wire.append((now + delay, packet))
-                if len(on_wire) == 1:
-                    sim.call_at(now + delay, self._arrive)
-            else:
-                self.dst.receive(packet, now)
-        due = netem.next_delivery()
-        if due is None:
-            self._armed = False
-        else:
-            sim.call_at(due, self._serialised)
+        transmit = self._tx_times.get(size)
+        if transmit is None:
+            transmit = self._tx_times[size] = self._transmit(size)
+        departure = (departures[-1] if held else now) + transmit
+        departures.append(departure)
+        if byte_limit is not None:
+            self._held_sizes.append(size)
+            self._held_bytes += size
+        if held >= stats.max_queue:
+            stats.max_queue = held + 1
+        on_wire = self._on_wire
+        on_wire.append((departure + self.delay, packet))
+        if len(on_wire) == 1:
+            self._sim.call_at(departure + self.delay, self._arrive)
 
     def _arrive(self) -> None:
-        """The first propagating packet reaches ``dst`` (the delay is fixed, so order is kept)."""
+        """Packets reach ``dst`` in order (the delay is fixed, departures are FIFO)."""
         sim = self._sim
         now = sim.now
         on_wire = self._on_wire
         dst = self.dst
+        stats = self.stats
         while on_wire and on_wire[0][0] <= now:
-            dst.receive(on_wire.popleft()[1], now)
+            packet = on_wire.popleft()[1]
+            stats.delivered += 1
+            stats.delivered_bytes += packet.size
+            dst.receive(packet, now)
         if on_wire:
             sim.call_at(on_wire[0][0], self._arrive)
 
@@ -413,10 +445,13 @@ class Network:
         b: str,
         spec: NetemSpec | str,
         reverse: NetemSpec | str | None = None,
+        *,
+        byte_limit: int | None = None,
     ) -> tuple[Link, Link]:
         """A duplex link: ``spec`` from ``a`` to ``b`` and ``reverse`` (default: the same) back.
 
-        Specs are netem syntax or :class:`NetemSpec`: ``"rate 1mbit delay 10ms limit 15"``.
+        Specs are netem syntax or :class:`NetemSpec`: ``"rate 1mbit delay 10ms limit 15"``. With
+        ``byte_limit`` both directions' queues count bytes (the specs' ``limit`` is then ignored).
         """
         forward_spec = parse_netem(spec) if isinstance(spec, str) else spec
         if reverse is None:
@@ -426,7 +461,14 @@ class Network:
         node_a, node_b = self.node(a), self.node(b)
         made = []
         for src, dst, link_spec in ((node_a, node_b, forward_spec), (node_b, node_a, back_spec)):
-            link = Link(self.sim, src, dst, link_spec, seed=self.seed + len(self.links))
+            link = Link(
+                self.sim,
+                src,
+                dst,
+                link_spec,
+                seed=self.seed + len(self.links),
+                byte_limit=byte_limit,
+            )
             src.links.append(link)
             self.links.append(link)
             made.append(link)

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import importlib
 import math
-from collections.abc import Sequence
+import re
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,18 +20,21 @@ from tdtp.sim.scenarios import (
     BestEffortResult,
     FairnessResult,
     FriendlinessResult,
-    PaperResult,
-    PaperRun,
 )
+from tdtp.sim.study import BOTH, LockoutStudy, PaperStudy
 
 __all__ = [
     "PlotUnavailableError",
+    "ensure_matplotlib",
     "plot_best_effort",
     "plot_fairness",
     "plot_friendliness",
-    "plot_paper",
-    "plot_paper_comparison",
-    "plot_paper_run",
+    "plot_lockout",
+    "plot_lockout_trace",
+    "plot_ratios",
+    "plot_study",
+    "plot_study_run",
+    "study_figure_jobs",
 ]
 
 _COLORS = {
@@ -59,6 +63,11 @@ def _pyplot() -> Any:
     return importlib.import_module("matplotlib.pyplot")
 
 
+def ensure_matplotlib() -> None:
+    """Raise :class:`PlotUnavailableError` at once if matplotlib is missing."""
+    _pyplot()
+
+
 def _nan(values: Sequence[float | None], scale: float = 1.0) -> list[float]:
     return [math.nan if v is None else v * scale for v in values]
 
@@ -70,92 +79,290 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
-def plot_paper_run(
-    result: PaperResult, scheme: str, path: str | Path, *, title: str | None = None
-) -> Path:
-    """Figures 7/8: throughput, packet loss and delay vs time, both directions, for one scheme."""
+def _band(
+    ax: Any,
+    times: Sequence[float],
+    band: dict[str, list[float | None]],
+    scale: float,
+    color: str,
+    label: str,
+    *,
+    linestyle: str = "-",
+    alpha: float = 0.25,
+) -> None:
+    ax.fill_between(
+        times,
+        _nan(band["low"], scale),
+        _nan(band["high"], scale),
+        color=color,
+        alpha=alpha,
+        linewidth=0,
+    )
+    ax.plot(times, _nan(band["median"], scale), color=color, linestyle=linestyle, label=label)
+
+
+def _bin_times(study_params: dict[str, Any]) -> list[float]:
+    width = study_params["bin_width"]
+    n = round(study_params["duration"] / width)
+    return [(i + 0.5) * width for i in range(n)]
+
+
+def plot_study_run(study: PaperStudy, reading: str, scheme: str, path: str | Path) -> Path:
+    """Figures 7/8 over the seeds: goodput, packet loss and delay vs time, both directions; the line
+    is the per-bin median of the seeds, the band their 10th-90th percentiles."""
     plt = _pyplot()
-    run: PaperRun = result.runs[scheme]
-    free = result.params["tcp_ms_paused"]
+    summary = study.readings[reading].schemes[scheme]
+    params = study.params
+    times = _bin_times(params)
+    free = params["tcp_ms_paused"]
     fig, axes = plt.subplots(3, 1, figsize=(9.0, 8.0), sharex=True)
     for direction in (MS, SM):
-        series = run.series[direction]
-        t = series["time"]
+        bands = summary.bands[direction]
         color = _COLORS[direction]
-        axes[0].plot(t, _nan(series["goodput_kbps"]), color=color, label=f"{direction} goodput")
-        axes[1].plot(t, _nan(series["loss_ratio"], 100), color=color, label=direction)
-        axes[2].plot(t, _nan(series["mean_delay"], 1000), color=color, label=direction)
-    for direction, style in (("tcp M->S", ":"), ("tcp S->M", "--")):
-        series = run.series[direction]
-        axes[0].plot(
-            series["time"],
-            _nan(series["goodput_kbps"]),
-            color="0.55",
-            linestyle=style,
-            linewidth=1,
-            label=f"TCP {direction[4:]}",
+        mean = summary.goodput_kbps[direction]["all"]
+        _band(
+            axes[0],
+            times,
+            bands["goodput_kbps"],
+            1.0,
+            color,
+            f"{direction} goodput, median {mean.median:.0f} kbit/s",
         )
+        _band(axes[1], times, bands["loss_ratio"], 100.0, color, direction)
+        _band(axes[2], times, bands["mean_delay"], 1000.0, color, direction)
+    for direction, style in ((MS, ":"), (SM, "--")):
+        band = summary.bands[f"tcp {direction}"]["goodput_kbps"]
+        if any(v for v in band["high"]):
+            _band(
+                axes[0], times, band, 1.0, "0.45", f"TCP {direction}", linestyle=style, alpha=0.15
+            )
     for ax in axes:
         ax.axvspan(free[0], free[1], color="0.9", zorder=0)
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("goodput (kbit/s)")
     axes[1].set_ylabel("packet loss (%)")
     axes[2].set_ylabel("one-way delay (ms)")
-    axes[2].set_xlabel("time (s)")
+    axes[2].set_xlabel("time (s); shaded: no TCP master-to-slave")
     axes[0].legend(loc="upper right", fontsize=8, ncol=2)
     axes[1].legend(loc="upper right", fontsize=8)
-    axes[0].text(
-        (free[0] + free[1]) / 2,
-        0.97,
-        "no TCP M->S",
-        transform=axes[0].get_xaxis_transform(),
-        ha="center",
-        va="top",
-        fontsize=8,
+    how = study.readings[reading].reading
+    starved = sum(len(v) for v in summary.starved_seeds.values())
+    fig.suptitle(
+        f"{SCHEMES[scheme].label}, reading '{reading}' ({len(summary.seeds)} seeds: median, "
+        f"10-90 % band; {starved} with starved TCP)\n{how.describe()}",
+        fontsize=10,
     )
-    fig.suptitle(title or f"{run.label}: figure 6 topology, 1 Mbit/s bottleneck, TCP both ways")
     fig.tight_layout()
     return _save(fig, Path(path))
 
 
-def plot_paper_comparison(result: PaperResult, path: str | Path) -> Path:
-    """Goodput of every scheme, one panel per direction."""
+def plot_ratios(study: PaperStudy, path: str | Path, pair: str = "tdtp/trinomial") -> Path:
+    """The goodput ratio of every seed under every reading (dots), its median and 95 % interval."""
     plt = _pyplot()
-    free = result.params["tcp_ms_paused"]
-    fig, axes = plt.subplots(2, 1, figsize=(9.0, 6.0), sharex=True)
-    for ax, direction in zip(axes, (MS, SM), strict=True):
-        for key, run in result.runs.items():
-            series = run.series[direction]
-            mean_kbps = run.summaries[direction]["all"].goodput_kbps
+    names = [n for n, r in study.readings.items() if pair in r.ratios]
+    fig, axes = plt.subplots(1, 3, figsize=(14.0, 4.4), sharey=True)
+    for ax, direction in zip(axes, (MS, SM, BOTH), strict=True):
+        for x, name in enumerate(names):
+            ratio = study.readings[name].ratios[pair]
+            values = ratio.per_seed[direction]["all"]
+            seeds = study.readings[name].schemes["trinomial"].seeds
+            for i, (seed, v) in enumerate(zip(seeds, values, strict=True)):
+                starved = seed in ratio.starved_seeds
+                ax.plot(
+                    x - 0.15 + 0.3 * i / max(1, len(values) - 1),
+                    v,
+                    "o",
+                    color="tab:red" if starved else _COLORS["tdtp"],
+                    markersize=4,
+                    alpha=0.7,
+                )
+            m = ratio.all_seeds[direction]["all"]
+            ax.errorbar(
+                x + 0.28,
+                m.median,
+                yerr=[[m.median - m.low], [m.high - m.median]],
+                fmt="D",
+                color="k",
+                capsize=4,
+                markersize=5,
+            )
+            ax.annotate(f"{m.median:.2f}", (x + 0.33, m.median), fontsize=8, va="center")
+        ax.axhline(1.0, color="0.4", linewidth=1, linestyle="--")
+        ax.axhline(2.0, color="0.7", linewidth=1, linestyle=":")
+        ax.set_xticks(range(len(names)))
+        ax.set_xticklabels(names, fontsize=8, rotation=15)
+        what = "both directions together" if direction == BOTH else direction
+        ax.set_title(f"goodput {pair}, {what}", fontsize=10)
+        ax.set_yscale("log")
+        ticks = [0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0]
+        ax.set_yticks(ticks)
+        ax.set_yticklabels([f"{t:g}" for t in ticks])
+        ax.minorticks_off()
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0].set_ylabel("ratio (log scale); 2 = the paper's claim")
+    fig.suptitle(
+        "Goodput ratio per seed (dots; red: a TCP flow starved), median and 95 % interval (black)",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+FigureJob = tuple[Callable[..., Path], tuple[Any, ...]]
+"""One figure to draw: a plotting function and its arguments (picklable, for a process pool)."""
+
+
+def study_figure_jobs(study: PaperStudy, out_dir: str | Path) -> list[FigureJob]:
+    """The figures of the paper study: figures 7 and 8 per reading, TFRC's, and the ratios. A run
+    that a reading does not change (TDTP's under another ACK form) is drawn once."""
+    out = Path(out_dir)
+    jobs: list[FigureJob] = []
+    drawn: list[Any] = []
+    for name, summary in study.readings.items():
+        suffix = (
+            "" if name == "literal" else "_" + re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+        )
+        files = {
+            "tdtp": f"figure7_tdtp{suffix}.png",
+            "trinomial": f"figure8_trinomial{suffix}.png",
+            "tfrc": f"paper_tfrc{suffix}.png",
+        }
+        for key, scheme_summary in summary.schemes.items():
+            same = (key, scheme_summary.seeds, scheme_summary.goodput_kbps)
+            if same in drawn:
+                continue
+            drawn.append(same)
+            path = out / files.get(key, f"paper_{key}{suffix}.png")
+            jobs.append((plot_study_run, (study, name, key, path)))
+    if any("tdtp/trinomial" in r.ratios for r in study.readings.values()):
+        jobs.append((plot_ratios, (study, out / "paper_ratios.png")))
+    return jobs
+
+
+def plot_study(study: PaperStudy, out_dir: str | Path) -> list[Path]:
+    """Every figure of :func:`study_figure_jobs` into ``out_dir``, one after the other."""
+    return [function(*args) for function, args in study_figure_jobs(study, out_dir)]
+
+
+def plot_lockout(study: LockoutStudy, path: str | Path) -> Path:
+    """Master-to-slave goodput of the 1 kHz flow and of TCP over the seeds, earlier and current
+    controllers side by side."""
+    plt = _pyplot()
+    schemes = list(dict.fromkeys(o.scheme for o in study.outcomes))
+    fig, axes = plt.subplots(
+        len(schemes),
+        2,
+        figsize=(11.0, 3.2 * len(schemes)),
+        sharex=True,
+        sharey=True,
+        squeeze=False,
+    )
+    params = study.params
+    times = _bin_times(params)
+    free = params["tcp_ms_paused"]
+    for row, scheme in enumerate(schemes):
+        for col, controllers in enumerate(("earlier", "current")):
+            ax = axes[row, col]
+            outcome = next(
+                o for o in study.outcomes if o.scheme == scheme and o.controllers == controllers
+            )
+            _band(
+                ax, times, outcome.bands[MS], 1.0, _COLORS.get(scheme, "tab:blue"), f"{scheme} M->S"
+            )
+            _band(
+                ax,
+                times,
+                outcome.bands[f"tcp {MS}"],
+                1.0,
+                "0.35",
+                "TCP M->S",
+                linestyle="--",
+                alpha=0.2,
+            )
+            ax.axvspan(free[0], free[1], color="0.9", zorder=0)
+            ax.grid(True, alpha=0.3)
+            m = outcome.share_ratio
+            ax.set_title(
+                f"{scheme}, {controllers} controller: TCP starved in {len(outcome.starved_seeds)} "
+                f"of {len(outcome.seeds)} seeds;\nshare after/before {m.median:.2f} "
+                f"[{m.low:.2f}, {m.high:.2f}]",
+                fontsize=9,
+            )
+            if col == 0:
+                ax.set_ylabel("goodput (kbit/s)")
+            if row == 0 and col == 1:
+                ax.legend(fontsize=8, loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s); shaded: TCP paused")
+    fig.suptitle(
+        "Lock-out check, literal reading: median and 10-90 % band over the seeds", fontsize=10
+    )
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+def plot_lockout_trace(study: LockoutStudy, path: str | Path) -> Path:
+    """One seed that the earlier controller locked out, run by both: what the 1 kHz flow was allowed
+    and what it sent (packets/s, left axis), and what TCP got (kbit/s, right axis)."""
+    plt = _pyplot()
+    schemes = [
+        k for k in study.traces if "earlier" in study.traces[k] and "current" in study.traces[k]
+    ]
+    fig, axes = plt.subplots(
+        len(schemes), 1, figsize=(10.0, 3.3 * max(1, len(schemes))), sharex=True, squeeze=False
+    )
+    params = study.params
+    times = _bin_times(params)
+    free = params["tcp_ms_paused"]
+    shown = [t for t in times if free[0] - 5 <= t <= free[1] + 20]
+    lo, hi = times.index(shown[0]), times.index(shown[-1]) + 1
+    for ax, scheme in zip(axes[:, 0], schemes, strict=True):
+        trace = study.traces[scheme]
+        tcp_ax = ax.twinx()
+        for controllers, style in (("earlier", "--"), ("current", "-")):
+            series = trace[controllers]
+            color = "tab:orange" if controllers == "earlier" else _COLORS.get(scheme, "tab:blue")
             ax.plot(
-                series["time"],
-                _nan(series["goodput_kbps"]),
-                color=_COLORS.get(key),
-                label=f"{SCHEMES[key].label}: mean {mean_kbps:.0f} kbit/s",
+                shown,
+                series["delivered_pps"][lo:hi],
+                color=color,
+                linestyle=style,
+                label=f"{controllers}: sent",
+            )
+            ax.plot(
+                shown,
+                series["allowed_pps"][lo:hi],
+                color=color,
+                linestyle=":",
+                linewidth=1,
+                label=f"{controllers}: allowed",
+            )
+            tcp_ax.plot(
+                shown,
+                _nan(series["tcp_goodput_kbps"][lo:hi]),
+                color="0.4",
+                linestyle=style,
+                linewidth=1.5,
+                label=f"TCP, {controllers} {scheme}",
             )
         ax.axvspan(free[0], free[1], color="0.9", zorder=0)
-        ax.set_ylabel(f"{direction} goodput (kbit/s)")
+        ax.set_ylabel(f"{scheme} M->S (packets/s)")
+        tcp_ax.set_ylabel("TCP M->S goodput (kbit/s)")
+        ax.set_ylim(0, 2200)
+        tcp_ax.set_ylim(0, 1000)
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
-    axes[-1].set_xlabel("time (s)")
-    fig.suptitle("Samples delivered (100-byte payloads): TDTP vs Trinomial vs TDTP+TFRC")
+        ax.set_title(f"{scheme}, seed {trace['seed']}", fontsize=9)
+        lines = ax.get_legend_handles_labels()
+        more = tcp_ax.get_legend_handles_labels()
+        ax.legend(lines[0] + more[0], lines[1] + more[1], fontsize=7, loc="upper right", ncol=3)
+    axes[-1, 0].set_xlabel("time (s); shaded: TCP paused")
+    fig.suptitle(
+        "The lock-out, one seed: allowed twice what it sends, the 1 kHz flow does not slow down on"
+        " the earlier controller's halving",
+        fontsize=10,
+    )
     fig.tight_layout()
     return _save(fig, Path(path))
-
-
-def plot_paper(result: PaperResult, out_dir: str | Path) -> list[Path]:
-    """Every figure of the paper scenario into ``out_dir``."""
-    out = Path(out_dir)
-    paths = []
-    names = {
-        "tdtp": "figure7_tdtp.png",
-        "trinomial": "figure8_trinomial.png",
-        "tfrc": "paper_tfrc.png",
-    }
-    for key in result.runs:
-        paths.append(plot_paper_run(result, key, out / names.get(key, f"paper_{key}.png")))
-    paths.append(plot_paper_comparison(result, out / "paper_comparison.png"))
-    return paths
 
 
 def plot_friendliness(result: FriendlinessResult, path: str | Path) -> Path:

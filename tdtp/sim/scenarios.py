@@ -18,7 +18,7 @@ import json
 import math
 import random
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Final, Literal
 
@@ -28,22 +28,33 @@ from tdtp.errors import InvalidArgumentError
 from tdtp.sim.endpoints import IP_HEADER, UDP_HEADER, CbrSource, TdtpEndpoint, TdtpSession
 from tdtp.sim.engine import Network, Simulator, describe
 from tdtp.sim.metrics import FlowRecorder, FlowSummary, jain_index, mean
+from tdtp.sim.readings import DEFAULT_READING, NS2_MEAN_PACKET_SIZE, Reading
+from tdtp.sim.readings import reading as reading_named
 from tdtp.sim.tcp import TcpConfig, TcpFlow
 from tdtp.wire.header import HEADER_SIZE
 
 __all__ = [
+    "MS",
     "SCENARIOS",
     "SCHEMES",
+    "SM",
+    "STARVATION_SHARE",
+    "WINDOWS",
     "BestEffortResult",
     "FairnessResult",
     "FriendlinessResult",
     "PaperResult",
+    "PaperRun",
     "Scheme",
+    "TcpOutcome",
     "best_effort",
     "connection_config",
     "fairness",
     "friendliness",
     "paper",
+    "paper_windows",
+    "tail_window",
+    "tcp_pause",
 ]
 
 Encapsulation = Literal["native", "udp"]
@@ -94,13 +105,25 @@ def ip_overhead(encapsulation: Encapsulation) -> int:
     raise InvalidArgumentError(f"encapsulation must be 'native' or 'udp', got {encapsulation!r}")
 
 
-def connection_config(scheme: Scheme, encapsulation: Encapsulation = "native") -> ConnectionConfig:
-    """The connection configuration of a scheme; all schemes keep the controllers' defaults."""
+def connection_config(
+    scheme: Scheme,
+    encapsulation: Encapsulation = "native",
+    *,
+    plain_acks: bool = False,
+    controller_config: object | None = None,
+) -> ConnectionConfig:
+    """The connection configuration of a scheme: the controllers' defaults unless
+    ``controller_config`` says otherwise; ``plain_acks`` for Trinomial's one-report-per-packet ACKs."""
     ack_size = HEADER_SIZE
-    if scheme.ack_mode is AckMode.SEPARATE:
+    separate = scheme.ack_mode is AckMode.SEPARATE
+    if separate:
         ack_size = max(HEADER_SIZE, ACK_WIRE_BYTES - ip_overhead(encapsulation))
     return ConnectionConfig(
-        ack_mode=scheme.ack_mode, ack_size=ack_size, controller=scheme.controller
+        ack_mode=scheme.ack_mode,
+        ack_size=ack_size,
+        plain_acks=plain_acks and separate,
+        controller=scheme.controller,
+        controller_config=controller_config,
     )
 
 
@@ -148,16 +171,18 @@ def build_dumbbell(
     bottleneck: str,
     *,
     access_delay: str = ACCESS_DELAY,
+    byte_limit: int | None = None,
 ) -> None:
     """Hosts ``left`` behind router R1, ``right`` behind R2, R1-R2 the ``bottleneck`` (netem syntax,
-    both directions alike). Access links: 100 Mbit/s, host queues 50 packets, router queues 15."""
+    both directions alike). Access links: 100 Mbit/s, host queues 50 packets, router queues 15.
+    ``byte_limit`` makes the bottleneck's queues count bytes (the access links never queue)."""
     up = f"rate {ACCESS_RATE} delay {access_delay} limit {HOST_QUEUE}"
     down = f"rate {ACCESS_RATE} delay {access_delay} limit {ROUTER_QUEUE}"
     for host in left:
         net.connect(host, "R1", up, down)
     for host in right:
         net.connect(host, "R2", up, down)
-    net.connect("R1", "R2", bottleneck)
+    net.connect("R1", "R2", bottleneck, byte_limit=byte_limit)
     net.compute_routes()
 
 
@@ -222,6 +247,63 @@ def _run_timed(net: Network, until: float) -> float:
 # -- the paper: figures 6, 7 and 8 -------------------------------------------------------------------
 
 MS, SM = "M->S", "S->M"
+WINDOWS: Final = ("all", "tcp_on", "tcp_off")
+"""Summary windows of the paper scenario: the whole run, the time the master-to-slave TCP is on
+(0-20 s and 30-100 s of 100 s) and the time it is paused (20-30 s). Both directions use the same
+windows, so a direction without TCP of its own still shows what the other direction's TCP does to it
+(its ACKs share the path)."""
+STARVATION_SHARE: Final = 0.1
+"""A TCP flow starves when, over the last 50 s (or the part after the pause, if shorter), it carries
+less than this fraction of its fair share of the bottleneck (capacity / flows in its direction)."""
+BOTTLENECK_BPS: Final = 1_000_000
+
+
+def tcp_pause(duration: float) -> tuple[float, float]:
+    """When the master-to-slave TCP pauses: 20-30 % of the run (20-30 s of the paper's 100 s)."""
+    return (0.2 * duration, 0.3 * duration)
+
+
+def paper_windows(
+    duration: float, pause: tuple[float, float] | None = None
+) -> dict[str, list[tuple[float, float]]]:
+    """The windows of :data:`WINDOWS` for a run of ``duration`` s with the TCP ``pause``."""
+    pause = pause if pause is not None else tcp_pause(duration)
+    return {
+        "all": [(0.0, duration)],
+        "tcp_on": [(0.0, pause[0]), (pause[1], duration)],
+        "tcp_off": [pause],
+    }
+
+
+def tail_window(duration: float, pause: tuple[float, float] | None = None) -> tuple[float, float]:
+    """Where starvation is judged: the last 50 s, never earlier than the end of the pause."""
+    pause = pause if pause is not None else tcp_pause(duration)
+    return (max(duration - 50.0, pause[1]), duration)
+
+
+@dataclass(frozen=True, slots=True)
+class TcpOutcome:
+    """What the TCP cross traffic of one direction got: over the run, before the master-to-slave
+    pause and over :func:`tail_window`."""
+
+    direction: str
+    goodput_kbps: float
+    share_before: float
+    """Its wire throughput over ``[0, pause)`` as a fraction of the bottleneck's capacity."""
+    share_after: float
+    """...over :func:`tail_window`."""
+    fair_share: float
+    """``1 / (flows sharing its direction)``: TCP and the TDTP data flow in the literal reading."""
+    starved: bool
+    """``share_after < STARVATION_SHARE * fair_share``."""
+
+    @property
+    def share_ratio(self) -> float:
+        """``share_after / share_before``: 1 when TCP gets back what it had before the pause."""
+        return self.share_after / self.share_before if self.share_before > 0 else math.nan
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self) | {"share_ratio": self.share_ratio}
 
 
 @dataclass
@@ -233,10 +315,13 @@ class PaperRun(_JsonResult):
     wall_time: float
     events: int
     summaries: dict[str, dict[str, FlowSummary]]
-    """By direction (``M->S``, ``S->M``), then window: ``all``, ``congested``, ``free``."""
+    """By direction (``M->S``, ``S->M``), then window (:data:`WINDOWS`)."""
     acks: dict[str, FlowSummary]
     """The ACK/control packets each side sent (by the direction they travel)."""
     tcp: dict[str, FlowSummary]
+    """TCP data by direction (an empty flow in a direction without TCP)."""
+    tcp_outcome: dict[str, TcpOutcome]
+    """By direction, for the directions that carry TCP."""
     connection: dict[str, dict[str, Any]]
     """Counters of the master's and the slave's connection at the end."""
     series: dict[str, dict[str, list[float | None]]]
@@ -244,6 +329,11 @@ class PaperRun(_JsonResult):
     probes: dict[str, dict[str, list[float]]]
     """The master's and slave's allowed rate, srtt and loss event rate over time."""
     links: list[dict[str, Any]]
+
+    @property
+    def starved(self) -> list[str]:
+        """Directions whose TCP starved (see :data:`STARVATION_SHARE`)."""
+        return [d for d, o in self.tcp_outcome.items() if o.starved]
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -257,6 +347,7 @@ class PaperRun(_JsonResult):
             },
             "acks": {d: s.to_dict() for d, s in self.acks.items()},
             "tcp": {d: s.to_dict() for d, s in self.tcp.items()},
+            "tcp_outcome": {d: o.to_dict() for d, o in self.tcp_outcome.items()},
             "connection": self.connection,
             "links": self.links,
             "series": self.series,
@@ -273,19 +364,17 @@ class PaperResult(_JsonResult):
 
     def headline(self) -> dict[str, Any]:
         """What the JSON summary leads with: mean goodput, loss and delay per scheme and direction."""
-        out: dict[str, Any] = {}
+        out: dict[str, Any] = {"reading": self.params["reading"]["description"]}
         for key, run in self.runs.items():
             per: dict[str, Any] = {"wall_time_s": round(run.wall_time, 2)}
             for direction, windows in run.summaries.items():
                 s = windows["all"]
-                c = windows["congested"]
-                f = windows["free"]
                 sender = run.connection["master" if direction == MS else "slave"]
                 per[direction] = {
                     "goodput_kbps": round(s.goodput_kbps, 1),
                     "samples_per_s": round(s.delivered_pps, 1),
-                    "goodput_congested_kbps": round(c.goodput_kbps, 1),
-                    "goodput_free_kbps": round(f.goodput_kbps, 1),
+                    "goodput_tcp_on_kbps": round(windows["tcp_on"].goodput_kbps, 1),
+                    "goodput_tcp_off_kbps": round(windows["tcp_off"].goodput_kbps, 1),
                     "loss_ratio": round(s.loss_ratio, 4),
                     "mean_delay_ms": round(s.mean_delay * 1000, 1),
                     "p95_delay_ms": round(s.p95_delay * 1000, 1),
@@ -293,7 +382,10 @@ class PaperResult(_JsonResult):
                     "declared_lost_by_sender": sender["packets_lost"],
                     "ack_packets": sender["ack_packets_sent"],
                 }
-            per["tcp_goodput_kbps"] = {d: round(t.goodput_kbps, 1) for d, t in run.tcp.items()}
+            per["tcp_goodput_kbps"] = {
+                d: round(o.goodput_kbps, 1) for d, o in run.tcp_outcome.items()
+            }
+            per["tcp_starved"] = run.starved
             out[key] = per
         out["ratios"] = {
             pair: {w: {d: round(v, 3) for d, v in dirs.items()} for w, dirs in windows.items()}
@@ -314,6 +406,7 @@ class PaperResult(_JsonResult):
 def paper(
     *,
     seed: int = 1,
+    reading: Reading | str = DEFAULT_READING,
     duration: float = 100.0,
     schemes: Sequence[str] = DEFAULT_SCHEMES,
     bin_width: float = 0.5,
@@ -323,26 +416,29 @@ def paper(
     bottleneck_delay: str = "10ms",
     encapsulation: Encapsulation = "native",
     tcp_config: TcpConfig | None = None,
-    send_jitter: float = SEND_JITTER,
+    controller_configs: Mapping[str, object] | None = None,
+    pause: tuple[float, float] | None = None,
 ) -> PaperResult:
     """Figure 6: M - R1 - R2 - S, R1-R2 1 Mbit/s, access 100 Mbit/s, DropTail 15 at the routers.
 
-    Cross traffic: ``tcp_flows`` FTP/TCP transfers each way across R1-R2, from host T1 (behind R1) to
-    T2 (behind R2) and back, all the time except that the T1->T2 ones (the master-to-slave direction)
-    pause during ``[0.2, 0.3) * duration`` (20-30 s of 100 s). TCP starts are spread over the first
-    100 ms by ``seed``. Both ends sample ``sample_rate`` times per second, ``payload_size`` bytes.
+    Cross traffic: ``tcp_flows`` FTP/TCP transfers from host T1 (behind R1) to T2 (behind R2), the
+    master-to-slave direction, on all the time except during ``pause`` (default ``[0.2, 0.3) *
+    duration``, 20-30 s of 100 s); with a ``both`` reading as many from T2 to T1, on all the time. TCP starts are spread over
+    the first 100 ms by ``seed``. Both ends sample ``sample_rate`` times per second, ``payload_size``
+    bytes. ``reading`` (a :class:`~tdtp.sim.readings.Reading` or its name) settles what the paper
+    leaves open; ``tcp_config`` overrides the TCP parameters (its variant included) and
+    ``controller_configs`` the controllers' (by controller name: ``{"trinomial": TrinomialConfig(...)}``).
     """
     chosen = _schemes(schemes)
-    free = (0.2 * duration, 0.3 * duration)
-    windows = {
-        MS: {
-            "all": [(0.0, duration)],
-            "congested": [(0.0, free[0]), (free[1], duration)],
-            "free": [free],
-        },
-        SM: {"all": [(0.0, duration)], "congested": [(0.0, duration)], "free": [free]},
-    }
-    tcp_cfg = tcp_config if tcp_config is not None else TcpConfig()
+    how = reading if isinstance(reading, Reading) else reading_named(reading)
+    pause = pause if pause is not None else tcp_pause(duration)
+    if not 0.0 < pause[0] < pause[1] < duration:
+        raise ValueError(f"the TCP pause {pause} must lie inside the run (0-{duration} s)")
+    windows = paper_windows(duration, pause)
+    tail = tail_window(duration, pause)
+    tcp_cfg = tcp_config if tcp_config is not None else TcpConfig(variant=how.tcp_variant)  # type: ignore[arg-type]
+    byte_limit = ROUTER_QUEUE * NS2_MEAN_PACKET_SIZE if how.queue_unit == "bytes" else None
+    fair_share = 1.0 / (tcp_flows + 1)
     runs: dict[str, PaperRun] = {}
     for scheme in chosen:
         rng = random.Random(seed)
@@ -352,48 +448,57 @@ def paper(
             ["M", "T1"],
             ["S", "T2"],
             f"rate 1mbit delay {bottleneck_delay} limit {ROUTER_QUEUE}",
+            byte_limit=byte_limit,
+        )
+        config = connection_config(
+            scheme,
+            encapsulation,
+            plain_acks=how.ack_form == "plain",
+            controller_config=(controller_configs or {}).get(scheme.controller),
         )
         session = TdtpSession.create(
             net,
             "M",
             "S",
-            connection_config(scheme, encapsulation),
+            config,
             sample_rate=sample_rate,
             payload_size=payload_size,
             ip_overhead=ip_overhead(encapsulation),
             bin_width=bin_width,
             duration=duration,
             seed=rng.getrandbits(32),
-            send_jitter=send_jitter,
+            send_jitter=how.send_jitter,
         )
-        flows_ms, flows_sm = [], []
+        flows: dict[str, list[TcpFlow]] = {MS: [], SM: []}
         for i in range(tcp_flows):
-            flows_ms.append(
+            ms_start, sm_start = rng.random() * 0.1, rng.random() * 0.1
+            flows[MS].append(
                 TcpFlow(
                     net,
                     "T1",
                     "T2",
                     port=5000 + i,
                     config=tcp_cfg,
-                    periods=((rng.random() * 0.1, free[0]), (free[1], math.inf)),
+                    periods=((ms_start, pause[0]), (pause[1], math.inf)),
                     bin_width=bin_width,
                     duration=duration,
                     name=f"tcp M->S {i}",
                 )
             )
-            flows_sm.append(
-                TcpFlow(
-                    net,
-                    "T2",
-                    "T1",
-                    port=6000 + i,
-                    config=tcp_cfg,
-                    periods=((rng.random() * 0.1, math.inf),),
-                    bin_width=bin_width,
-                    duration=duration,
-                    name=f"tcp S->M {i}",
+            if how.tcp_both_ways:
+                flows[SM].append(
+                    TcpFlow(
+                        net,
+                        "T2",
+                        "T1",
+                        port=6000 + i,
+                        config=tcp_cfg,
+                        periods=((sm_start, math.inf),),
+                        bin_width=bin_width,
+                        duration=duration,
+                        name=f"tcp S->M {i}",
+                    )
                 )
-            )
         probes = {
             "master": _probe(net.sim, session.master, bin_width, duration),
             "slave": _probe(net.sim, session.slave, bin_width, duration),
@@ -401,16 +506,35 @@ def paper(
         wall = _run_timed(net, duration)
         recorders = {MS: session.ms, SM: session.sm}
         summaries = {
-            d: {w: recorders[d].summary(windows=spans) for w, spans in windows[d].items()}
+            d: {w: recorders[d].summary(windows=spans) for w, spans in windows.items()}
             for d in (MS, SM)
         }
-        tcp_ms = _merge("tcp M->S", [f.data for f in flows_ms])
-        tcp_sm = _merge("tcp S->M", [f.data for f in flows_sm])
+        tcp_data = {
+            d: _merge(f"tcp {d}", [f.data for f in flows[d]])
+            if flows[d]
+            else FlowRecorder(f"tcp {d}", bin_width=bin_width, duration=duration)
+            for d in (MS, SM)
+        }
+        outcome: dict[str, TcpOutcome] = {}
+        for d in (MS, SM):
+            if not flows[d]:
+                continue
+            rec = tcp_data[d]
+            before = rec.summary(0.0, pause[0]).throughput_kbps * 1000 / BOTTLENECK_BPS
+            after = rec.summary(*tail).throughput_kbps * 1000 / BOTTLENECK_BPS
+            outcome[d] = TcpOutcome(
+                direction=d,
+                goodput_kbps=rec.summary().goodput_kbps,
+                share_before=before,
+                share_after=after,
+                fair_share=fair_share,
+                starved=after < STARVATION_SHARE * fair_share,
+            )
         series: dict[str, dict[str, list[float | None]]] = {
             MS: session.ms.series(),
             SM: session.sm.series(),
-            "tcp M->S": tcp_ms.series(),
-            "tcp S->M": tcp_sm.series(),
+            "tcp M->S": tcp_data[MS].series(),
+            "tcp S->M": tcp_data[SM].series(),
         }
         runs[scheme.key] = PaperRun(
             scheme=scheme.key,
@@ -419,7 +543,8 @@ def paper(
             events=net.sim.events_run,
             summaries=summaries,
             acks={MS: session.ms_other.summary(), SM: session.sm_other.summary()},
-            tcp={MS: tcp_ms.summary(), SM: tcp_sm.summary()},
+            tcp={d: tcp_data[d].summary() for d in (MS, SM)},
+            tcp_outcome=outcome,
             connection={"master": _conn_stats(session.master), "slave": _conn_stats(session.slave)},
             series=series,
             probes={k: asdict(v) for k, v in probes.items()},
@@ -433,27 +558,31 @@ def paper(
                 continue
             ratios[f"{key}/trinomial"] = {
                 w: {
-                    d: run.summaries[d][w].goodput_kbps / base.summaries[d][w].goodput_kbps
-                    if base.summaries[d][w].goodput_kbps
-                    else math.nan
+                    d: _div(run.summaries[d][w].goodput_kbps, base.summaries[d][w].goodput_kbps)
                     for d in (MS, SM)
                 }
-                for w in ("all", "congested", "free")
+                for w in WINDOWS
             }
     params = {
         "seed": seed,
+        "reading": how.to_dict(),
         "duration": duration,
         "schemes": list(schemes),
         "bin_width": bin_width,
-        "tcp_flows_each_way": tcp_flows,
-        "tcp_ms_paused": list(free),
+        "tcp_flows_each_way" if how.tcp_both_ways else "tcp_flows_master_to_slave": tcp_flows,
+        "tcp_ms_paused": list(pause),
+        "starvation_window": list(tail),
         "sample_rate": sample_rate,
         "payload_size": payload_size,
         "encapsulation": encapsulation,
-        "send_jitter": send_jitter,
-        "bottleneck": f"1 Mbit/s, {bottleneck_delay}, DropTail {ROUTER_QUEUE}",
+        "bottleneck": f"1 Mbit/s, {bottleneck_delay}, DropTail {ROUTER_QUEUE} "
+        + ("packets" if byte_limit is None else f"x {NS2_MEAN_PACKET_SIZE} = {byte_limit} bytes"),
         "access": f"100 Mbit/s, {ACCESS_DELAY}, DropTail {ROUTER_QUEUE} (routers) / {HOST_QUEUE} (hosts)",
         "tcp": asdict(tcp_cfg),
+        "controller_configs": {
+            name: asdict(cfg)  # type: ignore[call-overload]
+            for name, cfg in (controller_configs or {}).items()
+        },
     }
     return PaperResult(params=params, runs=runs, ratios=ratios)
 

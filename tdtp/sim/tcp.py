@@ -1,5 +1,5 @@
-"""A TCP model for cross traffic, after ns-2's ``Agent/TCP/Newreno`` (or ``Reno``) with ``Agent/TCPSink``
-and an FTP source.
+"""A TCP model for cross traffic, after ns-2's ``Agent/TCP`` (Tahoe), ``Agent/TCP/Reno`` or
+``Agent/TCP/Newreno`` with ``Agent/TCPSink`` and an FTP source.
 
 Modelled, with ns-2's defaults (``tcl/lib/ns-default.tcl`` of ns-2.34/2.35, the versions of the
 paper's time):
@@ -12,11 +12,15 @@ paper's time):
 * **slow start** (``cwnd += 1`` per ACK below ``ssthresh``) and **congestion avoidance**
   (``cwnd += 1 / cwnd`` per ACK); cwnd itself is not capped by the window, as in ns-2;
 * **fast retransmit** on the 3rd duplicate ACK (``numdupacks_``), ``ssthresh = max(min(cwnd,
-  window) / 2, 2)``, and **fast recovery** with window inflation; ``newreno`` stays in recovery over
+  window) / 2, 2)``. ``tahoe`` (ns-2's plain ``Agent/TCP``, the default agent of an ns-2 script)
+  then does what ns-2's ``tahoe_action`` does: ``cwnd = 1`` and go back to the first unacknowledged
+  segment, slow start from there, no fast recovery. ``reno`` and ``newreno`` enter **fast recovery**
+  with window inflation; ``newreno`` stays in recovery over
   partial ACKs (RFC 6582, retransmitting the next hole each time and restarting the timer on the first
   partial ACK only, ns-2's ``newreno_changes1_``) until everything sent before the loss is acknowledged;
   ``reno`` leaves recovery on the first new ACK. No second fast retransmit for losses of a window
-  already recovered (``recover``, ns-2's ``bugFix_``). **Limited transmit** (RFC 3042, ns-2's
+  already recovered: the 3rd duplicate ACK counts only once ``highest_ack > recover`` (ns-2's
+  ``bug_fix_``, with its strict comparison). **Limited transmit** (RFC 3042, ns-2's
   ``singledup_`` = 1): the 1st and 2nd duplicate ACKs each release one new segment;
 * **retransmission timeout** (RFC 6298, ns-2's ``rfc2988_``): RTT measured on one segment at a time
   (never a retransmitted one: Karn), on a clock ticking every ``tcpTick_`` = 10 ms;
@@ -47,14 +51,17 @@ from tdtp.errors import InvalidArgumentError
 from tdtp.sim.engine import Network, Node, Packet, Timer
 from tdtp.sim.metrics import FlowRecorder
 
-__all__ = ["TcpConfig", "TcpFlow", "TcpSender", "TcpSink"]
+__all__ = ["TCP_VARIANTS", "TcpConfig", "TcpFlow", "TcpSender", "TcpSink"]
+
+TCP_VARIANTS: tuple[str, ...] = ("tahoe", "reno", "newreno")
 
 
 @dataclass(frozen=True, slots=True)
 class TcpConfig:
     """ns-2 ``Agent/TCP`` parameters (their ns-2 names in the comments)."""
 
-    variant: Literal["reno", "newreno"] = "newreno"
+    variant: Literal["tahoe", "reno", "newreno"] = "newreno"
+    """``tahoe`` (ns-2's ``Agent/TCP``), ``reno`` (``Agent/TCP/Reno``), ``newreno`` (``Agent/TCP/Newreno``)."""
     segment_size: int = 1000
     """Data bytes per segment (``packetSize_``)."""
     header_size: int = 40
@@ -82,8 +89,10 @@ class TcpConfig:
     """``slow_start_restart_``."""
 
     def __post_init__(self) -> None:
-        if self.variant not in ("reno", "newreno"):
-            raise InvalidArgumentError(f"variant must be 'reno' or 'newreno', got {self.variant!r}")
+        if self.variant not in TCP_VARIANTS:
+            raise InvalidArgumentError(
+                f"variant must be one of {', '.join(TCP_VARIANTS)}, got {self.variant!r}"
+            )
         for name in ("segment_size", "header_size", "ack_size", "window", "initial_window"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value > 0):
@@ -271,7 +280,11 @@ class TcpSender:
             self.cwnd += 1.0  # inflate: one more segment has left the network
             self._trace()
             self._send_much(now)
-        elif self.dupacks == cfg.dupack_threshold and self.highest_ack >= self.recover:
+        elif self.dupacks == cfg.dupack_threshold and self.highest_ack > self.recover:
+            # ns-2's bug_fix_: no fast retransmit until everything sent before the last one (or the
+            # last timeout) is acknowledged *beyond* recover. Tahoe's go-back-N resends segments still
+            # in flight; their duplicates at the sink come back as duplicate ACKs at exactly recover
+            # and must not trigger another window reduction.
             self._fast_retransmit(now)
         elif self.dupacks < cfg.dupack_threshold and cfg.limited_transmit:
             seq = self.t_seqno
@@ -288,6 +301,16 @@ class TcpSender:
         self.counters.fast_retransmits += 1
         self.recover = self.maxseq
         self.ssthresh = float(max(self.window() // 2, 2))
+        if cfg.variant == "tahoe":
+            # ns-2's tahoe_action: slowdown(CLOSE_SSTHRESH_HALF | CLOSE_CWND_ONE), then
+            # reset_rtx_timer(0, 0), which goes back to the first unacknowledged segment.
+            self.cwnd = 1.0
+            self._rtt_active = False
+            self.t_seqno = self.highest_ack + 1
+            self._timer.set(now + self.rto())
+            self._trace()
+            self._send_much(now)
+            return
         self.cwnd = self.ssthresh + cfg.dupack_threshold
         self.in_recovery = True
         self._first_partial = True

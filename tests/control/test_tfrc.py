@@ -156,3 +156,28 @@ def test_recovers_after_a_blackout_through_the_receive_rate() -> None:
 def test_config_validation_names_the_field(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=rf"TfrcConfig\.{field} must"):
         TfrcConfig(**{field: value})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("decrease", [0.85, 0.5, None])
+def test_a_loss_in_a_data_limited_interval_caps_the_rate_below_the_receive_rate(
+    decrease: float | None,
+) -> None:
+    """RFC 5348 section 4.3 step 4: after a loss in a data-limited interval (here a 1 kHz
+    application whose equation rate, at a tiny p, is far above what it sends), ``recv_limit`` is
+    ``max(X_recv_set)`` with the set halved and the new sample decayed, not twice it. Without the
+    rule (``None``, the controller before the lock-out fix) the sender does not slow down at all."""
+    rtt, demand, lost_seq = 0.04, 1000.0, 3000
+    c = TfrcController(TfrcConfig(data_limited_decrease=decrease))
+    trace = run(c, Path(rtt=rtt, demand=demand, loss=lambda seq, t: seq == lost_seq), 5.0)
+    (event,) = trace.loss_events
+    assert padhye_rate(rtt, 1 / lost_seq, 4 * rtt) > 1.5 * demand  # the equation is no limit
+    lowest = min(trace.rate_at(event + k * rtt / 8) for k in range(16))
+    if decrease is None:
+        assert lowest >= demand
+        assert trace.sent_between(event, event + 2 * rtt) >= 2 * demand * rtt - 1
+    else:
+        # X_recv is the demand (plus the one packet a window's edge can add): the cap is
+        # decrease x X_recv, reached at the feedback that reports the loss.
+        assert lowest <= decrease * (demand + 1 / rtt) * (1 + 1e-9)
+        assert lowest >= decrease * demand * 0.9
+    assert trace.sent_between(event + 10 * rtt, event + 20 * rtt) >= 0.99 * demand * 10 * rtt

@@ -501,3 +501,28 @@ def test_silence_alone_halves_once_per_timeout_down_to_min_rate() -> None:
     # 0.5 + 0.25 + 0.125 + 0.1 + 0.1 s for 4 -> 128.
     paced(c, now, now + 1.2, srtt=0.1, p=0.0)
     assert c.rate >= 64.0
+
+
+@pytest.mark.parametrize("decrease_in_use", [True, False])
+def test_a_loss_slows_an_application_limited_sender_down_from_what_it_sends(
+    decrease_in_use: bool,
+) -> None:
+    """A 1 kHz application after a long loss-free run is allowed twice what it sends. Eq. 10 must
+    lengthen the gap in use: halving the unused allowance (the controller before the lock-out fix,
+    ``decrease_in_use=False``) leaves it sending 1000 packets/s into the queue that just
+    overflowed, which is how it locked TCP out (docs/CONTROL.md, section 3.8)."""
+    rtt, demand, lost_seq = 0.04, 1000.0, 3000
+    c = TrinomialController(TrinomialConfig(decrease_in_use=decrease_in_use))
+    trace = run(c, Path(rtt=rtt, demand=demand, loss=lambda seq, t: seq == lost_seq), 5.0)
+    (event,) = trace.loss_events
+    assert trace.rate_at(event - 1e-6) >= 1.9 * demand  # the headroom: twice the demand
+    after = trace.sent_between(event, event + rtt)
+    if decrease_in_use:
+        assert c.decrease_count == 1
+        assert trace.rate_at(event) == pytest.approx(0.5 * demand, rel=0.02)
+        assert after <= 0.55 * demand * rtt + 1  # the sender really halved
+    else:
+        assert trace.rate_at(event) >= demand  # halved allowance, unchanged sending
+        assert after >= demand * rtt - 1
+    # Either way it is back at the application's rate soon after: one loss, no lasting harm.
+    assert trace.sent_between(event + 10 * rtt, event + 20 * rtt) >= 0.99 * demand * 10 * rtt

@@ -7,7 +7,7 @@ import pytest
 
 from tdtp.config import ConnectionConfig
 from tdtp.netem import parse_netem
-from tdtp.sim.endpoints import TdtpSession
+from tdtp.sim.endpoints import TdtpEndpoint, TdtpSession
 from tdtp.sim.engine import Link, Network, Node, Packet, Simulator, Timer, link_spec, split_spec
 
 
@@ -145,6 +145,54 @@ def test_droptail_counts_waiting_packets_not_those_propagating() -> None:
     assert link.stats.max_queue == 1
 
 
+def test_byte_counted_droptail_charges_bytes_not_slots() -> None:
+    # ns-2's queue_in_bytes_: an arrival is dropped when the bytes waiting (the packet being
+    # serialised not counted) plus its own reach the limit.
+    net = Network()
+    net.connect("A", "B", "rate 1mbit delay 10ms", byte_limit=3000)
+    net.compute_routes()
+    sink = Collector()
+    net.node("B").bind(1, sink)
+    link = net.link("A", "B")
+    assert link.byte_limit == 3000 and net.link("B", "A").byte_limit == 3000
+    owner = Collector()
+    link.send(packet(1040, owner=owner, tag="first"), 0.0)  # on the wire at once: not counted
+    link.send(packet(1040, owner=owner, tag="a"), 0.0)  # 1040 waiting
+    link.send(packet(1040, owner=owner, tag="b"), 0.0)  # 2080 waiting
+    link.send(packet(1040, owner=owner, tag="c"), 0.0)  # 2080 + 1040 >= 3000: dropped
+    for i in range(20):  # ...but 40-byte packets still fit, up to 2080 + 40 k < 3000
+        link.send(packet(40, owner=owner, tag=i), 0.0)
+    net.run(1.0)
+    assert [p.payload for p in owner.drops] == ["c"]  # 2080 + 20 x 40 < 3000: every small one fits
+    assert [p.payload for _, p in sink.arrivals][:3] == ["first", "a", "b"]
+    assert link.stats.dropped == 1 and link.stats.delivered == 23
+    # The same queue counted in packets (limit 3) drops the 40-byte packets too.
+    net2, sink2 = two_nodes("rate 1mbit delay 10ms limit 3")
+    link2 = net2.link("A", "B")
+    for i in range(10):
+        link2.send(packet(40 if i else 1040, tag=i), 0.0)
+    net2.run(1.0)
+    assert len(sink2.arrivals) == 3
+    with pytest.raises(ValueError, match="byte_limit"):
+        Network().connect("A", "B", "rate 1mbit", byte_limit=0)
+
+
+def test_random_loss_before_the_queue() -> None:
+    net, sink = two_nodes("rate 100mbit delay 1ms loss 20%")
+    owner = Collector()
+    link = net.link("A", "B")
+    for i in range(2000):
+        net.run(i * 0.001)
+        link.send(packet(100, now=i * 0.001, owner=owner, tag=i), i * 0.001)
+    net.run(3.0)
+    assert len(owner.drops) + len(sink.arrivals) == 2000
+    assert 0.17 < len(owner.drops) / 2000 < 0.23
+    with pytest.raises(ValueError, match="uncorrelated random loss"):
+        split_spec(parse_netem("rate 1mbit loss 1% 25%"))
+    with pytest.raises(ValueError, match="uncorrelated random loss"):
+        split_spec(parse_netem("rate 1mbit loss gemodel 1% 10%"))
+
+
 def test_link_spec_is_split_into_queue_and_propagation() -> None:
     queue, delay = split_spec(parse_netem("rate 2mbit delay 7ms limit 9"))
     assert delay == 0.007 and queue.delay is None and queue.limit == 9
@@ -219,3 +267,26 @@ def test_identical_runs_are_identical() -> None:
     first = run()
     assert first == run()
     assert len(first) > 100
+
+
+def test_skipping_the_flush_after_held_samples_changes_nothing(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A session squeezed through 300 kbit/s: most samples wait for the pacer. The endpoint's
+    # shortcut for them must give exactly the run that flushing after every sample gives.
+    def run() -> tuple[list[float], int, int]:
+        net = Network(seed=5)
+        net.connect("M", "R", "rate 10mbit delay 1ms limit 15")
+        net.connect("R", "S", "rate 300kbit delay 20ms limit 8")
+        net.compute_routes()
+        session = TdtpSession.create(net, "M", "S", ConnectionConfig(), duration=6.0, seed=2)
+        net.run(6.0)
+        stats = session.master.conn.stats
+        return session.ms.delays + session.sm.delays, stats.packets_lost, net.sim.events_run
+
+    fast = run()
+    monkeypatch.setattr(TdtpEndpoint, "fast_ticks", False)
+    slow = run()
+    assert fast[:2] == slow[:2]
+    assert fast[1] > 0  # congested: the pacer held samples back
+    assert fast[2] == slow[2]

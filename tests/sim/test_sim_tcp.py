@@ -1,5 +1,5 @@
-"""The TCP cross-traffic model: slow start, halving on loss, NewReno vs Reno recovery, RTO backoff,
-filling a bottleneck alone, switching the FTP source off and on."""
+"""The TCP cross-traffic model: slow start, halving on loss, Tahoe vs NewReno vs Reno recovery, RTO
+backoff, filling a bottleneck alone, switching the FTP source off and on."""
 
 from __future__ import annotations
 
@@ -170,9 +170,47 @@ def test_ftp_source_off_sends_nothing_new_and_restarts_slowly() -> None:
     assert sent[10] <= 2 + 4 + 8 + 16 + 32
 
 
+def test_tahoe_restarts_from_one_segment_and_goes_back_n() -> None:
+    net = path(drop={40})
+    sender, data = sender_on(net, TcpConfig(window=1000, variant="tahoe"))
+    sender.ssthresh = 30.0
+    net.sim.call_at(0.0, sender.start, 0.0)
+    net.run(5.0)
+    counters = sender.counters
+    assert counters.fast_retransmits == 1 and counters.timeouts == 0
+    trace = counters.cwnd_trace
+    drop_at = next(i for i in range(1, len(trace)) if trace[i][1] < trace[i - 1][1])
+    halved = max(int(trace[drop_at - 1][1]) // 2, 2)
+    # ns-2's tahoe_action: cwnd 1, ssthresh half the window, no fast recovery (no inflation)...
+    assert trace[drop_at][1] == 1.0
+    assert all(c <= halved + 1 for _, c in trace[drop_at : drop_at + halved])
+    # ...and slow start again from the first unacknowledged segment: only the lost one is resent,
+    # because its ACK covers everything the sink held beyond it.
+    assert counters.retransmissions == 1
+    assert sender.ssthresh >= halved or sender.cwnd > halved  # slow start up to ssthresh, then on
+    assert data.summary(0.0, 5.0).dropped_packets == 0  # the drop was the test's router
+    assert sender.highest_ack > 100  # the transfer went on
+
+
+def test_tahoe_go_back_n_duplicates_do_not_cut_the_window_again() -> None:
+    # A 1 Mbit/s hop with a deep queue: when the 3rd duplicate ACK arrives, most of the window is
+    # still queued. Tahoe goes back to the first unacknowledged segment and resends segments that
+    # are on their way; the sink answers their copies with duplicate ACKs at exactly `recover`,
+    # which must not start another fast retransmit (ns-2's bug_fix_, `highest_ack > recover`).
+    # Counting them (>=) turned this one loss into a hundred window cuts in 10 s.
+    net = path(drop={40}, rate="1mbit", delay="10ms", limit=1000)
+    sender, _ = sender_on(net, TcpConfig(window=30, variant="tahoe"))
+    net.sim.call_at(0.0, sender.start, 0.0)
+    net.run(10.0)
+    assert sender.counters.fast_retransmits == 1
+    assert sender.counters.timeouts <= 1
+    assert sender.highest_ack > 1000  # ~1170 segments fit in 10 s at 1 Mbit/s
+
+
 def test_config_is_validated() -> None:
     with pytest.raises(ValueError, match="variant"):
-        TcpConfig(variant="tahoe")  # type: ignore[arg-type]
+        TcpConfig(variant="vegas")  # type: ignore[arg-type]
+    assert TcpConfig(variant="tahoe").variant == "tahoe"
     with pytest.raises(ValueError, match="window"):
         TcpConfig(window=0)
     assert TcpConfig().packet_size == 1040
