@@ -18,7 +18,7 @@ import json
 import math
 import sys
 from collections import deque
-from collections.abc import Awaitable, Callable, Coroutine, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -335,6 +335,20 @@ class Outcome:
     failure: str | None = None
 
 
+@contextlib.contextmanager
+def _capture(args: argparse.Namespace, outcome: Outcome) -> Iterator[PcapWriter | None]:
+    """The ``--pcap`` file of a run, if asked for: closed when the run ends, however it ends, and
+    described in the run's summary."""
+    capture = PcapWriter(args.pcap) if args.pcap is not None else None
+    try:
+        yield capture
+    finally:
+        if capture is not None:
+            capture.close()
+            if outcome.summary is not None:
+                outcome.summary["pcap"] = capture_report(capture)
+
+
 async def _send_loop(
     ep: Endpoint, side: Side, rate: float, size: int, until: float, *, master: bool
 ) -> None:
@@ -435,14 +449,8 @@ async def run_demo(args: argparse.Namespace, outcome: Outcome) -> None:
     config = _config(args)
     keys: SessionKeys = args.session_keys
     master_side, slave_side = Side("master"), Side("slave")
-    capture = PcapWriter(args.pcap) if args.pcap is not None else None
-    try:
+    with _capture(args, outcome) as capture:
         await _demo(args, outcome, config, keys, master_side, slave_side, capture)
-    finally:
-        if capture is not None:
-            capture.close()
-            if outcome.summary is not None:
-                outcome.summary["pcap"] = capture_report(capture)
 
 
 async def _demo(
@@ -618,14 +626,8 @@ def _settings(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
 
 
 async def run_master(args: argparse.Namespace, outcome: Outcome) -> None:
-    capture = PcapWriter(args.pcap) if args.pcap is not None else None
-    try:
+    with _capture(args, outcome) as capture:
         await _master(args, outcome, capture)
-    finally:
-        if capture is not None:
-            capture.close()
-            if outcome.summary is not None:
-                outcome.summary["pcap"] = capture_report(capture)
 
 
 async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWriter | None) -> None:
@@ -702,14 +704,8 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
 
 async def run_slave(args: argparse.Namespace, outcome: Outcome) -> None:
     keys: SessionKeys = args.session_keys
-    capture = PcapWriter(args.pcap) if args.pcap is not None else None
-    try:
+    with _capture(args, outcome) as capture:
         await _slave(args, outcome, keys, capture)
-    finally:
-        if capture is not None:
-            capture.close()
-            if outcome.summary is not None:
-                outcome.summary["pcap"] = capture_report(capture)
 
 
 async def _slave(
