@@ -17,6 +17,10 @@ is held in the core, where a newer sample supersedes it, instead of queueing in 
 The watchdog. :attr:`Endpoint.peer_silent`, :meth:`Endpoint.wait_silent`, :meth:`Endpoint.wait_resumed`
 and ``on_watchdog`` callbacks report the core's :class:`~tdtp.events.PeerSilent` and
 :class:`~tdtp.events.PeerResumed` events, so a slave can hold its machine while its master is silent.
+
+Callbacks that raise. An exception from ``on_data`` or ``on_watchdog`` goes to the loop's exception
+handler (logged by default, as asyncio logs a failed callback) and the session goes on: its timer is
+re-armed and the next samples and events are delivered.
 """
 
 from __future__ import annotations
@@ -420,7 +424,10 @@ class Endpoint:
             if isinstance(event, DataReceived):
                 self._newest = event
                 if on_data is not None:
-                    on_data(event)
+                    try:
+                        on_data(event)
+                    except Exception as exc:  # the application's error: reported, then on
+                        self._callback_failed("on_data", exc)
                     continue
                 if len(queue) >= self._max_queue:
                     queue.popleft()  # bounded: the oldest unread sample goes
@@ -430,6 +437,26 @@ class Endpoint:
                     self._wake(self._data_waiters)
             else:
                 self._on_other_event(event)
+
+    def _call_watchdog(self, event: PeerSilent | PeerResumed) -> None:
+        on_watchdog = self._on_watchdog
+        if on_watchdog is not None:
+            try:
+                on_watchdog(event)
+            except Exception as exc:  # the application's error: reported, then on
+                self._callback_failed("on_watchdog", exc)
+
+    def _callback_failed(self, name: str, exc: Exception) -> None:
+        """An application callback raised: report it as asyncio reports a failed callback (the
+        loop's exception handler logs it) and go on. The session must not stop being served (its
+        timer re-armed, its other events delivered) because a callback failed once."""
+        self._loop.call_exception_handler(
+            {
+                "message": f"{self._name()}: the {name} callback raised",
+                "exception": exc,
+                "endpoint": self,
+            }
+        )
 
     def _on_other_event(
         self, event: ConnectionEstablished | ConnectionClosed | PeerSilent | PeerResumed
@@ -442,15 +469,13 @@ class Endpoint:
                 event.detected_at - event.since,
             )
             self._wake(self._watch_waiters)
-            if self._on_watchdog is not None:
-                self._on_watchdog(event)
+            self._call_watchdog(event)
         elif isinstance(event, PeerResumed):
             self._silence = None
             self._resumed = event
             logger.info("%s: peer heard again after %.3f s", self._name(), event.silent_for)
             self._wake(self._watch_waiters)
-            if self._on_watchdog is not None:
-                self._on_watchdog(event)
+            self._call_watchdog(event)
         elif isinstance(event, ConnectionEstablished):
             logger.info("%s: connection established", self._name())
             if not self._established.done():

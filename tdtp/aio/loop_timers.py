@@ -21,6 +21,8 @@ import weakref
 from collections.abc import Callable
 from typing import Final
 
+from mypy_extensions import mypyc_attr
+
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
 
 __all__ = ["LoopTimers", "TickGroup", "TimerEntry", "loop_timers", "tick_group"]
@@ -68,6 +70,9 @@ class TimerEntry:
             self._owner.release()
 
 
+# A plain Python class even when compiled, so that the registry below can hold it weakly: the
+# registry must not keep a loop (or the endpoints on it) alive. Its work is per wake-up, not per packet.
+@mypyc_attr(native_class=False)
 class LoopTimers:
     """Every :class:`TimerEntry` of one event loop on one deadline timer (see the module docstring).
 
@@ -131,9 +136,16 @@ class LoopTimers:
                 entry.deadline = _NEVER
                 due.append(entry)
         # Callbacks run after the heap is settled: they re-arm their entries, earlier ones first.
+        # One that raises is reported and the others still run: they share this wake-up.
         for entry in due:
             if not entry.closed:
-                entry._callback()
+                try:
+                    entry._callback()
+                except Exception as exc:  # reported, as asyncio reports a callback's
+                    self._loop.call_exception_handler(
+                        {"message": "a tdtp timer callback raised", "exception": exc}
+                    )
+        heap = self._heap  # a callback may have compacted it
         while heap and heap[0][2].deadline != heap[0][0]:
             heapq.heappop(heap)  # stale tops, so the timer is armed at a live deadline
         if heap and not self._timer.closed:
@@ -142,6 +154,7 @@ class LoopTimers:
                 self._timer.arm(heap[0][0])
 
 
+@mypyc_attr(native_class=False)  # held weakly by the registry, as LoopTimers
 class TickGroup:
     """The ticks of every :class:`~tdtp.aio.ticker.Ticker` of one rate on one loop: deadlines
     ``anchor + n / rate`` for n = 0, 1, 2, ..., one wake-up per tick for all of them."""
@@ -212,18 +225,23 @@ class TickGroup:
             self._timer.arm(self.deadline(min(self._waiters)))
 
 
-_LOOP_TIMERS: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, dict[str, LoopTimers]] = (
-    weakref.WeakKeyDictionary()
-)
+# Each loop's timers and tick groups, held weakly on both sides: a loop whose endpoints were never
+# closed (an exception path, a forgotten close(), a test suite that runs asyncio.run() many times) is
+# collected with them, as it would be if every endpoint had a timer of its own.
+_LOOP_TIMERS: weakref.WeakKeyDictionary[
+    asyncio.AbstractEventLoop, weakref.WeakValueDictionary[str, LoopTimers]
+] = weakref.WeakKeyDictionary()
 _TICK_GROUPS: weakref.WeakKeyDictionary[
-    asyncio.AbstractEventLoop, dict[tuple[float, str], TickGroup]
+    asyncio.AbstractEventLoop, weakref.WeakValueDictionary[tuple[float, str], TickGroup]
 ] = weakref.WeakKeyDictionary()
 
 
 def loop_timers(loop: asyncio.AbstractEventLoop, prefer: str = "auto") -> LoopTimers:
     """The loop's shared timers of the preferred kind (created on first use, released with the
     last entry). Raises what :func:`~tdtp.aio.timer.create_timer` raises."""
-    by_kind = _LOOP_TIMERS.setdefault(loop, {})
+    by_kind = _LOOP_TIMERS.get(loop)
+    if by_kind is None:
+        _LOOP_TIMERS[loop] = by_kind = weakref.WeakValueDictionary()
     timers = by_kind.get(prefer)
     if timers is None:
         by_kind[prefer] = timers = LoopTimers(loop, prefer)
@@ -232,7 +250,9 @@ def loop_timers(loop: asyncio.AbstractEventLoop, prefer: str = "auto") -> LoopTi
 
 def tick_group(loop: asyncio.AbstractEventLoop, rate: float, prefer: str = "auto") -> TickGroup:
     """The loop's tick group for ``rate`` (created on first use, released with its last member)."""
-    groups = _TICK_GROUPS.setdefault(loop, {})
+    groups = _TICK_GROUPS.get(loop)
+    if groups is None:
+        _TICK_GROUPS[loop] = groups = weakref.WeakValueDictionary()
     group = groups.get((rate, prefer))
     if group is None:
         groups[(rate, prefer)] = group = TickGroup(loop, rate, prefer)
