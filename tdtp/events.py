@@ -31,12 +31,13 @@ class CloseCause(enum.Enum):
     """A keyed session protected as many packets as its keys may (or saw too many forgeries)."""
 
 
+@mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
 @dataclass(frozen=True, slots=True)
 class ConnectionEstablished:
     peer: Address
 
 
-@mypyc_attr(native_class=False)  # compiled, a frozen dataclass's __init__ would stay Python
+@mypyc_attr(native_class=False)  # a plain frozen dataclass in both builds (see _constructor)
 @dataclass(frozen=True, slots=True)
 class DataReceived:
     """One supermedia sample from the peer.
@@ -95,12 +96,14 @@ new_data_received: Final = _constructor()
 """``DataReceived(payload, seq, estimated_age, received_at)``, the connection's per-sample way."""
 
 
+@mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
 @dataclass(frozen=True, slots=True)
 class ConnectionClosed:
     cause: CloseCause
     detail: str
 
 
+@mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
 @dataclass(frozen=True, slots=True)
 class PeerSilent:
     """The watchdog: nothing has arrived from the peer for ``silence_timeout``.
@@ -116,6 +119,7 @@ class PeerSilent:
     late)."""
 
 
+@mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
 @dataclass(frozen=True, slots=True)
 class PeerResumed:
     """The peer is heard again after a :class:`PeerSilent`."""
