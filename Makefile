@@ -20,9 +20,10 @@ $(BIN)/python:
 
 # Reinstall whenever the project's declared dependencies change. The editable install compiles the
 # core in place with mypyc (setup.py; ~30 s), or leaves the pure-Python build without a C compiler.
-# The build requirements are checked first, so that a .venv made by an older checkout upgrades too.
+# The build requirements ([build-system] in pyproject.toml: mypyc type-checks the core, so they include
+# what it imports) are installed first, so that a .venv made by an older checkout upgrades too.
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet --upgrade 'setuptools>=77' 'mypy>=1.10' mypy_extensions
+	$(BIN)/python -m pip install --quiet --upgrade 'setuptools>=77' 'mypy>=1.10' 'mypy_extensions>=1.0' 'cryptography>=42'
 	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,plot]'
 	touch $(STAMP) $(BUILD_STAMP)
 

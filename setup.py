@@ -76,7 +76,11 @@ def _extensions() -> list[object]:
     except ImportError:
         _warn("mypyc is not installed")
         return []
-    return list(mypycify(COMPILED, opt_level="3", group_name=GROUP))
+    try:
+        return list(mypycify(COMPILED, opt_level="3", group_name=GROUP))
+    except (Exception, SystemExit) as exc:  # mypyc exits when its type check fails
+        _warn(f"mypyc could not prepare the core ({exc!r})")
+        return []
 
 
 setup(ext_modules=_extensions(), cmdclass={"build_ext": OptionalBuildExt})
