@@ -412,6 +412,12 @@ class Connection:
         else:
             controller = self._controller
             due = controller.next_send_time()
+            if now < due:
+                # The controller may owe a settlement that brings the departure forward (trinomial
+                # settles an increase interval's end lazily while no sample waits): settle it, as
+                # its timer would have, before deciding that the pacer holds this sample.
+                controller.on_timer(now=now)
+                due = controller.next_send_time()
             self._pending_paced = paced = now < due
             if paced and due < self._hint:
                 self._hint = due  # the pacer's deadline for it

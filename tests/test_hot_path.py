@@ -13,6 +13,8 @@ import pytest
 
 from tdtp import Connection, ConnectionConfig, PresharedKey, Role, State
 from tdtp.control.fixed import FixedConfig
+from tdtp.control.registry import register_controller
+from tdtp.control.trinomial import TrinomialConfig, TrinomialController
 
 MASTER, SLAVE = ("192.0.2.1", 40001), ("192.0.2.2", 40002)
 KEY = PresharedKey(bytes(range(32)), "hot-path")
@@ -64,8 +66,11 @@ class Side:
             self.after_input(now)
 
 
-def _run(direct: bool, config: ConnectionConfig, *, keyed: bool, seed: int) -> dict[str, object]:
-    """Both sides send at 1 kHz for 2 s over a path that loses, reorders and goes silent once."""
+def _run(
+    direct: bool, config: ConnectionConfig, *, keyed: bool, seed: int, tick: float = 0.001
+) -> dict[str, object]:
+    """Both sides offer a sample on two ticks of three (1 kHz ticks unless told) for 2 s over a path
+    that loses, reorders and goes silent once."""
     rng = random.Random(seed)
     master = Side(
         Connection(config, role=Role.MASTER, rng=random.Random(1), key=KEY if keyed else None),
@@ -83,7 +88,7 @@ def _run(direct: bool, config: ConnectionConfig, *, keyed: bool, seed: int) -> d
     master.conn.connect(SLAVE, now=now)
     master.after_input(now)
     slave.after_input(now)
-    tick = 0
+    ticks = 0
     while now < 2.0:
         # Put what each side sent on the wire: 2 % lost, some delayed past later packets, and
         # nothing at all between 0.8 s and 1.0 s (an outage the watchdog sees).
@@ -95,7 +100,7 @@ def _run(direct: bool, config: ConnectionConfig, *, keyed: bool, seed: int) -> d
                 delay = 0.005 + (0.004 if rng.random() < 0.05 else 0.0)
                 heapq.heappush(flight, (now + delay, order, datagram, to_slave))
             side.sent.clear()
-        next_tick = tick * 0.001
+        next_tick = ticks * tick
         upcoming = min(next_tick, flight[0][0] if flight else math.inf, master.armed, slave.armed)
         now = max(now, upcoming)
         while flight and flight[0][0] <= now:
@@ -108,10 +113,10 @@ def _run(direct: bool, config: ConnectionConfig, *, keyed: bool, seed: int) -> d
         for side in (master, slave):
             side.fire_if_due(now)
         if now >= next_tick:
-            tick += 1
+            ticks += 1
             for side in (master, slave):
-                if side.conn.state is State.ESTABLISHED and tick % 3:
-                    side.offer(tick.to_bytes(4, "big") + bytes(60), now)
+                if side.conn.state is State.ESTABLISHED and ticks % 3:
+                    side.offer(ticks.to_bytes(4, "big") + bytes(60), now)
     return {
         "missed": master.missed + slave.missed,
         "master": master.conn.stats.as_dict(),
@@ -143,6 +148,33 @@ def test_the_hint_never_misses_a_deadline_and_send_direct_changes_nothing(
     master = plain["master"]
     assert isinstance(master, dict)
     assert master["packets_lost"] > 0 and master["peer_silences"] == 1  # the path was exercised
+
+
+class EagerTrinomial(TrinomialController):
+    """Trinomial with every increase interval's end timed, as before ends were settled lazily."""
+
+    def get_timer(self) -> float | None:
+        waiting = self.sample_waiting
+        self.sample_waiting = True
+        try:
+            return super().get_timer()
+        finally:
+            self.sample_waiting = waiting
+
+
+register_controller("trinomial-eager", EagerTrinomial, TrinomialConfig)
+
+
+@pytest.mark.parametrize(("tick", "seed"), [(0.001, 3), (1 / 3000, 3), (1 / 2400, 2)])
+def test_lazy_interval_ends_give_the_session_eager_ones_give(tick: float, seed: int) -> None:
+    # 667 to 2000 samples/s offered against an allowance near 2000/s. A sample that arrives after
+    # an interval end nobody timed must find it settled and leave when the eager timer would have
+    # let it, not a timer expiry later and counted as paced (the last case tells the two apart).
+    lazy = _run(True, ConnectionConfig(), keyed=False, seed=seed, tick=tick)
+    eager = _run(
+        True, ConnectionConfig(controller="trinomial-eager"), keyed=False, seed=seed, tick=tick
+    )
+    assert lazy == eager
 
 
 def test_send_direct_reports_a_socket_error_and_carries_on() -> None:
