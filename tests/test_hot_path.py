@@ -12,6 +12,7 @@ import random
 import pytest
 
 from tdtp import Connection, ConnectionConfig, PresharedKey, Role, State
+from tdtp.control import registry
 from tdtp.control.fixed import FixedConfig
 from tdtp.control.registry import register_controller
 from tdtp.control.trinomial import TrinomialConfig, TrinomialController
@@ -162,11 +163,12 @@ class EagerTrinomial(TrinomialController):
             self.sample_waiting = waiting
 
 
-register_controller("trinomial-eager", EagerTrinomial, TrinomialConfig)
-
-
 @pytest.mark.parametrize(("tick", "seed"), [(0.001, 3), (1 / 3000, 3), (1 / 2400, 2)])
-def test_lazy_interval_ends_give_the_session_eager_ones_give(tick: float, seed: int) -> None:
+def test_lazy_interval_ends_give_the_session_eager_ones_give(
+    tick: float, seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(registry, "_registry", dict(registry._registry))  # registered for this test
+    register_controller("trinomial-eager", EagerTrinomial, TrinomialConfig)
     # 667 to 2000 samples/s offered against an allowance near 2000/s. A sample that arrives after
     # an interval end nobody timed must find it settled and leave when the eager timer would have
     # let it, not a timer expiry later and counted as paced (the last case tells the two apart).

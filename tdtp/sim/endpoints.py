@@ -157,8 +157,10 @@ class TdtpEndpoint:
         index = self._index
         self._index = index + 1
         self.samples_offered += 1
-        held_until = conn.controller.next_send_time()
         conn.send(_STAMP.pack(now, index & 0xFFFFFFFF) + self._padding, now=now)
+        # After send(), which settles what the controller owed by now (an interval end it left
+        # untimed can bring the departure forward).
+        held_until = conn.controller.next_send_time()
         controller_timer = conn.controller.get_timer() if held_until > now else None
         if (
             held_until > now
