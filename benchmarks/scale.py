@@ -8,7 +8,8 @@ Method. Two processes on loopback, each pinned to its own CPU (on 2 cores the sl
 - the **slave**: ``tdtp.listen`` on uvloop, default connection config (trinomial flow control,
   piggybacked ACKs). Each accepted master gets its own task, written as an application would (see
   ``examples/slave.py``): an ``on_data`` callback takes the master's samples, and a ``tdtp.Ticker(1000)``
-  loop sends one 100-byte sample per tick with ``ep.send``.
+  loop sends one 100-byte sample per tick with ``ep.send`` (without ``start=``, so every session's ticker
+  joins the loop's 1 kHz tick group: one wake-up per period for all of them).
 - the **masters**: N ``tdtp.connect`` endpoints in one process on uvloop; one shared 1 kHz ticker sends a
   100-byte sample to every endpoint per tick (one wake-up per period for all N, to keep the load
   generator cheap), and an ``on_data`` callback per endpoint takes the slave's samples.
@@ -197,12 +198,12 @@ def _record_tick(ticks: Ticks, window: Window, deadline: float, now: float, gap:
 
 async def _serve(ep: Endpoint, window: Window, ticks: Ticks, arrivals: Arrivals) -> None:
     ep.set_data_callback(arrivals.on_data)
-    start = monotonic()
     last = -1
+    ticker = Ticker(RATE)  # the default: the loop's tick group for 1 kHz, one wake-up for all
     with contextlib.suppress(ConnectionClosedError):
-        async for index in Ticker(RATE, start=start):
+        async for index in ticker:
             now = monotonic()
-            _record_tick(ticks, window, start + index * PERIOD, now, index - last - 1)
+            _record_tick(ticks, window, ticker.deadline, now, max(0, index - last - 1))
             last = index
             if ep.is_closed or now > window.end + 0.2:
                 return

@@ -170,9 +170,11 @@ class Control:
         return self.stop
 
 
-async def blast(send: Any, control: Control, cap: float, result: Blast) -> Blast:
+async def blast(send: Any, control: Control, cap: float, result: Blast | None = None) -> Blast:
     """Offer samples as fast as possible until told to stop (or ``cap`` seconds, a safety net);
     ``result.sent`` counts them as they go."""
+    if result is None:
+        result = Blast()
     start, cpu0 = monotonic(), common.cpu_seconds()
     end = start + cap
     payload = PAYLOAD
