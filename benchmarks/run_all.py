@@ -84,7 +84,7 @@ SUITE = (
     ),
     Bench(
         "scale-pure",
-        ("--seconds", "2", "--repeat", "1", "--pure", "--ramp", "2,5,8,10,12,15,20,25,30"),
+        ("--seconds", "2", "--repeat", "1", "--pure", "--ramp", "2,5,8,10,15,20,25,30"),
         ("--seconds", "0.1", "--repeat", "1", "--ramp", "2", "--pure"),
         script="scale",
     ),

@@ -78,7 +78,7 @@ from tdtp.control.fixed import FixedConfig
 TARGET_SESSIONS = 50
 PURE_BEFORE = 8
 """Sessions one slave served in the suite's run of 2026-11-21, before the compiled core."""
-DEFAULT_RAMP = "2,5,8,10,15,20,25,30,40,50,60,80,100"
+DEFAULT_RAMP = "2,5,10,15,20,25,30,40,50,60,80,100"
 CONTENDED_RETRIES = 2
 """Reruns of a step that failed while other processes used > common.CONTENDED_PERCENT of a core."""
 RATE = 1000.0
@@ -495,6 +495,18 @@ def largest_passing(results: list[Json]) -> int:
     return max(passed) if passed else 0
 
 
+def cost_per_session(results: list[Json]) -> float:
+    """The busiest slave's CPU per session and 1 ms period (us) at the largest step that passed:
+    CPU time, so other tenants hardly move it; NaN when no step passed."""
+    passed = [r for r in results if r["verdict"] == "pass"]
+    if not passed:
+        return math.nan
+    best = max(passed, key=lambda r: r["sessions"])
+    workers = max(1, len(best["slave"]["workers"]))
+    per_worker = best["sessions"] / workers  # the busiest has at least its share
+    return 10.0 * best["slave"]["cpu_percent"] / per_worker
+
+
 def stop_note(ramps: list[list[Json]]) -> str:
     """Why the ramps stopped, with the figures of the step that stopped them (never a bare verdict:
     a contended step says how busy the other tenants were and how late the slave was anyway)."""
@@ -599,8 +611,28 @@ def main(argv: list[str] | None = None) -> int:
                 digits=0,
             )
         )
+        costs = [cost_per_session(r) for r in ramps]
+        cost = Stat.of(costs)
+        if count == 1 and cost.n:
+            rows.append(
+                Row(
+                    "scale",
+                    f"{setup.label.split(':')[0] + ': ' if args.pure else ''}slave CPU per "
+                    "1 kHz session, at the largest step that passed",
+                    "us per ms",
+                    cost,
+                    note=f"one core at this cost: about {1000 / cost.median:.0f} sessions",
+                    digits=1,
+                )
+            )
         details["setups"].append(
-            {"workers": count, "ramps": ramps, "largest_passing": best, "shared_core": shared}
+            {
+                "workers": count,
+                "ramps": ramps,
+                "largest_passing": best,
+                "cost_us_per_session_ms": costs,
+                "shared_core": shared,
+            }
         )
         for i, results in enumerate(ramps):
             for r in results:
