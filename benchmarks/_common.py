@@ -341,9 +341,25 @@ def clean_pairs(a: Sequence[Json], b: Sequence[Json]) -> tuple[list[Json], list[
 
 
 def left_out(*groups: Sequence[Json]) -> str:
-    """A note for a row: how many contended runs its statistics left out."""
+    """A note for a row: how many contended runs its statistics left out, and how busy the other
+    tenants were; or, when too few runs were clean to leave any out, that the figure was taken under
+    contention and how much. Never a verdict without the figure: the row keeps its median either way."""
+    runs = [r for g in groups for r in g]
+    contended = [float(r.get("others_percent", 0.0)) for r in runs if r.get("contended")]
+    if not contended:
+        return ""
+    low, high = f"{min(contended):.0f}", f"{max(contended):.0f}"
+    busy = low if low == high else f"{low}-{high}"
     n = sum(len(g) - len(clean(g)) for g in groups)
-    return f"{n} contended run{'s' if n != 1 else ''} left out" if n else ""
+    if n:
+        return (
+            f"{n} contended run{'s' if n != 1 else ''} left out: other tenants used {busy} % "
+            "of a core"
+        )
+    return (
+        f"contended: other tenants used {busy} % of a core in {len(contended)} of {len(runs)} "
+        "runs, too few clean ones to leave them out: noisy"
+    )
 
 
 def warn_if_loaded() -> None:
@@ -496,15 +512,39 @@ class WorkerHandle:
 _CONTEXT = multiprocessing.get_context("spawn")
 
 
-def start_worker(name: str, target: Worker, **kwargs: Any) -> WorkerHandle:
-    """Run ``target(conn, **kwargs)`` in a fresh (spawned) process; talk to it through the handle."""
+PURE_ENV = "TDTP_PURE_PYTHON"
+"""Set in a worker's environment, tdtp runs its pure-Python build there (``tdtp/_build.py``)."""
+
+
+def start_worker(name: str, target: Worker, *, pure: bool = False, **kwargs: Any) -> WorkerHandle:
+    """Run ``target(conn, **kwargs)`` in a fresh (spawned) process; talk to it through the handle.
+
+    ``pure=True`` starts it with ``TDTP_PURE_PYTHON=1``, so that it imports tdtp's pure-Python build
+    even where the compiled one is installed (the child reads its environment when it starts)."""
     parent, child = _CONTEXT.Pipe()
     process = _CONTEXT.Process(
         target=_guarded, args=(target, child, kwargs), name=name, daemon=True
     )
-    process.start()
+    saved = os.environ.get(PURE_ENV)
+    if pure:
+        os.environ[PURE_ENV] = "1"
+    try:
+        process.start()
+    finally:
+        if pure:
+            if saved is None:
+                del os.environ[PURE_ENV]
+            else:
+                os.environ[PURE_ENV] = saved
     child.close()
     return WorkerHandle(process, parent, name)
+
+
+def tdtp_build() -> str:
+    """``"compiled"`` or ``"pure"``: which build of tdtp's core this process runs."""
+    import tdtp  # noqa: PLC0415 - the benchmarks import it anyway; late, so the env counts
+
+    return tdtp.build_info().build
 
 
 def run_in_loop(loop_name: str, coroutine: Callable[[], Any]) -> Any:

@@ -1,8 +1,8 @@
-"""What a keyed session costs: bytes per sample, CPU per packet and RTT, keyed against unkeyed.
+"""What a keyed session costs: bytes per sample and CPU per packet, keyed against unkeyed.
 
 Usage: ``python benchmarks/keyed.py [--seconds 1] [--repeat 3] [--json]``
 
-Method. Three measurements, each keyed against unkeyed in the same run (repetition i of one right after
+Method. Two measurements, each keyed against unkeyed in the same run (repetition i of one right after
 repetition i of the other; ratios are paired and their median reported):
 
 - **Bytes per sample** on the wire, UDP/IPv4 included, at 1000 samples/s of 100 bytes each way for one
@@ -14,15 +14,16 @@ repetition i of the other; ratios are paired and their median reported):
   tenants) over ``--seconds`` of work, divided by the packets carried: the protocol's own cost per
   packet and side, sender plus receiver. Beside it the AEAD alone (seal + open of one 100-byte sample)
   for AES-128-GCM and ChaCha20-Poly1305.
-- **RTT**: ``benchmarks/latency.py``'s ping-pong between two processes pinned to their own CPUs on
-  uvloop, 100-byte payloads, ``tdtp uvloop`` keyed (AES-128-GCM, encrypted) against unkeyed; p50 and p99.
+
+End to end, the keyed path is measured exactly like the unkeyed one, in the same runs: its round trip
+(against raw uvloop and against unkeyed tdtp) in ``latency.py``, its one-way throughput and capacity
+ratio in ``throughput.py``.
 
 No target in issue 11: the figures say what security costs.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import sys
 import time
@@ -30,8 +31,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
-import latency
-from _common import Json, Row, Stat
+from _common import Row, Stat
 
 from tdtp import Connection, ConnectionConfig, PresharedKey, Role
 from tdtp.control.fixed import FixedConfig
@@ -125,7 +125,7 @@ def aead_ns(suite: CipherSuite, seconds: float) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = common.parser(__doc__, seconds=1.0, repeat=3, help_seconds="CPU and RTT time per run")
+    p = common.parser(__doc__, seconds=1.0, repeat=3, help_seconds="CPU time per run")
     args = p.parse_args(argv)
     common.warn_if_loaded()
     rows: list[Row] = []
@@ -177,39 +177,6 @@ def main(argv: list[str] | None = None) -> int:
                 digits=2,
             )
         )
-    runs: dict[str, list[Json]] = {"tdtp-uvloop": [], "keyed-uvloop": []}
-    if common.have_uvloop():
-        retrier = common.Retrier(args.repeat)
-        for rep in range(args.repeat):
-            for variant, results in runs.items():
-                label = f"rep {rep + 1}/{args.repeat}: RTT {variant}"
-                print(f"{label} ...", file=sys.stderr)
-                results.append(
-                    retrier.run(
-                        label, functools.partial(latency.run_variant, variant, args.seconds)
-                    )
-                )
-        keyed_runs, plain_runs = runs["keyed-uvloop"], runs["tdtp-uvloop"]
-        paired_keyed, paired_plain = common.clean_pairs(keyed_runs, plain_runs)
-        for key, label in (("p50", "p50"), ("p99", "p99")):
-            rows.append(
-                Row(
-                    "keyed",
-                    f"RTT {label}, keyed tdtp uvloop, 100 B ping-pong",
-                    "us",
-                    Stat.of([r[key] for r in common.clean(keyed_runs)]),
-                    baseline="unkeyed tdtp uvloop",
-                    baseline_value=Stat.of([r[key] for r in common.clean(plain_runs)]),
-                    ratio=Stat.of(
-                        common.paired_ratios(
-                            [r[key] for r in paired_keyed], [r[key] for r in paired_plain]
-                        )
-                    ),
-                    ratio_label="keyed/unkeyed",
-                    note=common.left_out(keyed_runs, plain_runs),
-                    digits=1,
-                )
-            )
     text = (
         f"Bytes per sample: unkeyed {sizes[False]:.2f}, keyed {sizes[True]:.2f} "
         f"(+{sizes[True] - sizes[False]:.2f}: packet number 2 + tag 16, handshake amortised)."
@@ -218,7 +185,6 @@ def main(argv: list[str] | None = None) -> int:
         "bytes_per_sample": {"unkeyed": sizes[False], "keyed": sizes[True]},
         "cpu_us": {"unkeyed": cpu[False], "keyed": cpu[True]},
         "aead_us": {suite.name: values for suite, values in aead.items()},
-        "rtt_runs": runs,
     }
     return common.emit("keyed", args, rows, details=details, text=text)
 

@@ -34,6 +34,12 @@ class Bench:
     quick: tuple[str, ...]
     runs: int = 1
     timeout: float = 150.0
+    script: str = ""
+    """The script, when not ``name``.py (one script run twice with other options)."""
+
+    @property
+    def path(self) -> Path:
+        return HERE / f"{self.script or self.name}.py"
 
 
 SUITE = (
@@ -52,7 +58,7 @@ SUITE = (
     ),
     Bench(
         "latency",
-        ("--seconds", "1", "--repeat", "5"),
+        ("--seconds", "3", "--repeat", "3"),
         ("--seconds", "0.1", "--repeat", "1"),
     ),
     Bench(
@@ -62,7 +68,7 @@ SUITE = (
     ),
     Bench(
         "throughput",
-        ("--seconds", "1", "--repeat", "5", "--both", "--profile"),
+        ("--seconds", "1", "--repeat", "3", "--both", "--profile"),
         ("--seconds", "0.1", "--repeat", "1"),
     ),
     Bench(
@@ -72,9 +78,15 @@ SUITE = (
     ),
     Bench(
         "scale",
-        ("--seconds", "2", "--repeat", "3"),
-        ("--seconds", "0.1", "--repeat", "1", "--ramp", "2"),
-        timeout=240.0,
+        ("--seconds", "2", "--repeat", "2", "--workers", "1,2"),
+        ("--seconds", "0.1", "--repeat", "1", "--ramp", "2", "--workers", "1,2"),
+        timeout=300.0,
+    ),
+    Bench(
+        "scale-pure",
+        ("--seconds", "2", "--repeat", "1", "--pure", "--ramp", "2,5,8,10,15,20,25,30"),
+        ("--seconds", "0.1", "--repeat", "1", "--ramp", "2", "--pure"),
+        script="scale",
     ),
 )
 
@@ -82,7 +94,7 @@ SUITE = (
 def run_one(bench: Bench, quick: bool) -> list[Json]:
     """The benchmark's JSON reports, one per run."""
     args = bench.quick if quick else bench.args
-    command = [sys.executable, str(HERE / f"{bench.name}.py"), *args, "--json"]
+    command = [sys.executable, str(bench.path), *args, "--json"]
     reports = []
     for i in range(bench.runs):
         suffix = f" (run {i + 1}/{bench.runs})" if bench.runs > 1 else ""

@@ -1,20 +1,33 @@
 """How many concurrent 1 kHz bidirectional sessions does one tdtp slave process serve on uvloop?
 
-Usage: ``python benchmarks/scale.py [--seconds 2] [--repeat 2] [--ramp 2,5,10,15,20,30,50,100,150]
-[--controller trinomial|tfrc|fixed] [--json]``
+Usage: ``python benchmarks/scale.py [--seconds 2] [--repeat 2] [--ramp 2,5,10,15,20,30,50,100]
+[--controller trinomial|tfrc|fixed] [--workers 1,2] [--pure] [--json]``
 
 Method. Two processes on loopback, each pinned to its own CPU (on 2 cores the slave has one to itself):
 
 - the **slave**: ``tdtp.listen`` on uvloop, default connection config (trinomial flow control,
   piggybacked ACKs). Each accepted master gets its own task, written as an application would (see
   ``examples/slave.py``): an ``on_data`` callback takes the master's samples, and a ``tdtp.Ticker(1000)``
-  loop sends one 100-byte sample per tick with ``ep.send``.
+  loop sends one 100-byte sample per tick with ``ep.send`` (without ``start=``, so every session's ticker
+  joins the loop's 1 kHz tick group: one wake-up per period for all of them).
 - the **masters**: N ``tdtp.connect`` endpoints in one process on uvloop; one shared 1 kHz ticker sends a
   100-byte sample to every endpoint per tick (one wake-up per period for all N, to keep the load
   generator cheap), and an ``on_data`` callback per endpoint takes the slave's samples.
 
 Every payload carries its send time (``time.monotonic``, one system-wide clock for both processes). Once
-all N sessions are up and a 0.5 s warm-up has passed, each side measures a window of ``--seconds``.
+all N sessions are up the coordinator opens the window, 0.5 s later, for every process at once: each
+measures ``--seconds`` from then.
+
+**Workers.** ``--workers W`` runs W slave processes, each with its own ``tdtp.listen(..., port,
+reuse_port=True)`` on the same port (the recipe of the README's "Sessions at scale"): the kernel
+spreads the masters over them by their addresses (not evenly: the table gives the split), and each
+serves every master it is given. Slave i is pinned to CPU 1 + i, modulo the CPUs, the masters to CPU 0;
+so on a 2-core machine ``--workers 2`` puts the second slave on the masters' core, and the figure then
+measures the sharing as much as the slaves. The step's slave figures are the workers' together (late
+ticks and samples received summed; CPU and tick lateness p99 the busiest worker's). ``--workers 1,2``
+runs a ramp for each.
+
+``--pure`` runs every process on tdtp's pure-Python build (``TDTP_PURE_PYTHON=1``).
 
 **Late**, the figure judged: a slave sample is late when the slave's ``Ticker`` hands it to ``ep.send``
 more than one period (1 ms) after its deadline, or when the ticker skipped its tick altogether (a stall
@@ -33,10 +46,12 @@ received by the slave, for information the one-way lateness of samples at arriva
 time > 1 ms) in each direction, and how much CPU other tenants of the machine used meanwhile (the CPU
 time of every other process, from ``/proc/[pid]/stat``, over the step, % of one core): on a shared
 machine a step can fail because a neighbour took the slave's core, and this column says so. The ramp
-stops after the first step that does not pass. The figure is the largest N that passed, median over
-``--repeat`` ramps.
+stops after the first step that does not pass; a later ramp starts from the largest step at most half
+of what the one before passed. The figure is the largest N that passed, median over ``--repeat``
+ramps; the row says where and why each ramp stopped, with the figures of that step.
 
-Target (issue 6): >= 100 sessions.
+Targets (issue 12): >= 50 sessions in one slave process, masters in another; the pure-Python build no
+fewer than the whole library served before the compiled core (8, the suite's run of 2026-11-21).
 """
 
 from __future__ import annotations
@@ -60,8 +75,10 @@ from tdtp.aio.api import connect, listen
 from tdtp.aio.timer import monotonic
 from tdtp.control.fixed import FixedConfig
 
-TARGET_SESSIONS = 100
-DEFAULT_RAMP = "2,5,8,10,12,15,20,30,50,100,150"
+TARGET_SESSIONS = 50
+PURE_BEFORE = 8
+"""Sessions one slave served in the suite's run of 2026-11-21, before the compiled core."""
+DEFAULT_RAMP = "2,5,10,15,20,25,30,40,50,60,80,100"
 CONTENDED_RETRIES = 2
 """Reruns of a step that failed while other processes used > common.CONTENDED_PERCENT of a core."""
 RATE = 1000.0
@@ -128,12 +145,32 @@ class Ticks:
     """When late ticks were due, seconds into the window (the first 100)."""
 
 
-async def _measure(window: Window, seconds: float) -> None:
-    window.start = monotonic() + WARMUP
+class Inbox:
+    """The coordinator's messages, read from the pipe without blocking the loop."""
+
+    def __init__(self, conn: Any) -> None:
+        self.conn = conn
+        self.messages: Json = {}
+
+    def poll(self) -> Json:
+        while self.conn.poll():
+            self.messages.update(self.conn.recv())
+        return self.messages
+
+    async def wait_for(self, key: str) -> Any:
+        while key not in self.poll():
+            await asyncio.sleep(0.01)
+        return self.messages[key]
+
+
+async def _measure(window: Window, inbox: Inbox, seconds: float) -> None:
+    """The window the coordinator sets once every session is up (one for every process: the
+    monotonic clock is the machine's), and this process's CPU time over it."""
+    window.start = await inbox.wait_for("start")
     window.end = window.start + seconds
-    await asyncio.sleep(window.start - monotonic())
+    await asyncio.sleep(max(0.0, window.start - monotonic()))
     window.cpu.append(common.cpu_seconds())
-    await asyncio.sleep(window.end - monotonic())
+    await asyncio.sleep(max(0.0, window.end - monotonic()))
     window.cpu.append(common.cpu_seconds())
     await asyncio.sleep(0.05)  # let the last ticks of the window be recorded
 
@@ -161,33 +198,50 @@ def _record_tick(ticks: Ticks, window: Window, deadline: float, now: float, gap:
 
 async def _serve(ep: Endpoint, window: Window, ticks: Ticks, arrivals: Arrivals) -> None:
     ep.set_data_callback(arrivals.on_data)
-    start = monotonic()
     last = -1
+    ticker = Ticker(RATE)  # the default: the loop's tick group for 1 kHz, one wake-up for all
     with contextlib.suppress(ConnectionClosedError):
-        async for index in Ticker(RATE, start=start):
+        async for index in ticker:
             now = monotonic()
-            _record_tick(ticks, window, start + index * PERIOD, now, index - last - 1)
+            _record_tick(ticks, window, ticker.deadline, now, max(0, index - last - 1))
             last = index
             if ep.is_closed or now > window.end + 0.2:
                 return
             ep.send(_payload(index))
 
 
-async def _slave(control: Any, sessions: int, seconds: float, controller: str) -> Json:
+async def _slave(
+    control: Any, sessions: int, seconds: float, controller: str, port: int, reuse_port: bool
+) -> Json:
     window = Window()
     ticks = Ticks()
     arrivals = Arrivals(window)
+    inbox = Inbox(control)
     config = session_config(controller)
-    server = await listen("127.0.0.1", 0, max_peers=sessions + 8, config=config)
+    server = await listen(
+        "127.0.0.1",
+        port,
+        max_peers=sessions + 8,
+        backlog=sessions + 8,
+        config=config,
+        reuse_port=reuse_port,
+    )
     control.send({"port": server.port})
-    tasks = []
-    for _ in range(sessions):
-        ep = await server.accept()
-        tasks.append(asyncio.create_task(_serve(ep, window, ticks, arrivals)))
-    await _measure(window, seconds)
+    tasks: list[asyncio.Task[None]] = []
+
+    async def accept() -> None:
+        # With several slave processes on the port, this one cannot know how many of the masters
+        # the kernel gives it: it serves every one that comes.
+        while True:
+            ep = await server.accept()
+            tasks.append(asyncio.create_task(_serve(ep, window, ticks, arrivals)))
+
+    acceptor = asyncio.create_task(accept())
+    await _measure(window, inbox, seconds)
     span = window.end - window.start
     stats = [ep.stats for ep in server.endpoints]
     report = {
+        "sessions": len(tasks),
         "ticks": ticks.total,
         "late": ticks.late,
         "skipped": ticks.skipped,
@@ -195,28 +249,40 @@ async def _slave(control: Any, sessions: int, seconds: float, controller: str) -
         "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
         "late_at": ticks.late_at,
         "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
+        "received": arrivals.count,
         "received_rate": arrivals.count / span,
+        "arrival_late": arrivals.late,
         "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
         "superseded": sum(s.samples_superseded for s in stats),
         "lost": sum(s.packets_lost for s in stats),
         "ack_packets_sent": sum(s.sent.ack_packets for s in stats),
+        "build": common.tdtp_build(),
     }
     control.send({"window": report})
-    while not control.poll():
-        await asyncio.sleep(0.02)
+    await inbox.wait_for("stop")
+    acceptor.cancel()
     for task in tasks:
         task.cancel()
-    await asyncio.gather(*tasks, return_exceptions=True)
+    await asyncio.gather(acceptor, *tasks, return_exceptions=True)
     await server.close()
     return report
 
 
 def slave_worker(
-    conn: Any, *, sessions: int, seconds: float, controller: str, cpu_slot: int
+    conn: Any,
+    *,
+    sessions: int,
+    seconds: float,
+    controller: str,
+    cpu_slot: int,
+    port: int = 0,
+    reuse_port: bool = False,
 ) -> None:
     common.pin_to_cpu(cpu_slot)
     _raise_fd_limit()
-    common.run_in_loop("uvloop", lambda: _slave(conn, sessions, seconds, controller))
+    common.run_in_loop(
+        "uvloop", lambda: _slave(conn, sessions, seconds, controller, port, reuse_port)
+    )
     conn.send({"final": True})
 
 
@@ -227,12 +293,14 @@ async def _masters(control: Any, port: int, sessions: int, seconds: float, contr
     window = Window()
     arrivals = Arrivals(window)
     ticks = Ticks()
+    inbox = Inbox(control)
     config = session_config(controller)
     endpoints = [
         await connect("127.0.0.1", port, config=config, on_data=arrivals.on_data)
         for _ in range(sessions)
     ]
-    measure = asyncio.create_task(_measure(window, seconds))
+    control.send({"connected": True})
+    measure = asyncio.create_task(_measure(window, inbox, seconds))
     start = monotonic()
     last = -1
     async for index in Ticker(RATE, start=start):
@@ -243,7 +311,7 @@ async def _masters(control: Any, port: int, sessions: int, seconds: float, contr
         for ep in endpoints:
             with contextlib.suppress(ConnectionClosedError):
                 ep.send(payload)
-        if measure.done() and control.poll():
+        if measure.done() and "stop" in inbox.poll():
             break
     span = window.end - window.start
     report = {
@@ -254,6 +322,7 @@ async def _masters(control: Any, port: int, sessions: int, seconds: float, contr
         "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
         "received_rate": arrivals.count / span,
         "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        "build": common.tdtp_build(),
     }
     for ep in endpoints:
         await ep.close()
@@ -274,38 +343,86 @@ def masters_worker(
 # ---------------------------------------------------------------------------- coordinator
 
 
-def run_step(sessions: int, seconds: float, controller: str = "trinomial") -> Json:
+def _combine(slaves: list[Json]) -> Json:
+    """One slave report for the step from every worker's: counts summed, CPU and lateness p99 the
+    worst worker's (each has its own core, or shares one: the worst is the one that limits)."""
+    if len(slaves) == 1:
+        return {**slaves[0], "workers": [slaves[0]]}
+    ticks = sum(s["ticks"] for s in slaves)
+    late = sum(s["late"] for s in slaves)
+    received = sum(s["received"] for s in slaves)
+    arrival_late = sum(s["arrival_late"] for s in slaves)
+    return {
+        "sessions": sum(s["sessions"] for s in slaves),
+        "ticks": ticks,
+        "late": late,
+        "skipped": sum(s["skipped"] for s in slaves),
+        "late_fraction": late / ticks if ticks else math.nan,
+        "tick_lateness_p99_us": max(
+            (s["tick_lateness_p99_us"] for s in slaves if s["ticks"]), default=math.nan
+        ),
+        "cpu_percent": max(s["cpu_percent"] for s in slaves),
+        "received": received,
+        "received_rate": sum(s["received_rate"] for s in slaves),
+        "arrival_late": arrival_late,
+        "arrival_late_fraction": arrival_late / received if received else math.nan,
+        "build": slaves[0]["build"],
+        "workers": slaves,
+    }
+
+
+def run_step(
+    sessions: int,
+    seconds: float,
+    controller: str = "trinomial",
+    workers: int = 1,
+    pure: bool = False,
+) -> Json:
+    """One step: ``workers`` slave processes on one port (``SO_REUSEPORT`` when more than one),
+    ``sessions`` masters in another process, and the verdict."""
     others = common.OthersMeter()
-    slave = common.start_worker(
-        f"slave-{sessions}",
-        slave_worker,
-        sessions=sessions,
-        seconds=seconds,
-        controller=controller,
-        cpu_slot=1,
-    )
+    kind = dict(sessions=sessions, seconds=seconds, controller=controller)
+    slaves: list[common.WorkerHandle] = []
     masters = None
     try:
-        port = slave.recv(30)["port"]
+        port = 0
+        for i in range(workers):
+            slaves.append(
+                common.start_worker(
+                    f"slave-{sessions}-{i}",
+                    slave_worker,
+                    pure=pure,
+                    cpu_slot=1 + i,
+                    port=port,
+                    reuse_port=workers > 1,
+                    **kind,
+                )
+            )
+            port = slaves[-1].recv(30)["port"]
         masters = common.start_worker(
-            f"masters-{sessions}",
-            masters_worker,
-            port=port,
-            sessions=sessions,
-            seconds=seconds,
-            controller=controller,
-            cpu_slot=0,
+            f"masters-{sessions}", masters_worker, pure=pure, port=port, cpu_slot=0, **kind
         )
-        s = slave.recv(60 + 2 * seconds)["window"]
+        masters.recv(60 + sessions)  # every master connected
+        start = {"start": monotonic() + WARMUP}
+        for handle in (*slaves, masters):
+            handle.send(start)
+        reports = [slave.recv(60 + 2 * seconds)["window"] for slave in slaves]
         masters.send({"stop": True})
         m = masters.recv(60)["final"]
-        slave.send({"stop": True})
-        slave.recv(30)
+        for slave in slaves:
+            slave.send({"stop": True})
+        for slave in slaves:
+            slave.recv(30)
     finally:
-        slave.finish()
+        for slave in slaves:
+            slave.finish()
         if masters is not None:
             masters.finish()
+    s = _combine(reports)
     s["others_percent"] = others.percent()  # the whole step, start-up included
+    builds = {r["build"] for r in reports} | {m["build"]}
+    if builds != {"pure" if pure else common.tdtp_build()}:
+        raise RuntimeError(f"step of {sessions}: the workers ran the {builds} builds")
     offered = sessions * RATE
     slave_ok = s["late_fraction"] <= MAX_LATE_FRACTION
     load_ok = s["received_rate"] >= MIN_OFFERED_FRACTION * offered
@@ -318,12 +435,37 @@ def run_step(sessions: int, seconds: float, controller: str = "trinomial") -> Js
     return {"sessions": sessions, "verdict": verdict, "slave": s, "masters": m}
 
 
-def ramp(steps: list[int], seconds: float, rep: int, repeat: int, controller: str) -> list[Json]:
+@dataclass(frozen=True)
+class Setup:
+    """What a ramp measures: how many slave processes share the port, which build of tdtp."""
+
+    workers: int = 1
+    pure: bool = False
+
+    @property
+    def label(self) -> str:
+        build = "pure-Python build: " if self.pure else ""
+        if self.workers == 1:
+            return f"{build}1 kHz bidirectional sessions one slave process serves"
+        return (
+            f"{build}1 kHz bidirectional sessions {self.workers} slave processes serve on one "
+            "port (SO_REUSEPORT)"
+        )
+
+
+def ramp(
+    steps: list[int], seconds: float, rep: int, repeat: int, controller: str, setup: Setup
+) -> list[Json]:
     results = []
     for n in steps:
         for attempt in range(1 + CONTENDED_RETRIES):
-            print(f"ramp {rep + 1}/{repeat}: {n} sessions ...", file=sys.stderr, flush=True)
-            step = run_step(n, seconds, controller)
+            print(
+                f"ramp {rep + 1}/{repeat}, workers {setup.workers}"
+                f"{', pure' if setup.pure else ''}: {n} sessions ...",
+                file=sys.stderr,
+                flush=True,
+            )
+            step = run_step(n, seconds, controller, setup.workers, setup.pure)
             step["attempt"] = attempt + 1
             others = step["slave"]["others_percent"]
             print(
@@ -340,9 +482,56 @@ def ramp(steps: list[int], seconds: float, rep: int, repeat: int, controller: st
     return results
 
 
+def next_steps(steps: list[int], previous: list[Json]) -> list[int]:
+    """The steps of the next ramp: from the largest step at most half of what the previous ramp
+    passed (the small steps pass on every ramp; running them again only costs time)."""
+    best = largest_passing(previous)
+    floor = [n for n in steps if n <= best // 2]
+    return steps[steps.index(floor[-1]) :] if floor else steps
+
+
 def largest_passing(results: list[Json]) -> int:
     passed = [r["sessions"] for r in results if r["verdict"] == "pass"]
     return max(passed) if passed else 0
+
+
+def cost_per_session(results: list[Json]) -> float:
+    """The busiest slave's CPU per session and 1 ms period (us) at the largest step that passed:
+    CPU time, so other tenants hardly move it; NaN when no step passed."""
+    passed = [r for r in results if r["verdict"] == "pass"]
+    if not passed:
+        return math.nan
+    best = max(passed, key=lambda r: r["sessions"])
+    workers = max(1, len(best["slave"]["workers"]))
+    per_worker = best["sessions"] / workers  # the busiest has at least its share
+    return 10.0 * best["slave"]["cpu_percent"] / per_worker
+
+
+def stop_note(ramps: list[list[Json]]) -> str:
+    """Why the ramps stopped, with the figures of the step that stopped them (never a bare verdict:
+    a contended step says how busy the other tenants were and how late the slave was anyway)."""
+    notes = []
+    for results in ramps:
+        if not results or results[-1]["verdict"] == "pass":
+            continue
+        last = results[-1]
+        s = last["slave"]
+        n = last["sessions"]
+        if last["verdict"] == "contended":
+            notes.append(
+                f"{n} contended: slave late {100 * s['late_fraction']:.1f} % while other tenants "
+                f"used {s['others_percent']:.0f} % of a core"
+            )
+        elif last["verdict"] == "master-limited":
+            notes.append(
+                f"{n} master-limited: the slaves received {s['received_rate'] / (n * RATE):.1%} "
+                f"of the offered load, late {100 * s['late_fraction']:.2f} %"
+            )
+        else:
+            notes.append(
+                f"{n} failed: late {100 * s['late_fraction']:.1f} % at {s['cpu_percent']:.0f} % CPU"
+            )
+    return "stopped at " + "; ".join(notes) if notes else "every step passed"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -358,49 +547,106 @@ def main(argv: list[str] | None = None) -> int:
         choices=["trinomial", "tfrc", "fixed"],
         help="flow control on both sides (default trinomial, the library default; fixed = unpaced)",
     )
+    p.add_argument(
+        "--workers",
+        default="1",
+        help="slave processes sharing the port, a ramp for each value: e.g. 1,2 (default 1)",
+    )
+    p.add_argument(
+        "--pure",
+        action="store_true",
+        help="run slaves and masters on tdtp's pure-Python build (TDTP_PURE_PYTHON=1)",
+    )
     args = p.parse_args(argv)
+    workers = common.as_list(args.workers)
+    if not workers or min(workers) < 1:
+        p.error(f"--workers takes counts of 1 or more, got {args.workers!r}")
     common.warn_if_loaded()
     if not common.have_uvloop():
         print("uvloop is not installed: this benchmark measures the slave on uvloop; skipped")
         return common.emit("scale", args, [], details={"skipped": "uvloop missing"})
     steps = common.as_list(args.ramp)
-    ramps = [
-        ramp(steps, args.seconds, rep, args.repeat, args.controller) for rep in range(args.repeat)
-    ]
-    best = [largest_passing(r) for r in ramps]
-    limited = any(r[-1]["verdict"] == "master-limited" for r in ramps if r)
-    contended = any(r[-1]["verdict"] == "contended" for r in ramps if r)
-    row = Row(
-        "scale",
-        "1 kHz bidirectional sessions one slave serves, <= 1 % late",
-        "sessions",
-        Stat.of([float(b) for b in best]),
-        target=f">= {TARGET_SESSIONS}",
-        meets=Stat.of([float(b) for b in best]).median >= TARGET_SESSIONS,
-        note=f"{args.controller}, ramp {args.ramp}"
-        + (", stopped by the masters' process" if limited else "")
-        + (", stopped by other tenants: inconclusive" if contended else ""),
-        digits=0,
-    )
+    rows: list[Row] = []
     lines = [
-        "| ramp | N | verdict (attempt) | slave late % | slave tick lateness p99 (us) | slave CPU % "
-        "| slave rx (samples/s) | M->S arrivals > 1 ms | S->M arrivals > 1 ms | masters late % "
-        "| masters CPU % | other tenants CPU % |",
-        "| ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "Slave columns: all slave processes together (late %, rx), the busiest one (CPU %, tick "
+        "lateness p99); sessions per worker as the kernel spread them.",
+        "",
+        "| workers | ramp | N | verdict (attempt) | sessions per worker | slave late % "
+        "| slave tick lateness p99 (us) | slave CPU % | slave rx (samples/s) "
+        "| M->S arrivals > 1 ms | S->M arrivals > 1 ms | masters late % | masters CPU % "
+        "| other tenants CPU % |",
+        "| ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+        "| ---: |",
     ]
-    for i, results in enumerate(ramps):
-        for r in results:
-            s, m = r["slave"], r["masters"]
-            lines.append(
-                f"| {i + 1} | {r['sessions']} | {r['verdict']} ({r.get('attempt', 1)}) "
-                f"| {100 * s['late_fraction']:.2f} "
-                f"| {s['tick_lateness_p99_us']:.0f} | {s['cpu_percent']:.0f} "
-                f"| {s['received_rate']:,.0f} | {100 * s['arrival_late_fraction']:.2f} % "
-                f"| {100 * m['arrival_late_fraction']:.2f} % | {100 * m['late_fraction']:.2f} "
-                f"| {m['cpu_percent']:.0f} | {s['others_percent']:.0f} |"
+    details: Json = {"controller": args.controller, "pure": args.pure, "setups": []}
+    for count in workers:
+        setup = Setup(count, args.pure)
+        ramps: list[list[Json]] = []
+        for rep in range(args.repeat):
+            ramp_steps = next_steps(steps, ramps[-1]) if ramps else steps
+            ramps.append(ramp(ramp_steps, args.seconds, rep, args.repeat, args.controller, setup))
+        best = [largest_passing(r) for r in ramps]
+        value = Stat.of([float(b) for b in best])
+        if args.pure:
+            target, meets = (
+                f">= {PURE_BEFORE} (before the compiled core)",
+                value.median >= PURE_BEFORE,
             )
-    details = {"ramps": ramps, "largest_passing": best, "controller": args.controller}
-    return common.emit("scale", args, [row], details=details, text="\n".join(lines))
+        elif count == 1:
+            target, meets = f">= {TARGET_SESSIONS}", value.median >= TARGET_SESSIONS
+        else:
+            target, meets = "", None
+        shared = count + 1 > len(common.usable_cpus())
+        rows.append(
+            Row(
+                "scale",
+                f"{setup.label}, <= 1 % late",
+                "sessions",
+                value,
+                target=target,
+                meets=meets,
+                note=f"{args.controller}, ramp {args.ramp}"
+                + (", masters share a core with a slave" if count > 1 and shared else "")
+                + f"; {stop_note(ramps)}",
+                digits=0,
+            )
+        )
+        costs = [cost_per_session(r) for r in ramps]
+        cost = Stat.of(costs)
+        if count == 1 and cost.n:
+            rows.append(
+                Row(
+                    "scale",
+                    f"{setup.label.split(':')[0] + ': ' if args.pure else ''}slave CPU per "
+                    "1 kHz session, at the largest step that passed",
+                    "us per ms",
+                    cost,
+                    note=f"one core at this cost: about {1000 / cost.median:.0f} sessions",
+                    digits=1,
+                )
+            )
+        details["setups"].append(
+            {
+                "workers": count,
+                "ramps": ramps,
+                "largest_passing": best,
+                "cost_us_per_session_ms": costs,
+                "shared_core": shared,
+            }
+        )
+        for i, results in enumerate(ramps):
+            for r in results:
+                s, m = r["slave"], r["masters"]
+                spread = "/".join(str(w["sessions"]) for w in s["workers"])
+                lines.append(
+                    f"| {count} | {i + 1} | {r['sessions']} | {r['verdict']} ({r.get('attempt', 1)}) "
+                    f"| {spread} | {100 * s['late_fraction']:.2f} "
+                    f"| {s['tick_lateness_p99_us']:.0f} | {s['cpu_percent']:.0f} "
+                    f"| {s['received_rate']:,.0f} | {100 * s['arrival_late_fraction']:.2f} % "
+                    f"| {100 * m['arrival_late_fraction']:.2f} % | {100 * m['late_fraction']:.2f} "
+                    f"| {m['cpu_percent']:.0f} | {s['others_percent']:.0f} |"
+                )
+    return common.emit("scale", args, rows, details=details, text="\n".join(lines))
 
 
 if __name__ == "__main__":

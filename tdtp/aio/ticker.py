@@ -50,6 +50,9 @@ class Ticker:
         """Ticks dropped after stalls longer than ``max_catch_up`` periods."""
         self.max_lateness = 0.0
         """Largest delay between a deadline and the moment its tick was delivered, seconds."""
+        self.deadline = math.nan
+        """When the tick last delivered was due (``tdtp.monotonic`` seconds; NaN before the first):
+        ``monotonic() - ticker.deadline`` is how late the application runs it."""
 
     def __aiter__(self) -> AsyncIterator[int]:
         return self._run() if self._start is not None else self._run_grouped()
@@ -81,6 +84,7 @@ class Ticker:
                     deadline = start + index * self.period
                 self.max_lateness = max(self.max_lateness, now - deadline)
                 self.ticks += 1
+                self.deadline = deadline
                 yield index
                 index += 1
         finally:
@@ -106,6 +110,7 @@ class Ticker:
                     deadline = group.deadline(first + index)
                 self.max_lateness = max(self.max_lateness, now - deadline)
                 self.ticks += 1
+                self.deadline = deadline
                 yield index
                 index += 1
         finally:

@@ -4,6 +4,7 @@ and one wake-up per tick for every ticker of a rate."""
 from __future__ import annotations
 
 import asyncio
+import math
 import socket
 
 import pytest
@@ -11,6 +12,7 @@ import pytest
 from tdtp import AddressError, ArgumentTypeError, Ticker
 from tdtp.aio.api import connect, listen
 from tdtp.aio.loop_timers import loop_timers, tick_group
+from tdtp.aio.timer import monotonic as tdtp_monotonic
 
 needs_reuseport = pytest.mark.skipif(
     not hasattr(socket, "SO_REUSEPORT"), reason="SO_REUSEPORT is not available here"
@@ -88,3 +90,21 @@ async def test_tickers_of_one_rate_wake_together() -> None:
         assert record == sorted(record) and len(record) == 20  # (or skipped, and counted)
     # At most one wake-up per tick for all three, where a timer each would have taken three.
     assert group.wakeups <= max(max(record) for record in ticks) + 1
+
+
+@pytest.mark.asyncio
+async def test_a_ticker_says_when_its_tick_was_due() -> None:
+    for ticker in (Ticker(500.0), Ticker(500.0, start=tdtp_monotonic())):
+        assert math.isnan(ticker.deadline)
+        previous = None
+        async for index in ticker:
+            # Never early, and on the schedule: one period after the tick before (or more, for
+            # ticks skipped after a stall).
+            assert tdtp_monotonic() >= ticker.deadline
+            if previous is not None:
+                assert ticker.deadline - previous[1] == pytest.approx(
+                    (index - previous[0]) * ticker.period
+                )
+            previous = (index, ticker.deadline)
+            if index >= 5:
+                break
