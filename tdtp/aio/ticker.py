@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 from tdtp.aio.loop_timers import TickGroup, tick_group
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
@@ -67,24 +67,22 @@ class Ticker:
 
         timer: DeadlineTimer = create_timer(loop, wake, prefer=self._timer_kind)
         start = monotonic() if self._start is None else self._start
+        period = self.period
+
+        def deadline_of(tick: int) -> float:
+            return start + tick * period
+
         index = 0
         try:
             while True:
-                deadline = start + index * self.period
+                deadline = deadline_of(index)
                 now = monotonic()
                 if now < deadline:
                     waiter = loop.create_future()
                     timer.arm(deadline)
                     await waiter
                     now = monotonic()
-                behind = int((now - deadline) * self.rate)
-                if behind > self._max_catch_up:
-                    self.skipped += behind
-                    index += behind
-                    deadline = start + index * self.period
-                self.max_lateness = max(self.max_lateness, now - deadline)
-                self.ticks += 1
-                self.deadline = deadline
+                index = self._deliver(now, index, deadline_of)
                 yield index
                 index += 1
         finally:
@@ -96,22 +94,33 @@ class Ticker:
         group.join()
         try:
             first = group.current_tick(monotonic())
+
+            def deadline_of(tick: int) -> float:
+                return group.deadline(first + tick)
+
             index = 0
             while True:
-                deadline = group.deadline(first + index)
+                deadline = deadline_of(index)
                 now = monotonic()
                 if now < deadline:
                     await group.wait(first + index)
                     now = monotonic()
-                behind = int((now - deadline) * self.rate)
-                if behind > self._max_catch_up:
-                    self.skipped += behind
-                    index += behind
-                    deadline = group.deadline(first + index)
-                self.max_lateness = max(self.max_lateness, now - deadline)
-                self.ticks += 1
-                self.deadline = deadline
+                index = self._deliver(now, index, deadline_of)
                 yield index
                 index += 1
         finally:
             group.leave()
+
+    def _deliver(self, now: float, index: int, deadline_of: Callable[[int], float]) -> int:
+        """Account for tick ``index`` delivered at ``now`` (both schedules' rules): after a stall
+        of more than ``max_catch_up`` periods, skip to the tick due now. Returns the tick given."""
+        deadline = deadline_of(index)
+        behind = int((now - deadline) * self.rate)
+        if behind > self._max_catch_up:
+            self.skipped += behind
+            index += behind
+            deadline = deadline_of(index)
+        self.max_lateness = max(self.max_lateness, now - deadline)
+        self.ticks += 1
+        self.deadline = deadline
+        return index
