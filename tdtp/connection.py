@@ -52,7 +52,6 @@ from tdtp.loss_rate import LossIntervalEstimator
 from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
 from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey, as_key, as_key_ring
 from tdtp.protection.packet_protection import (
-    PACKET_LIMIT,
     Direction,
     PacketOpener,
     PacketSealer,
@@ -62,6 +61,7 @@ from tdtp.rtt import RttEstimator
 from tdtp.sent_log import LostPacket, SentPacketLog
 from tdtp.stats import ConnectionStats, DropReason
 from tdtp.wire.control import (
+    HANDSHAKE_CODES,
     NO_COOKIE,
     NO_KEY_ID,
     NONCE_SIZE,
@@ -93,14 +93,6 @@ _ACK: Final = int(PacketType.ACK)
 _CONTROL: Final = int(PacketType.CONTROL)
 _NO_ACK: Final = (0, 0, HOLD_NO_ACK)
 _OPEN: Final = int(ControlCode.OPEN)
-_HANDSHAKE: Final = frozenset(
-    (
-        int(ControlCode.OPEN),
-        int(ControlCode.OPEN_ACK),
-        int(ControlCode.COOKIE),
-        int(ControlCode.REJECT),
-    )
-)
 _CLOSE_PREFIX: Final = bytes((ControlCode.CLOSE,))
 _KEEPALIVE_PREFIX: Final = encode_keepalive()
 _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
@@ -504,7 +496,7 @@ class Connection:
         counts.protection_bytes += self._overhead
         self._last_send = now
         self._check_controller_timer()
-        if sealer is not None and sealer.next_number >= PACKET_LIMIT:
+        if sealer is not None and sealer.exhausted:
             self._exhausted()
         return True
 
@@ -592,7 +584,7 @@ class Connection:
             stats.count_drop(DropReason.OVERSIZED)
             return
         ptype = data[0] >> 6
-        if ptype == _CONTROL and size > HEADER_SIZE and data[HEADER_SIZE] in _HANDSHAKE:
+        if ptype == _CONTROL and size > HEADER_SIZE and data[HEADER_SIZE] in HANDSHAKE_CODES:
             self._on_handshake(data, addr, now)
             return
         if ptype > _CONTROL:
@@ -1240,7 +1232,7 @@ class Connection:
                 self._overhead,
             )
         sealer = self._sealer
-        if sealer is not None and sealer.next_number >= PACKET_LIMIT:
+        if sealer is not None and sealer.exhausted:
             self._exhausted()
         return out
 

@@ -38,6 +38,7 @@ from tdtp.wire.control import (
     NO_COOKIE,
     NO_KEY_ID,
     NONCE_SIZE,
+    OPEN_NONCE_OFFSET,
     PROTOCOL_VERSION,
     CipherSuite,
     CloseReason,
@@ -56,8 +57,8 @@ from tdtp.wire.protected import TAG_SIZE
 
 _CONTROL: Final = int(PacketType.CONTROL)
 _REJECT_SIZE: Final = HEADER_SIZE + CLOSE_BODY_SIZE
-_NONCE_OFFSET: Final = 8
-"""Where an OPEN body carries the master's nonce (code, version, flags, suite, max_payload, attempt)."""
+_REPLY_HEADER: Final = encode_header(_CONTROL, 0, 0, 0, HOLD_NO_ACK)
+"""The base header of every reply to an unvalidated OPEN (no sequence, nothing acknowledged)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,9 +104,7 @@ class AdmissionStats:
 
 def reject_datagram(nonce: bytes, reason: CloseReason) -> bytes:
     """A REJECT for the master that sent ``nonce`` (23 bytes: smaller than any OPEN)."""
-    return encode_header(_CONTROL, 0, 0, 0, HOLD_NO_ACK) + encode_close(
-        ControlCode.REJECT, nonce, reason
-    )
+    return _REPLY_HEADER + encode_close(ControlCode.REJECT, nonce, reason)
 
 
 class Admission:
@@ -176,7 +175,7 @@ class Admission:
         if version != PROTOCOL_VERSION:
             if size_allows_reject(len(data)):
                 # The nonce where version 2 has it: a later version that keeps it there can tell.
-                nonce = bytes(body_bytes[_NONCE_OFFSET : _NONCE_OFFSET + NONCE_SIZE]).ljust(
+                nonce = bytes(body_bytes[OPEN_NONCE_OFFSET : OPEN_NONCE_OFFSET + NONCE_SIZE]).ljust(
                     NONCE_SIZE, b"\0"
                 )
                 return self._reply(
@@ -201,7 +200,7 @@ class Admission:
         if body.cookie == NO_COOKIE or not self._cookies.check(body.cookie, addr, body.nonce, now):
             cookie = self._cookies.mint(addr, body.nonce, now)
             return self._reply(
-                encode_header(_CONTROL, 0, 0, 0, HOLD_NO_ACK) + encode_cookie(body.nonce, cookie),
+                _REPLY_HEADER + encode_cookie(body.nonce, cookie),
                 DropReason.UNVALIDATED,
                 now,
             )
@@ -218,8 +217,6 @@ class Admission:
                 suite = CipherSuite(body.suite)
             except ValueError:
                 return _refuse(body.nonce, CloseReason.SUITE_UNSUPPORTED)
-            if suite is CipherSuite.NONE:
-                return DropReason.BAD_CONTROL
             verifier = Direction(suite, derive_open_secret(key.secret, body.nonce, suite))
             if not verifier.verify(body.attempt, data[:-TAG_SIZE], data[-TAG_SIZE:]):
                 return DropReason.UNAUTHENTICATED

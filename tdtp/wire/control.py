@@ -59,9 +59,11 @@ class ControlCode(enum.IntEnum):
 
 
 HANDSHAKE_CODES: Final = frozenset(
-    {ControlCode.OPEN, ControlCode.OPEN_ACK, ControlCode.REJECT, ControlCode.COOKIE}
+    int(code)
+    for code in (ControlCode.OPEN, ControlCode.OPEN_ACK, ControlCode.REJECT, ControlCode.COOKIE)
 )
-"""Codes whose fields travel in the clear; KEEPALIVE and CLOSE are sealed in a keyed session."""
+"""Codes (as the byte on the wire) whose fields travel in the clear; KEEPALIVE and CLOSE are sealed
+in a keyed session."""
 
 
 class OpenFlags(enum.IntFlag):
@@ -191,8 +193,9 @@ COOKIE_BODY_SIZE: Final = _COOKIE.size
 CLOSE_BODY_SIZE: Final = _CLOSE.size
 """18 bytes: an unkeyed CLOSE or any REJECT is 23 bytes."""
 KEEPALIVE_BODY_SIZE: Final = 1
-CLOSE_FIELDS_SIZE: Final = CLOSE_BODY_SIZE - 1
-"""A CLOSE's body after the code byte (what a keyed session seals)."""
+OPEN_NONCE_OFFSET: Final = struct.calcsize(">BBBBHH")
+"""Where an OPEN body carries the master's nonce (after code, version, flags, suite, max_payload and
+attempt): 8."""
 
 
 def encode_open(body: OpenBody) -> bytes:
@@ -237,9 +240,12 @@ def encode_keepalive() -> bytes:
     return bytes((ControlCode.KEEPALIVE,))
 
 
-def _tagged(body: bytes | memoryview, flags: int, size: int, name: str) -> bytes | memoryview:
-    """The fixed part of a handshake body whose KEYED flag says whether a tag follows."""
-    expected = size + (TAG_SIZE if flags & OpenFlags.KEYED else 0)
+def _tagged(body: bytes | memoryview, size: int, name: str) -> bytes | memoryview:
+    """The fixed part of a handshake body whose KEYED flag (its third byte) says whether a tag
+    follows."""
+    if len(body) < 3:
+        raise MalformedPacketError("bad_control", f"{name} body is too short for its flags")
+    expected = size + (TAG_SIZE if body[2] & OpenFlags.KEYED else 0)
     if len(body) != expected:
         raise MalformedPacketError(
             "bad_control", f"{name} body is {len(body)} bytes, not {expected}"
@@ -262,15 +268,11 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
     except ValueError:
         raise MalformedPacketError("bad_control", f"unknown control code {raw}") from None
     if code is ControlCode.OPEN:
-        if len(body) < 3:
-            raise MalformedPacketError("bad_control", "OPEN body is too short for its flags")
-        fixed = _tagged(body, body[2], OPEN_BODY_SIZE, "OPEN")
+        fixed = _tagged(body, OPEN_BODY_SIZE, "OPEN")
         _, version, flags, suite, max_payload, attempt, nonce, key_id, cookie = _OPEN.unpack(fixed)
         return OpenBody(version, flags, suite, max_payload, attempt, nonce, key_id, cookie)
     if code is ControlCode.OPEN_ACK:
-        if len(body) < 3:
-            raise MalformedPacketError("bad_control", "OPEN_ACK body is too short for its flags")
-        fixed = _tagged(body, body[2], OPEN_ACK_BODY_SIZE, "OPEN_ACK")
+        fixed = _tagged(body, OPEN_ACK_BODY_SIZE, "OPEN_ACK")
         _, version, flags, suite, max_payload, pn, nonce, slave_nonce = _OPEN_ACK.unpack(fixed)
         return OpenAckBody(version, flags, suite, max_payload, pn, nonce, slave_nonce)
     if code is ControlCode.COOKIE:

@@ -38,9 +38,7 @@ _DECODE_TABLE: tuple[float, ...] = tuple(_decode(code) for code in range(HOLD_MA
 
 HOLD_MAX: Final = _DECODE_TABLE[HOLD_MAX_CODE]
 """The longest hold a code can express (31.232 ms)."""
-HOLD_SATURATES_AT: Final = (
-    (32 + (HOLD_SATURATED & 0x1F)) << ((HOLD_SATURATED >> 5) - 1)
-) * HOLD_UNIT
+HOLD_SATURATES_AT: Final = _decode(HOLD_SATURATED)
 """The shortest hold that encodes as :data:`HOLD_SATURATED`: 31.744 ms, the value code 254 would have
 if it were not reserved. Anything shorter rounds down to a code (253 from 31.232 ms)."""
 
