@@ -48,10 +48,10 @@ def _require(condition: bool, message: str) -> None:
         raise InvalidArgumentError(message)
 
 
-def _positive_finite(name: str, value: float) -> None:
+def _positive_finite(name: str, value: float, unit: str = "of seconds") -> None:
     _require(
         isinstance(value, int | float) and math.isfinite(value) and value > 0,
-        f"{name} must be a positive number of seconds, got {value!r}",
+        f"{name} must be a positive number {unit}, got {value!r}",
     )
 
 
@@ -75,11 +75,7 @@ class AdmissionConfig:
     def __post_init__(self) -> None:
         _positive_finite("cookie_lifetime", self.cookie_lifetime)
         for name in ("opens_per_source", "replies_per_second"):
-            value = getattr(self, name)
-            _require(
-                isinstance(value, int | float) and math.isfinite(value) and value > 0,
-                f"{name} must be a positive number per second, got {value!r}",
-            )
+            _positive_finite(name, getattr(self, name), "per second")
         for name in ("open_burst", "max_sources"):
             value = getattr(self, name)
             _require(

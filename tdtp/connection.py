@@ -210,6 +210,8 @@ class Connection:
         self._max_events = self.config.max_pending_events
         self._deliver_late = self.config.deliver_late
         self._deliver_duplicates = self.config.deliver_duplicates
+        self._plain_acks = self.config.plain_acks
+        self._ack_padding = bytes(self.config.ack_size - HEADER_SIZE)
         self._loss_delay_value = self._loss_delay()
         self._hint = -math.inf  # see timer_hint
         self._controller_timer: float | None = None  # the controller's deadline at get_timer()
@@ -956,9 +958,7 @@ class Connection:
             AckMode.SEPARATE if body.flags & OpenFlags.SEPARATE_ACKS else AckMode.BIDIRECTIONAL
         )
         self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = ReceiveWindow(
-            admitted.initial_seq, coverage=self._ack_mode is AckMode.BIDIRECTIONAL
-        )
+        self._window = self._new_window(admitted.initial_seq)
         if admitted.key is not None:
             self._key = admitted.key
             self._keyed = True
@@ -1029,9 +1029,7 @@ class Connection:
             )
             return
         self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = ReceiveWindow(
-            decode_header(data).seq, coverage=self._ack_mode is AckMode.BIDIRECTIONAL
-        )
+        self._window = self._new_window(decode_header(data).seq)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
@@ -1066,14 +1064,20 @@ class Connection:
         assert peer is not None  # set by connect() or at the OPEN
         return peer
 
+    def _new_window(self, initial_seq: int) -> ReceiveWindow:
+        """The receive window for the peer's data from ``initial_seq``, in this session's ACK mode."""
+        return ReceiveWindow(
+            initial_seq,
+            coverage=self._ack_mode is AckMode.BIDIRECTIONAL,
+            silence_guard=self._silence,
+        )
+
     def _establish(self, now: float) -> None:
         self._state = State.ESTABLISHED
         self._hint = -math.inf
         self._confirming = False
         self._last_receive = now
         self._last_send = now
-        if self._window is not None:
-            self._window.silence_guard = self._silence
         self._push_other_event(ConnectionEstablished(self._peer_address()))
 
     # ------------------------------------------------------------------ timers
@@ -1213,7 +1217,7 @@ class Connection:
                 self._emit_ack(out, ack, sack, hold, peer, now)
         else:
             acks = self._separate_acks
-            plain = self.config.plain_acks
+            plain = self._plain_acks
             while acks:
                 seq, arrival = acks.popleft()
                 sack = 0 if plain else window.sack_below(seq)  # plain: this packet only
@@ -1287,7 +1291,7 @@ class Connection:
     ) -> None:
         datagram = self._protect(
             encode_header(_ACK, self._sent.next_seq, ack, sack, hold),
-            bytes(self.config.ack_size - HEADER_SIZE),
+            self._ack_padding,
         )
         self._stats.sent.ack_packets += 1
         self._count_sent(len(datagram), now, self._overhead)

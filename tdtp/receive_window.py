@@ -17,14 +17,13 @@ import enum
 from collections import deque
 from typing import Final, NamedTuple
 
+from tdtp.wire.header import SACK_BITS, SACK_MASK
 from tdtp.wire.seqnum import SEQ_MODULUS, expand_seq
 
 WINDOW: Final = 64
 _WINDOW_MASK: Final = (1 << WINDOW) - 1
-SACK_SPAN: Final = 6
+SACK_SPAN: Final = SACK_BITS
 """Sequence numbers below ACK that the SACK bits describe."""
-SACK_COVERAGE: Final = SACK_SPAN + 1
-"""One ACK reports the ACK value and the 6 below it."""
 RESYNC_RUN: Final = 3
 """Consecutive sequence numbers that all look older than the window: the peer's numbering has moved on by
 more than half the 12-bit space (a loss burst of over 2047 packets), so the window re-anchors one wrap
@@ -73,7 +72,13 @@ class ReceiveWindow:
         "unreported_since",
     )
 
-    def __init__(self, initial_seq: int, *, coverage: bool = True) -> None:
+    def __init__(
+        self,
+        initial_seq: int,
+        *,
+        coverage: bool = True,
+        silence_guard: float = DEFAULT_SILENCE_GUARD,
+    ) -> None:
         """``coverage`` enables the reporting rules of bidirectional mode (separate-ACK mode answers
         every packet with its own ACK and needs none)."""
         self.highest = initial_seq - 1
@@ -95,9 +100,9 @@ class ReceiveWindow:
         """The full sequence number of the packet :meth:`classify` saw last."""
         self.last_gap = 0
         """Sequence numbers it skipped (a new packet after a gap), else 0."""
-        self.silence_guard = DEFAULT_SILENCE_GUARD
+        self.silence_guard = silence_guard
         """After this long without a new packet, a run of consecutive numbers that look like
-        duplicates or late packets re-anchors the window like a stale run (the connection sets it to
+        duplicates or late packets re-anchors the window like a stale run (the connection passes
         its ``silence_timeout``)."""
 
     @property
@@ -116,30 +121,26 @@ class ReceiveWindow:
         self.last_gap = 0
         seq = expand_seq(truncated_seq, highest + 1)
         distance = seq - highest
-        if distance <= 0:  # (new packets skip all of this)
-            if distance <= -WINDOW:
-                self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
-                self._stale_next = seq + 1
-                if self._stale_run < RESYNC_RUN:
-                    self.last_seq = seq
-                    return Arrival.STALE
+        # (new packets skip all of this)
+        if distance <= 0 and (
+            distance <= -WINDOW or now - self.highest_arrival >= self.silence_guard
+        ):
+            # Older than the window, or inside it after a silence: a late or replayed copy, or the
+            # live flow after a loss burst of over 2047 packets, or after an outage that lasted just
+            # under a multiple of 4096 packets (in-window numbers would be dropped as duplicates for
+            # up to 63 packets). A run of consecutive numbers decides.
+            self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
+            self._stale_next = seq + 1
+            if self._stale_run >= RESYNC_RUN:
                 self._stale_run = 0
                 seq += SEQ_MODULUS  # now ahead of highest: expand_seq put it at most 2048 behind
                 distance = seq - highest
-            elif now - self.highest_arrival >= self.silence_guard:
-                # Older than the newest but inside the window, after a silence: a late or replayed
-                # copy, or the live flow after an outage that lasted just under a multiple of 4096
-                # packets (it would be dropped as duplicates for up to 63 packets). A consecutive run
-                # decides, as for stale numbers.
-                self._stale_run = self._stale_run + 1 if seq == self._stale_next else 1
-                self._stale_next = seq + 1
-                if self._stale_run >= RESYNC_RUN:
-                    self._stale_run = 0
-                    seq += SEQ_MODULUS
-                    distance = seq - highest
+            elif distance <= -WINDOW:
+                self.last_seq = seq
+                return Arrival.STALE
         if distance > 0:
             if self._coverage:
-                reach = seq - 6  # the lowest sequence number an ACK of ``seq`` describes
+                reach = seq - SACK_SPAN  # the lowest sequence number an ACK of ``seq`` describes
                 low = self.pending_low
                 if low is None:
                     # What the next ACK must describe: all after the last report that it reaches.
@@ -149,7 +150,7 @@ class ReceiveWindow:
                     # Jump rule: an ACK of ``seq`` would no longer reach ``low``; report the
                     # highest as it stands first (it reaches ``low``: the full rule saw to it).
                     self.held.append(
-                        HeldAck(highest, (self._mask >> 1) & 0x3F, self.highest_arrival)
+                        HeldAck(highest, self.sack_below(highest), self.highest_arrival)
                     )
                     self.last_reported = highest
                     self.unreported_since = None
@@ -181,7 +182,7 @@ class ReceiveWindow:
 
     def sack_below(self, seq: int) -> int:
         """SACK bits for the six sequence numbers below ``seq`` (which must be within the window)."""
-        return (self._mask >> (self.highest - seq + 1)) & 0x3F
+        return (self._mask >> (self.highest - seq + 1)) & SACK_MASK
 
     def coverage_exhausted(self) -> bool:
         """Full rule: an ACK of the highest just reaches the oldest sequence number not described

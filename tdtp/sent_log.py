@@ -10,12 +10,12 @@ from __future__ import annotations
 from collections import deque
 from typing import Final, NamedTuple
 
-from tdtp.wire.header import SEQ_MASK
+from tdtp.wire.header import SACK_BITS, SEQ_MASK
 from tdtp.wire.seqnum import SEQ_MODULUS
 
 ACK_WINDOW_BEHIND: Final = 1024
 """An ACK may be this far below the largest acknowledged value (reordered feedback) and still decode."""
-SACK_SPAN: Final = 6
+SACK_SPAN: Final = SACK_BITS
 RECENTLY_LOST: Final = 256
 """How many declared losses are remembered to recognise a spurious one (the packet arrived after all)."""
 
