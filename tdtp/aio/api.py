@@ -449,7 +449,8 @@ class Server:
         self._peers: dict[tuple[object, object], Endpoint] = {}
         self._pending: deque[Endpoint] = deque()
         """Endpoints of admitted masters nobody has accepted yet, opening or established."""
-        self._waiter: asyncio.Future[None] | None = None
+        self._waiters: list[asyncio.Future[None]] = []
+        """Tasks waiting in accept(): each one looks again when a master is established."""
         self._closed = False
         self.stats = ServerStats(admission=self._admission.stats)
 
@@ -484,12 +485,13 @@ class Server:
                 return endpoint
             if self._closed:
                 raise ServerClosedError("the server is closed; no more masters are accepted")
-            waiter = loop.create_future()
-            self._waiter = waiter
+            waiter: asyncio.Future[None] = loop.create_future()
+            self._waiters.append(waiter)
             try:
                 await waiter
             finally:
-                self._waiter = None
+                if waiter in self._waiters:
+                    self._waiters.remove(waiter)
 
     def _next_established(self) -> Endpoint | None:
         pending = self._pending
@@ -544,9 +546,10 @@ class Server:
     # ------------------------------------------------------------------ internals
 
     def _wake(self) -> None:
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
+        for waiter in self._waiters:
+            if not waiter.done():
+                waiter.set_result(None)
+        self._waiters.clear()
 
     def _datagram_received(self, data: bytes, addr: Address) -> None:
         key = _peer_key(addr)

@@ -188,3 +188,23 @@ async def test_reprs_say_what_and_where() -> None:
         assert repr(master).startswith(f"<Endpoint master peer=127.0.0.1:{server.port} established")
         assert repr(slave).startswith("<Endpoint slave peer=127.0.0.1:")
     assert "closed" in repr(master) and "closed" in repr(server)
+
+
+@pytest.mark.asyncio
+async def test_concurrent_accepts_each_get_a_master_and_waiters_see_the_close() -> None:
+    server = await listen("127.0.0.1", 0)
+    accepts = [asyncio.create_task(server.accept()) for _ in range(3)]
+    await asyncio.sleep(0)  # all three are waiting
+    masters = [await connect("127.0.0.1", server.port) for _ in range(2)]
+    try:
+        await eventually(lambda: sum(task.done() for task in accepts) == 2)
+        accepted = {id(task.result()) for task in accepts if task.done()}
+        assert len(accepted) == 2  # two different masters, one per accept
+        (waiting,) = [task for task in accepts if not task.done()]
+        await server.close()
+        with pytest.raises(ServerClosedError):
+            await asyncio.wait_for(waiting, 10.0)
+    finally:
+        for master in masters:
+            await master.close()
+        await server.close()
