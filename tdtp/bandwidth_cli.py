@@ -23,7 +23,6 @@ import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
 
 from tdtp.bandwidth import (
     PAPER_APP_RATE,
@@ -36,26 +35,19 @@ from tdtp.bandwidth import (
     plot_figure5,
     schemes,
 )
+from tdtp.cli_parser import EXIT_USAGE, CommandParser
+from tdtp.config import MAX_UDP_PAYLOAD
 
 __all__ = ["bandwidth_main", "build_parser"]
 
 TABLE_SIZES = (10, 20, 50, 100, 200, 500, 1000)
 """Data sizes of the default table (the PNG draws every size from 1 to 1000 bytes)."""
-MAX_SIZE = 65_507
-"""The largest UDP payload over IPv4: no data field can be larger."""
 _RANGE = re.compile(r"^(\d+)-(\d+)$")
 _RATE = re.compile(
     r"^\s*([0-9]*\.?[0-9]+(?:e[+-]?\d+)?)\s*(bit|kbit|mbit|gbit)?(?:/s|ps)?\s*$", re.I
 )
 _UNITS = {None: 1e3, "bit": 1.0, "kbit": 1e3, "mbit": 1e6, "gbit": 1e9}
 _SCHEME_NAMES = ("TCP", "UDP", "Trinomial", "TDTP")
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line on stderr and exit status 2 (no usage dump)."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: {message} (see --help)\n")
 
 
 def _sizes(text: str) -> tuple[int, ...]:
@@ -74,8 +66,10 @@ def _sizes(text: str) -> tuple[int, ...]:
             raise argparse.ArgumentTypeError(
                 f"{part!r} is not a size in bytes: give 100, 20,100,500 or 1-1000"
             )
-    if not sizes or min(sizes) < 1 or max(sizes) > MAX_SIZE:
-        raise argparse.ArgumentTypeError(f"data sizes must be 1..{MAX_SIZE} bytes, got {text!r}")
+    if not sizes or min(sizes) < 1 or max(sizes) > MAX_UDP_PAYLOAD:
+        raise argparse.ArgumentTypeError(
+            f"data sizes must be 1..{MAX_UDP_PAYLOAD} bytes, got {text!r}"
+        )
     return tuple(dict.fromkeys(sizes))
 
 
@@ -93,7 +87,7 @@ def _rate(text: str) -> float:
 
 
 def build_parser(prog: str = "tdtp bandwidth") -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = CommandParser(
         prog=prog,
         description="Wire bandwidth of TCP, UDP, Trinomial and TDTP for bilateral teleoperation "
         "data (the paper's eqs. 3-8 and figure 5), both directions together.",
@@ -189,7 +183,7 @@ def bandwidth_main(argv: Sequence[str]) -> int:
             return 1
         except (OSError, ValueError) as exc:
             print(f"tdtp bandwidth: cannot write {args.png}: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_USAGE
         print(f"wrote {path}", file=sys.stderr if (args.csv or args.json) else sys.stdout)
     return 0
 

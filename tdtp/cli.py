@@ -357,7 +357,7 @@ async def _send_loop(
     remaining = until - start
     with contextlib.suppress(TimeoutError, EndpointClosedError):
         async with asyncio.timeout(None if math.isinf(remaining) else max(0.0, remaining)):
-            async for index in Ticker(rate, start=start):
+            async for index in Ticker(rate):  # the loop's tick group: one wake-up for all
                 now = monotonic()
                 if now >= until or ep.is_closed:
                     return

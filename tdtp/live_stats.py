@@ -9,7 +9,7 @@ import sys
 import textwrap
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, TextIO
+from typing import TextIO
 
 from tdtp.stats import ConnectionStats
 
@@ -51,53 +51,6 @@ class LatencyRecorder:
             "p99": round(percentile(values, 0.99) * 1e3, 4),
             "max": round(values[-1] * 1e3, 4),
         }
-
-
-def direction_summary(
-    sender: ConnectionStats,
-    receiver: ConnectionStats | None,
-    duration: float,
-    latency: LatencyRecorder | None = None,
-) -> dict[str, Any]:
-    """One direction of a session, as the ``--json`` output reports it.
-
-    ``receiver`` is ``None`` when the far end is another process (then only the sender's view).
-    """
-    sent = sender.sent.data_packets
-    lost = sender.packets_lost
-    summary: dict[str, Any] = {
-        "samples_offered": sender.samples_offered,
-        "samples_superseded": sender.samples_superseded,
-        "packets_sent": sent,
-        "packets_acked": sender.packets_acked,
-        "losses": lost,
-        "loss_ratio": round(lost / sent, 6) if sent else 0.0,
-        "packets_unreported": sender.packets_unreported,
-        # Neither acknowledged nor lost: unreported, or in flight when the run ended (an outage).
-        "packets_unacknowledged": sent - sender.packets_acked - lost,
-        "loss_events": sender.loss_events,
-        "srtt_ms": round(sender.srtt * 1e3, 4),
-        "min_rtt_ms": round(sender.min_rtt * 1e3, 4),
-        "allowed_rate": None if math.isinf(sender.rate) else round(sender.rate, 2),
-        "bytes_sent": sender.sent.bytes,
-        "header_bytes": sender.sent.header_bytes,
-        "ack_packets_sent_back": None,
-    }
-    if receiver is not None:
-        received = receiver.received.data_packets
-        summary["packets_received"] = received
-        summary["mean_rate"] = round(received / duration, 2) if duration > 0 else 0.0
-        summary["delivery_ratio"] = (
-            round(received / sender.samples_offered, 6) if sender.samples_offered else 0.0
-        )
-        summary["ack_packets_sent_back"] = receiver.sent.ack_packets
-        summary["drops_at_receiver"] = dict(receiver.drops)
-    else:
-        summary["packets_received"] = sender.packets_acked
-        summary["mean_rate"] = round(sender.packets_acked / duration, 2) if duration > 0 else 0.0
-    if latency is not None:
-        summary["latency_ms"] = latency.summary_ms()
-    return summary
 
 
 @dataclass(slots=True)

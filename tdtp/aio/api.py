@@ -121,7 +121,9 @@ def _check_common(
     return as_spec(netem)
 
 
-def _address_error(exc: OSError, action: str, host: object, port: int) -> AddressError:
+def address_error(exc: OSError, action: str, host: object, port: int) -> AddressError:
+    """The :class:`~tdtp.AddressError` for an ``OSError`` from resolving or binding ``host:port``:
+    what to ``action`` (e.g. "listen on") and why, in words a user can act on."""
     where = format_address((host, port))
     if exc.errno is None and isinstance(exc.__cause__, OSError):
         exc = exc.__cause__  # uvloop wraps the bind error: the errno is on its cause
@@ -280,7 +282,7 @@ async def _connect(
     try:
         infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
     except OSError as exc:
-        raise _address_error(exc, "connect to", host, port) from exc
+        raise address_error(exc, "connect to", host, port) from exc
     family, _, _, _, remote = infos[0]
     conn = Connection(config, role=Role.MASTER, rng=rng, key=key)
     capture = open_capture(pcap) if pcap is not None else None
@@ -296,7 +298,7 @@ async def _connect(
     except OSError as exc:
         if capture is not None and capture[1]:
             capture[0].close()
-        raise _address_error(exc, "connect to", host, port) from exc
+        raise address_error(exc, "connect to", host, port) from exc
     except BaseException:
         if capture is not None and capture[1]:
             capture[0].close()
@@ -720,7 +722,7 @@ async def _listen(
     except OSError as exc:
         if capture is not None and capture[1]:
             capture[0].close()
-        raise _address_error(exc, "listen on", host or "0.0.0.0", port) from exc
+        raise address_error(exc, "listen on", host or "0.0.0.0", port) from exc
     except BaseException:
         if capture is not None and capture[1]:
             capture[0].close()

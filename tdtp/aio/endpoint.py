@@ -29,7 +29,7 @@ import asyncio
 import logging
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import Final, Protocol
+from typing import Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.sample_iteration import samples_until_closed
@@ -63,9 +63,6 @@ logger = logging.getLogger("tdtp")
 
 class DatagramSender(Protocol):
     def sendto(self, data: bytes, addr: Address | None = None, /) -> None: ...
-
-
-_NEVER: Final = float("inf")
 
 
 def format_address(addr: Address | None) -> str:

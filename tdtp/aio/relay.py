@@ -13,9 +13,10 @@ import socket
 from dataclasses import dataclass
 from typing import cast
 
+from tdtp.aio.api import address_error
 from tdtp.aio.impairment import DelayLine, as_spec
 from tdtp.aio.timer import monotonic
-from tdtp.errors import AddressError, InvalidArgumentError
+from tdtp.errors import InvalidArgumentError
 from tdtp.events import Address
 from tdtp.netem import NetemLink, NetemSpec
 
@@ -204,9 +205,7 @@ async def start_relay(
     try:
         infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
     except OSError as exc:
-        raise AddressError(
-            f"cannot relay to {host}:{port}: host name not resolved ({exc.strerror or exc})"
-        ) from exc
+        raise address_error(exc, "relay to", host, port) from exc
     target = infos[0][4]
     relay = NetemRelay(
         (str(target[0]), int(target[1])),
@@ -223,10 +222,7 @@ async def start_relay(
     except OSError as exc:
         relay.forward.close()
         relay.back.close()
-        cause = exc.__cause__ if exc.errno is None and isinstance(exc.__cause__, OSError) else exc
-        raise AddressError(
-            f"cannot listen on {listen[0]}:{listen[1]}: {cause.strerror or cause}"
-        ) from exc
+        raise address_error(exc, "listen on", *listen) from exc
     relay._listener = transport
     relay._sweeper = loop.create_task(relay._sweep())
     return relay
