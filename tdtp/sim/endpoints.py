@@ -158,28 +158,16 @@ class TdtpEndpoint:
         self._index = index + 1
         self.samples_offered += 1
         conn.send(_STAMP.pack(now, index & 0xFFFFFFFF) + self._padding, now=now)
-        # After send(), which settles what the controller owed by now (an interval end it left
-        # untimed can bring the departure forward).
-        held_until = conn.controller.next_send_time()
-        controller_timer = conn.controller.get_timer() if held_until > now else None
-        if (
-            held_until > now
-            and self.fast_ticks
-            and (controller_timer is None or controller_timer > now)
-        ):
-            # The pacer holds the sample: nothing can leave now, and the deadlines the new sample
-            # adds are the pacer's (the connection sends a pending sample once now reaches
-            # next_send_time() and folds that time into get_timer(); docs/CONTROL.md, section 1)
-            # and the controller's (a waiting sample makes trinomial time the end of its increase
-            # interval, which it otherwise settles lazily). The timer already stands at get_timer()
-            # from the last input, so this is exactly what _after_input would do, at a fraction of
-            # its cost: most samples of a flow held back by congestion end here.
-            due = held_until
-            if controller_timer is not None and controller_timer < due:
-                due = controller_timer
+        hint = conn.timer_hint
+        if self.fast_ticks and conn.controller.next_send_time() > now and hint > now:
+            # The pacer holds the sample, so nothing can leave now, and the connection's timer
+            # hint bounds every deadline the sample moved (the pacer's, and the controller's: a
+            # waiting sample makes trinomial time its interval end). The timer already stands at
+            # get_timer() from the last input, so this is what _after_input would do, at a fraction
+            # of its cost: most samples of a flow held back by congestion end here.
             deadline = self._timer.deadline
-            if deadline is None or due < deadline:
-                self._timer.set(due)
+            if deadline is None or hint < deadline:
+                self._timer.set(hint)
         else:
             self._after_input(now)
         self.sim.call_at(self._tick_time(index + 1), self._tick)

@@ -49,6 +49,10 @@ ACK_FORMS: Final = ("plain", "redundant")
 QUEUE_UNITS: Final = ("packets", "bytes")
 NS2_MEAN_PACKET_SIZE: Final = 500
 """ns-2's ``Queue set mean_pktsize_``: a byte-counted queue of ``limit_`` 15 holds 15 x 500 bytes."""
+SEND_JITTER: Final = 0.0005
+"""Each TDTP datagram leaves its host up to 0.5 ms late (uniform, in order): a real send path is not
+cycle-exact, and without it periodic 1 kHz flows lock into phase at the DropTail queues
+(:class:`~tdtp.sim.endpoints.TdtpEndpoint`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,7 +143,7 @@ READINGS: Final[dict[str, Reading]] = {
         tcp_directions="both",
         tcp_variant="newreno",
         ack_form="redundant",
-        send_jitter=0.0005,
+        send_jitter=SEND_JITTER,
         summary="this project's earlier choices: TCP both ways, NewReno, redundant ACKs, jitter",
     ),
 }

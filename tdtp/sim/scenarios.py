@@ -28,7 +28,7 @@ from tdtp.errors import InvalidArgumentError
 from tdtp.sim.endpoints import IP_HEADER, UDP_HEADER, CbrSource, TdtpEndpoint, TdtpSession
 from tdtp.sim.engine import Network, Simulator, describe
 from tdtp.sim.metrics import FlowRecorder, FlowSummary, jain_index, mean
-from tdtp.sim.readings import DEFAULT_READING, NS2_MEAN_PACKET_SIZE, Reading
+from tdtp.sim.readings import DEFAULT_READING, NS2_MEAN_PACKET_SIZE, SEND_JITTER, Reading
 from tdtp.sim.readings import reading as reading_named
 from tdtp.sim.tcp import TcpConfig, TcpFlow
 from tdtp.wire.header import HEADER_SIZE
@@ -67,10 +67,6 @@ ROUTER_QUEUE: Final = 15
 """The paper's DropTail limit at R1 and R2, packets."""
 ACK_WIRE_BYTES: Final = 40
 """The paper's Trinomial ACK packets: 40 bytes."""
-SEND_JITTER: Final = 0.0005
-"""Each TDTP datagram leaves its host up to 0.5 ms late (uniform, in order): a real send path is not
-cycle-exact, and without it periodic 1 kHz flows lock into phase at the DropTail queues
-(:class:`~tdtp.sim.endpoints.TdtpEndpoint`)."""
 
 
 # -- schemes -------------------------------------------------------------------------------------

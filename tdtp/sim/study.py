@@ -20,16 +20,16 @@ TCP starved, so a lock-out is never averaged away silently.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from typing import Any, Final, Literal
 
 from tdtp.config import AckMode
 from tdtp.control import TfrcConfig, TrinomialConfig
+from tdtp.sim.metrics import mean
 from tdtp.sim.readings import DEFAULT_READING, READINGS, Reading
 from tdtp.sim.scenarios import (
     DEFAULT_SCHEMES,
@@ -39,6 +39,8 @@ from tdtp.sim.scenarios import (
     STARVATION_SHARE,
     WINDOWS,
     PaperRun,
+    _clean,
+    _JsonResult,
     paper,
     tail_window,
     tcp_pause,
@@ -213,10 +215,6 @@ def run_task(task: PaperTask) -> RunRecord:
     )
 
 
-def _mean(values: Sequence[float]) -> float:
-    return math.fsum(values) / len(values) if values else math.nan
-
-
 def _mechanism(run: PaperRun) -> dict[str, dict[str, float]]:
     """:data:`MECHANISM` for one run, by direction of the data."""
     links = {link["link"]: link for link in run.links}
@@ -229,8 +227,8 @@ def _mechanism(run: PaperRun) -> dict[str, dict[str, float]]:
         out["declared_lost"][d] = float(run.connection[sender[d]]["packets_lost"])
         out["network_drops"][d] = float(run.summaries[d]["all"].dropped_packets)
         out["ack_drops"][d] = float(run.acks[other[d]].dropped_packets)
-        out["mean_p"][d] = _mean(probe["p"])
-        out["mean_srtt_ms"][d] = 1000 * _mean(probe["srtt"])
+        out["mean_p"][d] = mean(probe["p"])
+        out["mean_srtt_ms"][d] = 1000 * mean(probe["srtt"])
         offered = links[bottleneck[d]]["packets"]
         out["ack_share"][d] = run.acks[d].sent_packets / offered if offered else math.nan
     return out
@@ -240,23 +238,18 @@ def run_tasks(
     tasks: Iterable[PaperTask],
     *,
     jobs: int = 1,
-    progress: Callable[[int, int], None] | None = None,
 ) -> dict[tuple[Any, ...], RunRecord]:
     """Run every distinct task, ``jobs`` processes at a time, the longest first; records by key."""
     unique = {t.key(): t for t in tasks}
     order = sorted(unique.values(), key=lambda t: -t.cost())
     out: dict[tuple[Any, ...], RunRecord] = {}
     if jobs <= 1 or len(order) <= 1:
-        for i, task in enumerate(order):
+        for task in order:
             out[task.key()] = run_task(task)
-            if progress is not None:
-                progress(i + 1, len(order))
         return out
     with ProcessPoolExecutor(max_workers=min(jobs, len(order))) as pool:
-        for i, (task, record) in enumerate(zip(order, pool.map(run_task, order), strict=True)):
+        for task, record in zip(order, pool.map(run_task, order), strict=True):
             out[task.key()] = record
-            if progress is not None:
-                progress(i + 1, len(order))
     return out
 
 
@@ -426,18 +419,8 @@ class ReadingSummary:
         }
 
 
-def _clean(data: Any) -> Any:
-    if isinstance(data, float):
-        return data if math.isfinite(data) else None
-    if isinstance(data, dict):
-        return {k: _clean(v) for k, v in data.items()}
-    if isinstance(data, list | tuple):
-        return [_clean(v) for v in data]
-    return data
-
-
 @dataclass
-class PaperStudy:
+class PaperStudy(_JsonResult):
     """The paper scenario under several readings, each over several seeds."""
 
     params: dict[str, Any]
@@ -471,8 +454,18 @@ class PaperStudy:
             "runs": [r.to_dict() for r in self.records],
         }
 
-    def to_json(self, *, indent: int | None = None) -> str:
-        return json.dumps(_clean(self.to_dict()), indent=indent, allow_nan=False)
+
+def _complete(
+    tasks: Sequence[PaperTask],
+    records: Mapping[tuple[Any, ...], RunRecord] | None,
+    jobs: int,
+) -> dict[tuple[Any, ...], RunRecord]:
+    """``records`` (runs done already, by key) with every task of ``tasks`` it lacks run now."""
+    done = dict(records) if records is not None else {}
+    missing = [t for t in tasks if t.key() not in done]
+    if missing:
+        done.update(run_tasks(missing, jobs=jobs))
+    return done
 
 
 SchemeChoice = Sequence[str] | Mapping[str, Sequence[str]]
@@ -519,10 +512,7 @@ def paper_study(
     tasks = paper_tasks(
         readings, seeds=seeds, schemes=schemes, duration=duration, bin_width=bin_width
     )
-    done = dict(records) if records is not None else {}
-    missing = [t for t in tasks if t.key() not in done]
-    if missing:
-        done.update(run_tasks(missing, jobs=jobs))
+    done = _complete(tasks, records, jobs)
     summaries: dict[str, ReadingSummary] = {}
     kept: list[RunRecord] = []
     for reading in readings:
@@ -629,7 +619,7 @@ class LockoutOutcome:
 
 
 @dataclass
-class LockoutStudy:
+class LockoutStudy(_JsonResult):
     params: dict[str, Any]
     outcomes: list[LockoutOutcome]
     traces: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -657,9 +647,6 @@ class LockoutStudy:
             "traces": self.traces,
         }
 
-    def to_json(self, *, indent: int | None = None) -> str:
-        return json.dumps(_clean(self.to_dict()), indent=indent, allow_nan=False)
-
 
 def lockout_study(
     *,
@@ -680,10 +667,7 @@ def lockout_study(
         duration=duration,
         bin_width=bin_width,
     )
-    done = dict(records) if records is not None else {}
-    missing = [t for t in tasks if t.key() not in done]
-    if missing:
-        done.update(run_tasks(missing, jobs=jobs))
+    done = _complete(tasks, records, jobs)
     outcomes = []
     for controllers in ("current", "earlier"):
         for scheme in schemes:
