@@ -200,7 +200,7 @@ local function add_header(tree, tvb)
         if ack ~= 0 or sack ~= 0 then header:add_proto_expert_info(e.no_ack_fields) end
     else
         header:add(f.acked, tvb(1, 3), ack):set_generated()
-        local received, absent = {}, {}
+        local received = {}
         for i = 1, 6 do
             local number = (ack - i) % 4096
             if low_bits(rshift(sack, i - 1), 1) == 1 then
@@ -208,7 +208,6 @@ local function add_header(tree, tvb)
                 received[#received + 1] = string.format("ACK-%d", i)
             else
                 header:add(f.absent, tvb(3, 1), number):set_generated()
-                absent[#absent + 1] = string.format("ACK-%d", i)
             end
         end
         if #received > 0 then sack_item:append_text(" (received: " .. table.concat(received, " ") .. ")") end
@@ -249,6 +248,18 @@ local function add_sealed(tree, tvb, offset, length)
     return tvb(offset, PN):uint(), body
 end
 
+-- CLOSE (unkeyed) and REJECT: the master's nonce and a reason.
+local function close_fields(tree, tvb, length, name)
+    if length ~= CONTROL_SIZES[5][1] then
+        tree:add_proto_expert_info(e.bad_control)
+        return name .. " (wrong length)"
+    end
+    tree:add(f.nonce, tvb(HEADER + 1, 16))
+    tree:add(f.reason, tvb(HEADER + 17, 1))
+    local reason = tvb(HEADER + 17, 1):uint()
+    return name .. " " .. (REASON_NAMES[reason] or tostring(reason))
+end
+
 local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
     local code = tvb(HEADER, 1):uint()
     local name = CODE_NAMES[code]
@@ -272,8 +283,7 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         end
         local flags = add_flags(tree, tvb, HEADER + 2)
         local is_keyed = flag_bit(flags, 2)
-        local fixed = (code == 1) and 53 or 45
-        if length ~= fixed + (is_keyed and TAG or 0) then
+        if length ~= CONTROL_SIZES[code][is_keyed and 2 or 1] then
             tree:add_proto_expert_info(e.bad_control)
             return name .. " (wrong length)"
         end
@@ -314,7 +324,7 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         return text
     end
     if code == 6 then
-        if length ~= 39 then
+        if length ~= CONTROL_SIZES[6][1] then
             tree:add_proto_expert_info(e.bad_control)
             return "COOKIE (wrong length)"
         end
@@ -326,15 +336,8 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         return "COOKIE"
     end
     if code == 5 then
-        if length ~= 23 then
-            tree:add_proto_expert_info(e.bad_control)
-            return "REJECT (wrong length)"
-        end
-        tree:add(f.nonce, tvb(HEADER + 1, 16))
-        tree:add(f.reason, tvb(HEADER + 17, 1))
         note_session(pinfo, nil)
-        local reason = tvb(HEADER + 17, 1):uint()
-        return "REJECT " .. (REASON_NAMES[reason] or tostring(reason))
+        return close_fields(tree, tvb, length, "REJECT")
     end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then
@@ -343,23 +346,17 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
             return name .. " (truncated)"
         end
         local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
-        if (code == 3 and sealed ~= 0) or (code == 4 and sealed ~= 17) then
+        -- What is sealed: the body after the code byte, less the packet number and the tag.
+        if sealed ~= CONTROL_SIZES[code][2] - HEADER - 1 - PN - TAG then
             tree:add_proto_expert_info(e.bad_control)
         end
         return string.format("%s pn=%d", name, pn)
     end
     if code == 3 then
-        if length ~= 6 then tree:add_proto_expert_info(e.bad_control) end
+        if length ~= CONTROL_SIZES[3][1] then tree:add_proto_expert_info(e.bad_control) end
         return "KEEPALIVE"
     end
-    if length ~= 23 then
-        tree:add_proto_expert_info(e.bad_control)
-        return "CLOSE (wrong length)"
-    end
-    tree:add(f.nonce, tvb(HEADER + 1, 16))
-    tree:add(f.reason, tvb(HEADER + 17, 1))
-    local reason = tvb(HEADER + 17, 1):uint()
-    return "CLOSE " .. (REASON_NAMES[reason] or tostring(reason))
+    return close_fields(tree, tvb, length, "CLOSE")
 end
 
 function tdtp.dissector(tvb, pinfo, tree)
