@@ -22,13 +22,14 @@ from tdtp.wire import (
     encode_open_ack,
 )
 
+from tdtp_adapter import COOKIE_PLACEHOLDER  # tests/vectors: generate.py puts it on the path
+
 MASTER_NONCE = bytes.fromhex("00112233445566778899aabbccddeeff")
 SLAVE_NONCE = bytes.fromhex("f0e1d2c3b4a5968778695a4b3c2d1e0f")
 OTHER_NONCE = bytes(range(16))
 MASTER_ISN = 0x5A5
 SLAVE_ISN = 0x0C3
 PSK = bytes(range(32))
-COOKIE = "{cookie}"
 COOKIE_BYTES = b"\x00\x00\xab\xcd" + b"\x11" * 12
 
 
@@ -53,7 +54,18 @@ def _open(
         OpenBody(version, flags, suite, max_payload, attempt, nonce, key_id, bytes(16))
     )
     text = _hex(encode_header(2, MASTER_ISN, 0, 0, 255) + body[:-16])
-    return text + (COOKIE if cookie else bytes(16).hex()) + tag.hex()
+    return text + (COOKIE_PLACEHOLDER if cookie else bytes(16).hex()) + tag.hex()
+
+
+def _open_ack(max_payload: int = 1200, *, seq: int = SLAVE_ISN) -> str:
+    """An unkeyed OPEN_ACK from the slave (hex) answering the master's OPEN."""
+    body = OpenAckBody(2, 0, 0, max_payload, 0, MASTER_NONCE, SLAVE_NONCE)
+    return _hex(encode_header(2, seq, 0, 0, 255) + encode_open_ack(body))
+
+
+def _cookie(nonce: bytes = MASTER_NONCE) -> str:
+    """A COOKIE from the slave (hex) answering the OPEN that carried ``nonce``."""
+    return _hex(encode_header(2, 0, 0, 0, 255) + encode_cookie(nonce, COOKIE_BYTES))
 
 
 def _data(seq: int, payload: bytes, ack: tuple[int, int, int] = (0, 0, 255)) -> str:
@@ -122,10 +134,7 @@ def slave_session() -> dict[str, Any]:
         _step(
             0.035,
             "master",
-            _hex(
-                encode_header(2, s, 0, 0, 255)
-                + encode_open_ack(OpenAckBody(2, 0, 0, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
-            ),
+            _open_ack(seq=s),
             note="an OPEN_ACK sent to a slave",
         ),
         _step(0.036, "master", _open(version=99), note="answered REJECT VERSION_UNSUPPORTED"),
@@ -299,14 +308,14 @@ def keyed_master_session() -> dict[str, Any]:
         _step(
             0.002,
             "slave",
-            _hex(encode_header(2, 0, 0, 0, 255) + encode_cookie(MASTER_NONCE, COOKIE_BYTES)),
+            _cookie(),
             exact=True,
             note="the OPEN that answers a COOKIE carries it, attempt 1, a fresh tag",
         ),
         _step(
             0.003,
             "slave",
-            _hex(encode_header(2, 0, 0, 0, 255) + encode_cookie(OTHER_NONCE, COOKIE_BYTES)),
+            _cookie(OTHER_NONCE),
         ),
         _step(0.004, "slave", open_ack(0, flags=0), note="flags differ from the OPEN's"),
         _step(
@@ -358,10 +367,7 @@ def master_rejected() -> dict[str, Any]:
         _step(
             0.003,
             "slave",
-            _hex(
-                encode_header(2, SLAVE_ISN, 0, 0, 255)
-                + encode_open_ack(OpenAckBody(2, 0, 0, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
-            ),
+            _open_ack(),
         ),
     ]
     return {
@@ -379,19 +385,13 @@ def master_payload_too_small() -> dict[str, Any]:
         _step(
             0.001,
             "slave",
-            _hex(
-                encode_header(2, SLAVE_ISN, 0, 0, 255)
-                + encode_open_ack(OpenAckBody(2, 0, 0, 0, 0, MASTER_NONCE, SLAVE_NONCE))
-            ),
+            _open_ack(0),
             note="max_payload 0",
         ),
         _step(
             0.002,
             "slave",
-            _hex(
-                encode_header(2, SLAVE_ISN, 0, 0, 255)
-                + encode_open_ack(OpenAckBody(2, 0, 0, 50, 0, MASTER_NONCE, SLAVE_NONCE))
-            ),
+            _open_ack(50),
             note="below this master's min_peer_payload (100)",
         ),
     ]
@@ -405,10 +405,7 @@ def master_payload_too_small() -> dict[str, Any]:
 
 
 def master_session() -> dict[str, Any]:
-    open_ack = _hex(
-        encode_header(2, SLAVE_ISN, 0, 0, 255)
-        + encode_open_ack(OpenAckBody(2, 0, 0, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
-    )
+    open_ack = _open_ack()
     steps = [
         _action(0.0, "connect"),
         _step(0.001, "slave", open_ack, exact=True),
@@ -416,7 +413,7 @@ def master_session() -> dict[str, Any]:
         _step(
             0.003,
             "slave",
-            _hex(encode_header(2, 0, 0, 0, 255) + encode_cookie(MASTER_NONCE, COOKIE_BYTES)),
+            _cookie(),
             note="a COOKIE once established",
         ),
         _step(

@@ -54,7 +54,15 @@ from tdtp.wire import (  # noqa: E402
 from tdtp.wire.errors import MalformedPacketError  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "tests" / "vectors"))
-from endpoint_scripts import all_scripts  # noqa: E402  (beside this file)
+from endpoint_scripts import (  # noqa: E402  (beside this file)
+    COOKIE_BYTES,
+    MASTER_ISN,
+    MASTER_NONCE,
+    PSK,
+    SLAVE_ISN,
+    SLAVE_NONCE,
+    all_scripts,
+)
 
 from tdtp_adapter import ADDRESSES, ScriptRunner  # noqa: E402  (tests/vectors/)
 
@@ -62,11 +70,6 @@ FORMAT = "tdtp-conformance-vectors"
 FORMAT_VERSION = 1
 PROTOCOL_VERSION = 2
 OUT = ROOT / "tests" / "vectors"
-
-MASTER_NONCE = bytes.fromhex("00112233445566778899aabbccddeeff")
-SLAVE_NONCE = bytes.fromhex("f0e1d2c3b4a5968778695a4b3c2d1e0f")
-OTHER_NONCE = bytes(range(16))
-PSK = bytes(range(32))
 
 
 def _file(suite: str, description: str, vectors: dict[str, Any]) -> dict[str, Any]:
@@ -99,7 +102,7 @@ def header_vectors() -> dict[str, Any]:
     cases: list[tuple[str, tuple[int, int, int, int, int]]] = [
         ("worked example 7.1: DATA with a piggybacked ACK", (0, 0x0ABC, 0x0123, 0b101010, 31)),
         ("worked example 7.3: stand-alone ACK", (1, 0x0ABD, 0x0124, 0b111111, 110)),
-        ("worked example 7.2: OPEN header", (2, 0x5A5, 0, 0, 255)),
+        ("worked example 7.2: OPEN header", (2, MASTER_ISN, 0, 0, 255)),
         ("all zero", (0, 0, 0, 0, 0)),
         ("all ones: TYPE 3 (reserved) is still a valid header to decode", (3, 4095, 4095, 63, 255)),
         ("SEQ only", (0, 4095, 0, 0, 0)),
@@ -305,7 +308,7 @@ def _control_fields(body: object) -> dict[str, Any]:
 
 
 def control_vectors() -> dict[str, Any]:
-    header = encode_header(2, 0x5A5, 0, 0, 255).hex()
+    header = encode_header(2, MASTER_ISN, 0, 0, 255).hex()
     bodies: list[tuple[str, bytes]] = [
         (
             "OPEN, first attempt (7.2)",
@@ -313,11 +316,7 @@ def control_vectors() -> dict[str, Any]:
         ),
         (
             "OPEN with the cookie, separate ACKs",
-            encode_open(
-                OpenBody(
-                    2, 1, 0, 100, 1, MASTER_NONCE, bytes(8), b"\x00\x00\xab\xcd" + b"\x11" * 12
-                )
-            ),
+            encode_open(OpenBody(2, 1, 0, 100, 1, MASTER_NONCE, bytes(8), COOKIE_BYTES)),
         ),
         (
             "keyed OPEN (flags KEYED | ENCRYPTED, suite 1): the tag is 16 more bytes",
@@ -336,7 +335,7 @@ def control_vectors() -> dict[str, Any]:
             "keyed OPEN_ACK, packet number 0",
             encode_open_ack(OpenAckBody(2, 2, 2, 1200, 0, MASTER_NONCE, SLAVE_NONCE)) + bytes(16),
         ),
-        ("COOKIE (7.2)", encode_cookie(MASTER_NONCE, b"\x00\x00\xab\xcd" + b"\x11" * 12)),
+        ("COOKIE (7.2)", encode_cookie(MASTER_NONCE, COOKIE_BYTES)),
         ("KEEPALIVE", encode_keepalive()),
         ("CLOSE NORMAL", encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
         ("CLOSE with an unknown reason 200", encode_close(ControlCode.CLOSE, MASTER_NONCE, 200)),
@@ -701,7 +700,7 @@ def keyed_vectors() -> dict[str, Any]:
     for suite in (CipherSuite.AES_128_GCM, CipherSuite.CHACHA20_POLY1305):
         key = PresharedKey(PSK)
         for attempt in (0, 1, 65535):
-            datagram = encode_header(2, 0x5A5, 0, 0, 255) + encode_open(
+            datagram = encode_header(2, MASTER_ISN, 0, 0, 255) + encode_open(
                 OpenBody(
                     2,
                     6,
@@ -710,7 +709,7 @@ def keyed_vectors() -> dict[str, Any]:
                     attempt,
                     MASTER_NONCE,
                     key.key_id,
-                    b"\x00\x00\xab\xcd" + b"\x11" * 12,
+                    COOKIE_BYTES,
                 )
             )
             tagger = Direction(suite, derive_open_secret(PSK, MASTER_NONCE, suite))
@@ -725,7 +724,7 @@ def keyed_vectors() -> dict[str, Any]:
                 }
             )
         session = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, suite)
-        datagram = encode_header(2, 0x0C3, 0, 0, 255) + encode_open_ack(
+        datagram = encode_header(2, SLAVE_ISN, 0, 0, 255) + encode_open_ack(
             OpenAckBody(2, 6, int(suite), 1200, 0, MASTER_NONCE, SLAVE_NONCE)
         )
         handshake.append(
