@@ -147,6 +147,25 @@ def _limit_write_buffer(transport: asyncio.BaseTransport) -> None:
         transport.set_write_buffer_limits(high=0)  # type: ignore[attr-defined]
 
 
+def _deliver_to(
+    protocol: asyncio.DatagramProtocol,
+    receive: Callable[[bytes, Address], None],
+    capture: CapturingTransport | None,
+) -> None:
+    """Hand the protocol's datagrams straight to ``receive`` (one Python call less per datagram),
+    through the pcap capture first when there is one."""
+    if capture is None:
+        protocol.datagram_received = receive  # type: ignore[method-assign,assignment]
+        return
+    record = capture.received
+
+    def recorded(data: bytes, addr: Address) -> None:
+        record(data, addr)
+        receive(data, addr)
+
+    protocol.datagram_received = recorded  # type: ignore[method-assign]
+
+
 class _MasterProtocol(asyncio.DatagramProtocol):
     def __init__(self) -> None:
         self.endpoint: Endpoint | None = None
@@ -186,17 +205,6 @@ class _MasterProtocol(asyncio.DatagramProtocol):
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.closed.done():
             self.closed.set_result(None)
-
-
-class _CapturingMasterProtocol(_MasterProtocol):
-    """Records each datagram into the pcap capture first (used only with ``pcap=``)."""
-
-    capture: CapturingTransport | None = None
-
-    def datagram_received(self, data: bytes, addr: Address) -> None:
-        if self.capture is not None:
-            self.capture.received(data, addr)
-        super().datagram_received(data, addr)
 
 
 def connect(
@@ -290,7 +298,7 @@ async def _connect(
     # host and port, so an IPv6 peer's 4-tuple source address still matches ``remote``.
     try:
         transport, protocol = await loop.create_datagram_endpoint(
-            _MasterProtocol if capture is None else _CapturingMasterProtocol,
+            _MasterProtocol,
             remote_addr=(str(remote[0]), int(remote[1])),
             local_addr=local_addr,
             family=family,
@@ -306,10 +314,9 @@ async def _connect(
     _limit_write_buffer(transport)
     protocol.where = format_address((host, port))
     socket_side: asyncio.DatagramTransport = transport
+    recorder: CapturingTransport | None = None
     if capture is not None:
-        socket_side = CapturingTransport(transport, capture[0], owned=capture[1])
-        assert isinstance(protocol, _CapturingMasterProtocol)
-        protocol.capture = socket_side
+        socket_side = recorder = CapturingTransport(transport, capture[0], owned=capture[1])
     sender: asyncio.DatagramTransport | ImpairedTransport = socket_side
     if netem is not None:
         sender = ImpairedTransport(socket_side, netem, seed=netem_seed, timer=timer)
@@ -331,9 +338,7 @@ async def _connect(
         transport_closed=_wait_transport_closed,
     )
     protocol.endpoint = endpoint
-    if capture is None:
-        # Straight to the endpoint: one Python call less per datagram received.
-        protocol.datagram_received = endpoint.datagram_received  # type: ignore[method-assign]
+    _deliver_to(protocol, endpoint.datagram_received, recorder)
     conn.connect(remote, now=monotonic())
     endpoint._flush()
     try:
@@ -400,17 +405,6 @@ class _ServerProtocol(asyncio.DatagramProtocol):
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.closed.done():
             self.closed.set_result(None)
-
-
-class _CapturingServerProtocol(_ServerProtocol):
-    """Records each datagram into the pcap capture first (used only with ``pcap=``)."""
-
-    capture: CapturingTransport | None = None
-
-    def datagram_received(self, data: bytes, addr: Address) -> None:
-        if self.capture is not None:
-            self.capture.received(data, addr)
-        super().datagram_received(data, addr)
 
 
 class Server:
@@ -711,10 +705,9 @@ async def _listen(
     loop = asyncio.get_running_loop()
     family = socket.AF_INET6 if host is not None and ":" in host else socket.AF_UNSPEC
     capture = open_capture(pcap) if pcap is not None else None
-    protocol_class = _ServerProtocol if capture is None else _CapturingServerProtocol
     try:
         transport, protocol = await loop.create_datagram_endpoint(
-            lambda: protocol_class(server),
+            lambda: _ServerProtocol(server),
             local_addr=(host or "0.0.0.0", port),
             family=family,
             reuse_port=reuse_port or None,
@@ -730,13 +723,11 @@ async def _listen(
     _limit_write_buffer(transport)
     server._transport = transport
     server._protocol = protocol
-    if capture is None:
-        protocol.datagram_received = server._datagram_received  # type: ignore[method-assign]
     socket_side: asyncio.DatagramTransport = transport
+    recorder: CapturingTransport | None = None
     if capture is not None:
-        socket_side = CapturingTransport(transport, capture[0], owned=capture[1])
-        assert isinstance(protocol, _CapturingServerProtocol)
-        protocol.capture = socket_side
+        socket_side = recorder = CapturingTransport(transport, capture[0], owned=capture[1])
+    _deliver_to(protocol, server._datagram_received, recorder)
     server._sender = (
         socket_side
         if netem is None
