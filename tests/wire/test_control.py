@@ -40,6 +40,7 @@ from tdtp.wire.control import (
     KEEPALIVE_BODY_SIZE,
     OPEN_ACK_BODY_SIZE,
     OPEN_BODY_SIZE,
+    ControlBody,
     open_version,
 )
 
@@ -50,7 +51,6 @@ KEY_ID = bytes.fromhex("0123456789abcdef")
 TAG = bytes(range(0xA0, 0xB0))
 ZERO8, ZERO16 = bytes(8), bytes(16)
 
-ControlBody = OpenBody | OpenAckBody | CookieBody | CloseBody | KeepaliveBody
 UNKEYED_SIZES = {
     ControlCode.OPEN: OPEN_BODY_SIZE,
     ControlCode.OPEN_ACK: OPEN_ACK_BODY_SIZE,
