@@ -13,7 +13,9 @@ MARK_BUILT := find tdtp -name '_core__mypyc.*' -exec touch {} +
 # The pure-Python build's share of `make test`: the sans-IO core, its wire format and controllers, the
 # conformance vectors and the packaging checks (the asyncio layer and the simulator run on the
 # compiled build, with the rest of the suite).
-PURE_TESTS := tests/test_*.py tests/wire tests/control
+# (The benchmark smoke tests run on the compiled build only: they start the pure build's variants
+# themselves.)
+PURE_TESTS := $(filter-out tests/test_benchmarks_smoke.py,$(wildcard tests/test_*.py)) tests/wire tests/control
 PURE_REST := $(filter-out tests/wire/ tests/control/,$(wildcard tests/*/))
 
 .PHONY: demo bench build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
