@@ -77,7 +77,7 @@ unit-pure: $(STAMP)
 	TDTP_PURE_PYTHON=1 $(BIN)/python -m pytest -q -n 2 $(PURE_TESTS)
 
 # The rest of the suite on the pure-Python build: with `make test` (as CI runs them) every test has
-# run on both builds.
+# run on both builds (the benchmark smoke tests through the pure variants they start).
 unit-pure-rest: $(STAMP)
 	TDTP_PURE_PYTHON=1 $(BIN)/python -m pytest -q -n 2 $(PURE_REST)
 
