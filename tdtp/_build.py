@@ -37,13 +37,13 @@ COMPILED_MODULES: Final = (
     "tdtp.wire.hold",
     "tdtp.wire.seqnum",
     "tdtp.wire.protected",
-    "tdtp.connection",
-    "tdtp.events",
-    "tdtp.stats",
-    "tdtp.sent_log",
-    "tdtp.receive_window",
-    "tdtp.rtt",
-    "tdtp.loss_rate",
+    "tdtp.session.connection",
+    "tdtp.session.events",
+    "tdtp.session.stats",
+    "tdtp.session.sent_log",
+    "tdtp.session.receive_window",
+    "tdtp.session.rtt",
+    "tdtp.session.loss_rate",
     "tdtp.protection.replay_window",
     "tdtp.protection.packet_protection",
     "tdtp.control.base",
@@ -157,7 +157,7 @@ _INFO: Final = _choose()
 def build_info() -> BuildInfo:
     """Which build of the core runs in this process, and why."""
     if _INFO.compiled:
-        connection = sys.modules.get("tdtp.connection")
+        connection = sys.modules.get("tdtp.session.connection")
         origin = getattr(connection, "__file__", None) or ""
         if origin.endswith(".py"):  # the shared library is there, this module's extension is not
             return BuildInfo("pure", "the compiled extensions are incomplete; reinstall tdtp")

@@ -86,7 +86,7 @@ class AdmissionConfig:
 
 @dataclass(frozen=True, slots=True)
 class ConnectionConfig:
-    """Everything a :class:`~tdtp.connection.Connection` can be told. Times are in seconds."""
+    """Everything a :class:`~tdtp.session.connection.Connection` can be told. Times are in seconds."""
 
     max_payload: int = 1200
     """Largest payload this endpoint sends or accepts (bytes, header excluded). The peer's value,
@@ -105,7 +105,7 @@ class ConnectionConfig:
     goes out (bidirectional mode). At most 31.232 ms, so every ACK can report its hold time."""
     silence_timeout: float = 0.1
     """The watchdog: after this long without any datagram from the peer the connection reports
-    :class:`~tdtp.events.PeerSilent` (and :class:`~tdtp.events.PeerResumed` when the peer is heard
+    :class:`~tdtp.session.events.PeerSilent` (and :class:`~tdtp.session.events.PeerResumed` when the peer is heard
     again). 100 ms is five times a 1 kHz loop's worst normal gap and short enough for a slave to stop
     a machine safely; it must be shorter than ``idle_timeout``."""
     keepalive_interval: float | None = None

@@ -19,7 +19,7 @@ from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.rate_limit import SourceRateLimiter
 from tdtp.protection import KeyRing, PresharedKey
-from tdtp.stats import DropReason
+from tdtp.session.stats import DropReason
 from tdtp.wire import (
     HEADER_SIZE,
     CloseReason,

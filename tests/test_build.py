@@ -36,9 +36,9 @@ def test_setup_py_compiles_exactly_the_modules_the_runtime_knows() -> None:
 
 def _which_build(env: dict[str, str]) -> list[str]:
     code = (
-        "import tdtp, tdtp.connection, tdtp.control.trinomial as t;"
+        "import tdtp, tdtp.session.connection, tdtp.control.trinomial as t;"
         "info = tdtp.build_info();"
-        "print(info.build, tdtp.connection.__file__.endswith('.py'), t.__file__.endswith('.py'))"
+        "print(info.build, tdtp.session.connection.__file__.endswith('.py'), t.__file__.endswith('.py'))"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True

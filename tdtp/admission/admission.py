@@ -7,7 +7,7 @@ Sans-IO, like the connection. :meth:`Admission.admit` takes one OPEN datagram an
   create a connection, answer OPEN_ACK and spend a ``max_peers`` slot;
 * a :class:`Reply`: a datagram to send back to the source, never larger than the OPEN (a COOKIE, or
   a REJECT that says why the master cannot be served), with the reason the OPEN was not taken;
-* a :class:`~tdtp.stats.DropReason`: nothing is sent.
+* a :class:`~tdtp.session.stats.DropReason`: nothing is sent.
 
 Checks, in order: the per-source OPEN rate; the version (an unknown one gets REJECT if that is no
 larger than the OPEN); the body; the cookie (none or a stale one: answer COOKIE, within the global
@@ -16,7 +16,7 @@ reply budget); then, with the address validated, the key (REJECT ``KEY_REQUIRED`
 unauthenticated) and the payload size (REJECT ``PAYLOAD_TOO_SMALL``).
 
 A server with many sessions shares one :class:`Admission` (one cookie secret, one rate table); a
-stand-alone slave :class:`~tdtp.connection.Connection` makes its own.
+stand-alone slave :class:`~tdtp.session.connection.Connection` makes its own.
 """
 
 from __future__ import annotations
@@ -28,11 +28,11 @@ from typing import Final, NamedTuple
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
 from tdtp.config import ConnectionConfig
-from tdtp.events import Address
 from tdtp.protection.derivation import derive_open_secret
 from tdtp.protection.keys import KeyRing, PresharedKey
 from tdtp.protection.packet_protection import Direction
-from tdtp.stats import DropReason
+from tdtp.session.events import Address
+from tdtp.session.stats import DropReason
 from tdtp.wire.control import (
     CLOSE_BODY_SIZE,
     NO_COOKIE,

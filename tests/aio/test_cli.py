@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tdtp.cli import _host_port, build_parser, main
+from tdtp.cli.main import _host_port, build_parser, main
 
 
 def _demo(*extra: str) -> dict[str, object]:

@@ -20,8 +20,8 @@ import pytest
 
 from tdtp import __version__, listen
 from tdtp.aio.relay import start_relay
-from tdtp.cli import main
-from tdtp.live_stats import LiveDisplay
+from tdtp.cli.live_stats import LiveDisplay
+from tdtp.cli.main import main
 
 from eventually import eventually
 

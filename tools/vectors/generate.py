@@ -29,10 +29,10 @@ from tdtp.protection.derivation import (  # noqa: E402
 )
 from tdtp.protection.keys import PresharedKey  # noqa: E402
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
-from tdtp.receive_window import ReceiveWindow  # noqa: E402
-from tdtp.rtt import RttEstimator  # noqa: E402
-from tdtp.sent_log import LostPacket, SentPacketLog  # noqa: E402
-from tdtp.stats import DropReason  # noqa: E402
+from tdtp.session.receive_window import ReceiveWindow  # noqa: E402
+from tdtp.session.rtt import RttEstimator  # noqa: E402
+from tdtp.session.sent_log import LostPacket, SentPacketLog  # noqa: E402
+from tdtp.session.stats import DropReason  # noqa: E402
 from tdtp.wire import (  # noqa: E402
     CipherSuite,
     CloseReason,

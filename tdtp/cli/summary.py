@@ -9,7 +9,7 @@ direction, so every field of the other end is ``null`` and ``observed_at`` says 
 it. Every key is always present, so a script can read the output without guessing.
 
 One-way latency needs the sample's send time on the receiver's clock: it is measured only for samples
-in the demo's haptic format (``tdtp.haptic_sample``) sent from the same host (the monotonic clocks
+in the demo's haptic format (``tdtp.teleop.haptic_sample``) sent from the same host (the monotonic clocks
 agree); ``latency_note`` says why ``latency_ms`` is ``null`` otherwise.
 """
 
@@ -19,9 +19,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from tdtp.live_stats import LatencyRecorder
-from tdtp.pcap import PcapWriter
-from tdtp.stats import ConnectionStats
+from tdtp.capture.pcap import PcapWriter
+from tdtp.cli.live_stats import LatencyRecorder
+from tdtp.session.stats import ConnectionStats
 
 _SENDER_KEYS = (
     "samples_offered",

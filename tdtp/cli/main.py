@@ -29,8 +29,9 @@ from tdtp.aio.endpoint import Endpoint, WatchdogCallback, format_address
 from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import check_timer_preference, monotonic
-from tdtp.bandwidth_cli import bandwidth_main
-from tdtp.cli_keys import (
+from tdtp.capture.pcap import CaptureError, PcapWriter
+from tdtp.cli.bandwidth import bandwidth_main
+from tdtp.cli.keys import (
     KeyArgumentError,
     SessionKeys,
     add_key_arguments,
@@ -38,8 +39,15 @@ from tdtp.cli_keys import (
     session_keys,
     warn_if_exposed,
 )
-from tdtp.cli_parser import EXIT_USAGE, CommandParser
-from tdtp.cli_summary import LatencyCounts, capture_report, direction_report
+from tdtp.cli.live_stats import (
+    DirectionMeter,
+    LatencyRecorder,
+    LiveDisplay,
+    receive_line,
+)
+from tdtp.cli.parser import EXIT_USAGE, CommandParser
+from tdtp.cli.simulate import simulate_main
+from tdtp.cli.summary import LatencyCounts, capture_report, direction_report
 from tdtp.config import MAX_UDP_PAYLOAD, AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
 from tdtp.control.registry import available_controllers
@@ -52,18 +60,10 @@ from tdtp.errors import (
     PayloadTooLargeError,
     TdtpError,
 )
-from tdtp.events import CloseCause, DataReceived, PeerResumed, PeerSilent
-from tdtp.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
-from tdtp.live_stats import (
-    DirectionMeter,
-    LatencyRecorder,
-    LiveDisplay,
-    receive_line,
-)
 from tdtp.netem import NetemSpec, parse_netem
 from tdtp.netem.spec import MAX_SEED
-from tdtp.pcap import CaptureError, PcapWriter
-from tdtp.sim.cli import simulate_main
+from tdtp.session.events import CloseCause, DataReceived, PeerResumed, PeerSilent
+from tdtp.teleop.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
 from tdtp.wire.header import HEADER_SIZE
 
 MAX_LATENCY = 10.0
@@ -926,7 +926,7 @@ def _fail(message: object, status: int) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     arguments = list(sys.argv[1:] if argv is None else argv)
     if arguments[:1] == ["simulate"]:
-        # Its own parser (tdtp.sim.cli); the subcommand below only lists it in --help.
+        # Its own parser (tdtp.cli.simulate); the subcommand below only lists it in --help.
         return simulate_main(arguments[1:])
     if arguments[:1] == ["keygen"]:
         return keygen_main(arguments[1:])

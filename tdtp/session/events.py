@@ -15,7 +15,7 @@ Address = tuple[Any, ...]
 
 class CloseCause(enum.Enum):
     LOCAL_CLOSE = "local_close"
-    """This side called :meth:`~tdtp.connection.Connection.close`."""
+    """This side called :meth:`~tdtp.session.connection.Connection.close`."""
     PEER_CLOSE = "peer_close"
     """The peer sent CLOSE."""
     IDLE_TIMEOUT = "idle_timeout"

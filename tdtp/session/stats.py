@@ -90,7 +90,7 @@ class ConnectionStats:
     send_pauses: int = 0
     """Times the socket's send buffer backed up and data was held back until it drained."""
     samples_delivered: int = 0
-    """Payloads handed to the application as :class:`~tdtp.events.DataReceived`."""
+    """Payloads handed to the application as :class:`~tdtp.session.events.DataReceived`."""
     samples_skipped: int = 0
     """Delivered samples a latest-value reader never saw: a newer one had arrived by the time it
     read (``ep.latest()``, ``async for sample in ep``). Superseded at the receiver."""

@@ -8,7 +8,7 @@ re-arms a single timer at :meth:`Connection.get_timer`. What happened comes out 
 all drive this one class.
 
 The watchdog lives here too: nothing heard from the peer for ``silence_timeout`` gives a
-:class:`~tdtp.events.PeerSilent` event, the next datagram a :class:`~tdtp.events.PeerResumed`, and the
+:class:`~tdtp.session.events.PeerSilent` event, the next datagram a :class:`~tdtp.session.events.PeerResumed`, and the
 connection survives the outage until ``idle_timeout`` (docs/PROTOCOL.md section 5.2).
 
 Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
@@ -37,7 +37,14 @@ from tdtp.errors import (
     PayloadTooLargeError,
     PayloadTypeError,
 )
-from tdtp.events import (
+from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
+from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey, as_key, as_key_ring
+from tdtp.protection.packet_protection import (
+    Direction,
+    PacketOpener,
+    PacketSealer,
+)
+from tdtp.session.events import (
     Address,
     CloseCause,
     ConnectionClosed,
@@ -48,18 +55,11 @@ from tdtp.events import (
     PeerSilent,
     new_data_received,
 )
-from tdtp.loss_rate import LossIntervalEstimator
-from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
-from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey, as_key, as_key_ring
-from tdtp.protection.packet_protection import (
-    Direction,
-    PacketOpener,
-    PacketSealer,
-)
-from tdtp.receive_window import Arrival, ReceiveWindow
-from tdtp.rtt import RttEstimator
-from tdtp.sent_log import LostPacket, SentPacketLog
-from tdtp.stats import ConnectionStats, DropReason
+from tdtp.session.loss_rate import LossIntervalEstimator
+from tdtp.session.receive_window import Arrival, ReceiveWindow
+from tdtp.session.rtt import RttEstimator
+from tdtp.session.sent_log import LostPacket, SentPacketLog
+from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.wire.control import (
     HANDSHAKE_CODES,
     NO_COOKIE,
@@ -288,8 +288,8 @@ class Connection:
 
     @property
     def peer_silent(self) -> bool:
-        """True while the watchdog finds the peer silent (between :class:`~tdtp.events.PeerSilent`
-        and :class:`~tdtp.events.PeerResumed`)."""
+        """True while the watchdog finds the peer silent (between :class:`~tdtp.session.events.PeerSilent`
+        and :class:`~tdtp.session.events.PeerResumed`)."""
         return self._silent_since is not None
 
     @property
