@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from tdtp.cli.main import _host_port, build_parser, main
+from tdtp.cli.main import main
+from tdtp.cli.options import build_parser, host_port
 
 
 def _demo(*extra: str) -> dict[str, object]:
@@ -72,9 +73,9 @@ def test_bad_arguments_are_refused_with_a_message(capsys: pytest.CaptureFixture[
 
 
 def test_host_port_forms() -> None:
-    assert _host_port("127.0.0.1:7000") == ("127.0.0.1", 7000)
-    assert _host_port("[::1]:7000") == ("::1", 7000)
-    assert _host_port("fe80::1:7000") == ("fe80::1", 7000)
+    assert host_port("127.0.0.1:7000") == ("127.0.0.1", 7000)
+    assert host_port("[::1]:7000") == ("::1", 7000)
+    assert host_port("fe80::1:7000") == ("fe80::1", 7000)
 
 
 def _free_udp_port() -> int:
