@@ -34,6 +34,8 @@ class Side:
     not_haptic: int = 0
     clock_mismatch: int = 0
     started: float = 0.0
+    task_error: str | None = None
+    """Why this side's task stopped early, if it failed (a bug; shown in ``--json``)."""
 
     def on_data(self, event: DataReceived) -> None:
         self.received += 1

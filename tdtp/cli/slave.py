@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+import sys
 from collections import deque
 from dataclasses import asdict
 from typing import Any
@@ -45,7 +46,7 @@ async def _slave(
     args: argparse.Namespace, outcome: Outcome, keys: SessionKeys, capture: PcapWriter | None
 ) -> None:
     until = math.inf if args.duration is None else monotonic() + args.duration
-    sides: dict[int, Side] = {}
+    sides: dict[int, tuple[Endpoint, Side]] = {}  # every session not yet in ``finished``
     finished: deque[dict[str, Any]] = deque(maxlen=SESSIONS_KEPT)
     _, sm_spec = netem_directions(args)
     async with listen(
@@ -74,7 +75,9 @@ async def _slave(
             acceptor.cancel()
             for task in tasks:
                 task.cancel()
-            sessions = list(finished) + [_session(ep, sides.get(id(ep))) for ep in server.endpoints]
+            # Sessions still open, and those that closed just now (their task has not recorded
+            # them yet): every master served is in the summary exactly once.
+            sessions = list(finished) + [_session(ep, side) for ep, side in sides.values()]
             outcome.summary = {
                 "command": "slave",
                 "masters_served": server.stats.peers_accepted,
@@ -99,6 +102,7 @@ def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
         "peer_silences": ep.stats.peer_silences,
         "longest_silence_s": round(ep.stats.longest_silence, 3),
         "close": close_info(ep),
+        "task_error": side.task_error if side is not None else None,
         "master_to_slave": direction_report(
             sender=None,
             receiver=ep.stats,
@@ -114,7 +118,7 @@ def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
 
 async def _accept_loop(
     server: Server,
-    sides: dict[int, Side],
+    sides: dict[int, tuple[Endpoint, Side]],
     args: argparse.Namespace,
     until: float,
     tasks: set[asyncio.Task[None]],
@@ -124,12 +128,12 @@ async def _accept_loop(
     start = monotonic()
     async for ep in server:
         side = Side(f"master {format_address(ep.peer)}", started=monotonic())
-        sides[id(ep)] = side
+        sides[id(ep)] = (ep, side)
         ep.set_data_callback(side.on_data)
         ep.set_watchdog_callback(
             watchdog_logger(display, start, "slave", f"master {format_address(ep.peer)}")
         )
-        task = asyncio.create_task(_serve_one(ep, side, args, until, sides, finished))
+        task = asyncio.create_task(_serve_one(ep, side, args, until, sides, finished, display))
         tasks.add(task)
         task.add_done_callback(tasks.discard)
 
@@ -139,21 +143,37 @@ async def _serve_one(
     side: Side,
     args: argparse.Namespace,
     until: float,
-    sides: dict[int, Side],
+    sides: dict[int, tuple[Endpoint, Side]],
     finished: deque[dict[str, Any]],
+    display: LiveDisplay | None,
 ) -> None:
-    await send_loop(ep, side, args.rate, args.size, until, master=False)
+    """Answer one master until the run ends or the session does. A failure of this task (a bug:
+    payloads are opaque unless they are the demo's samples) is reported once, on the display or
+    stderr and in ``--json``, and ends this session only: the slave goes on serving the others."""
+    try:
+        await send_loop(ep, side, args.rate, args.size, until, master=False)
+    except Exception as exc:
+        side.task_error = f"{type(exc).__name__}: {exc}"
+        message = f"session with {format_address(ep.peer)} failed: {side.task_error}"
+        if display is not None:
+            display.message(message)
+        else:
+            print(f"tdtp slave: {message}", file=sys.stderr)
+        await ep.close()
     if ep.is_closed:
         finished.append(_session(ep, side))
         sides.pop(id(ep), None)
 
 
-def _show_slave(display: LiveDisplay | None, server: Server, sides: dict[int, Side]) -> None:
+def _show_slave(
+    display: LiveDisplay | None, server: Server, sides: dict[int, tuple[Endpoint, Side]]
+) -> None:
     if display is None:
         return
     lines = [f"{len(server.endpoints)} master(s) connected"]
     for ep in server.endpoints:
-        side = sides.get(id(ep))
+        entry = sides.get(id(ep))
+        side = entry[1] if entry is not None else None
         stats = ep.stats
         line = (
             f"  {format_address(ep.peer)}:  received {side.received if side else 0} samples"
