@@ -8,6 +8,7 @@ points (:func:`connect`, :func:`listen`) run it over real UDP sockets.
 import logging
 
 from tdtp._build import BuildInfo, build_info  # first: it decides which build of the core loads
+from tdtp._build import restore_class_docstrings as _restore_class_docstrings
 from tdtp._moved_modules import install as _install_moved_modules
 from tdtp.aio.api import Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint
@@ -106,3 +107,7 @@ __all__ = [
     "monotonic",
     "write_key_file",
 ]
+
+# mypyc drops class docstrings: put those of the public classes back, so that help(tdtp.DataReceived)
+# reads the same in both builds.
+_restore_class_docstrings(sorted({getattr(globals()[name], "__module__", "") for name in __all__}))

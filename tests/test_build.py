@@ -63,3 +63,15 @@ def test_build_info_describes_itself() -> None:
     assert info.build in ("compiled", "pure")
     assert info.describe().startswith("compiled" if info.compiled else "pure Python (")
     assert info.as_dict() == {"build": info.build, "reason": info.reason}
+
+
+def test_public_classes_keep_their_docstrings_in_both_builds() -> None:
+    """help(tdtp.DataReceived) said "mypyc filler docstring" in the compiled build (issue 20, 9)."""
+    import inspect
+
+    import tdtp
+
+    for name in tdtp.__all__:
+        obj = getattr(tdtp, name)
+        if inspect.isclass(obj) and obj.__module__.startswith("tdtp.session"):
+            assert obj.__doc__ and "mypyc" not in obj.__doc__, name

@@ -141,3 +141,10 @@ def test_key_files_round_trip_and_refuse_bad_ones(tmp_path: Path) -> None:
         parse_keys("# nothing\n\n")
     with pytest.raises(InvalidKeyError, match="cannot read"):
         load_keys(tmp_path / "missing")
+    secret, other = "11" * 32, "22" * 32
+    # One key under two names would let either master open the other's sessions (issue 20, 9).
+    with pytest.raises(InvalidKeyError, match="line 3: the same key as line 1"):
+        parse_keys(f"a {secret}\nb {other}\nc {secret}\n")
+    with pytest.raises(InvalidKeyError, match="line 2: the name 'a' is already used on line 1"):
+        parse_keys(f"a {secret}\na {other}\n")
+    assert [k.name for k in parse_keys(f"a {secret}\nb {other}\n")] == ["a", "b"]

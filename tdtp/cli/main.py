@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import sys
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
@@ -34,6 +35,7 @@ from tdtp.cli.outcome import EXIT_FAILED, EXIT_INTERRUPTED, Outcome
 from tdtp.cli.parser import EXIT_USAGE
 from tdtp.cli.simulate import simulate_main
 from tdtp.cli.slave import run_slave
+from tdtp.cli.summary import summary_text
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,
@@ -115,10 +117,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConnectError, TdtpError, OSError) as exc:
         return _fail(exc, EXIT_FAILED)
     if outcome.summary is not None:
-        if args.json or args.command != "demo":
-            print(json.dumps(outcome.summary, indent=2))
-        else:
-            print(demo_table(outcome.summary))
+        try:
+            if args.json or args.command == "netem-relay":
+                print(json.dumps(outcome.summary, indent=2))
+            elif args.command == "demo":
+                print(demo_table(outcome.summary))
+            else:
+                print(summary_text(outcome.summary))
+            sys.stdout.flush()
+        except BrokenPipeError:  # `tdtp ... | head`: the reader has what it wanted
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     if interrupted:
         return EXIT_INTERRUPTED
     if outcome.failure is not None:

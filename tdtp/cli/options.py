@@ -11,9 +11,9 @@ from tdtp.cli.keys import (
     add_key_arguments,
 )
 from tdtp.cli.parser import CommandParser
-from tdtp.config import MAX_UDP_PAYLOAD, AckMode, ConnectionConfig
+from tdtp.config import MAX_PAYLOAD, AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
-from tdtp.control.registry import available_controllers
+from tdtp.control.registry import DEFAULT_CONTROLLER, available_controllers
 from tdtp.errors import (
     InvalidArgumentError,
 )
@@ -24,7 +24,8 @@ from tdtp.wire.header import HEADER_SIZE
 
 MAX_RATE = 100_000.0
 """The highest --rate: the rate controllers' ceiling (and far beyond any supermedia loop)."""
-MAX_SIZE = MAX_UDP_PAYLOAD - HEADER_SIZE
+MAX_SIZE = MAX_PAYLOAD
+"""The largest --size: the largest payload a session may carry (a keyed one has room for its tag)."""
 DEFAULT_MAX_PAYLOAD = ConnectionConfig().max_payload
 
 
@@ -107,9 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=100,
         help=f"payload bytes, {SAMPLE_SIZE}..{MAX_SIZE} (100)",
     )
-    common.add_argument("--duration", type=_duration, help="seconds to run")
     common.add_argument(
-        "--controller", default="trinomial", choices=available_controllers(), help="rate control"
+        "--duration", type=_duration, help="seconds to run (demo: 5; master, slave: until Ctrl-C)"
+    )
+    common.add_argument(
+        "--controller",
+        default=DEFAULT_CONTROLLER,
+        choices=available_controllers(),
+        help=f"rate control ({DEFAULT_CONTROLLER})",
     )
     common.add_argument(
         "--separate-acks",
@@ -142,10 +148,16 @@ def build_parser() -> argparse.ArgumentParser:
         "(the demo captures the master's socket; tools/wireshark/tdtp.lua decodes it)",
     )
     common.add_argument(
-        "--loop", choices=("auto", "uvloop", "asyncio"), default="auto", help="event loop"
+        "--loop",
+        choices=("auto", "uvloop", "asyncio"),
+        default="auto",
+        help="event loop (auto: uvloop when installed)",
     )
     common.add_argument(
-        "--timer", choices=("auto", "timerfd", "call_at"), default="auto", help="pacing timer"
+        "--timer",
+        choices=("auto", "timerfd", "call_at"),
+        default="auto",
+        help="pacing timer (auto: timerfd on Linux)",
     )
     netem = common.add_argument_group(
         "impairment", 'emulated in-process with tc-netem\'s syntax, e.g. "delay 20ms 5ms loss 2%"'
@@ -175,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--port", type=_integer(0, 65535), required=True, help="UDP port (0: any free port)"
     )
     slave.add_argument(
-        "--max-peers", type=_integer(1, 1 << 20), default=256, help="masters served at once"
+        "--max-peers", type=_integer(1, 1 << 20), default=256, help="masters served at once (256)"
     )
     add_key_arguments(slave)
     master = commands.add_parser("master", parents=[common], help="connect to a slave")
@@ -237,8 +249,13 @@ def session_config(args: argparse.Namespace) -> ConnectionConfig:
             encrypt=not getattr(args, "no_encrypt", False),
         )
     except InvalidArgumentError as exc:
-        option = str(exc).split(" ", 1)[0].replace("_", "-")
-        raise UsageError(f"--{option}: {exc}") from None
+        field = str(exc).split(" ", 1)[0]
+        option = _OPTION_OF_FIELD.get(field, "--" + field.replace("_", "-"))
+        raise UsageError(f"{option}: {exc}") from None
+
+
+_OPTION_OF_FIELD = {"max_payload": "--size", "min_peer_payload": "--size"}
+"""Configuration fields set from an option of another name."""
 
 
 def netem_directions(args: argparse.Namespace) -> tuple[NetemSpec | None, NetemSpec | None]:

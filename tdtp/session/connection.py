@@ -105,6 +105,8 @@ TIMER_GRANULARITY: Final = 0.001
 
 
 class State(enum.Enum):
+    """Where a :class:`Connection` is in its life: opening, established or closed."""
+
     IDLE = "idle"
     """A master that has not called :meth:`Connection.connect` yet."""
     LISTENING = "listening"

@@ -14,6 +14,9 @@ Address = tuple[Any, ...]
 
 
 class CloseCause(enum.Enum):
+    """Why a connection ended: the ``cause`` of :class:`ConnectionClosed` and of
+    :class:`~tdtp.errors.ConnectionClosedError`."""
+
     LOCAL_CLOSE = "local_close"
     """This side called :meth:`~tdtp.session.connection.Connection.close`."""
     PEER_CLOSE = "peer_close"

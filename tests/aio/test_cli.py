@@ -213,3 +213,15 @@ def test_the_cli_slave_keeps_serving_whatever_the_payload_bytes() -> None:
     assert session["task_error"] is None and "Traceback" not in err
     assert session["samples_received"] == sent  # loopback: every one arrived, none fatal
     assert session["samples_sent"] > 0
+
+
+def test_master_and_slave_print_text_unless_json_is_asked_for() -> None:
+    """Issue 20, item 9: the 89-line JSON came after the live display even without --json."""
+    done = subprocess.run(
+        [sys.executable, "-m", "tdtp", "slave", "--host", "127.0.0.1", "--port", "0",
+         "--duration", "0.3"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    last = done.stdout.strip().splitlines()[-1]
+    assert last == "served 0 master(s), refused 0" and "{" not in done.stdout
