@@ -63,11 +63,12 @@ class AdmissionConfig:
     """Seconds an address-validation cookie stays valid: longer than any RTT a master may have,
     short enough to bound how long a captured OPEN can be replayed from the master's address."""
     opens_per_source: float = 20.0
-    """OPENs per second one source host may send (a master retries every 0.25 s)."""
+    """OPENs without a valid cookie per second one source address (host and port) may send (a master
+    retries every 0.25 s); an OPEN with a valid cookie is not counted."""
     open_burst: int = 40
     """OPENs a source may send at once before its rate applies."""
     max_sources: int = 4096
-    """Sources whose OPEN rate is tracked (least recently seen forgotten first)."""
+    """Source addresses whose OPEN rate is tracked (least recently seen forgotten first)."""
     replies_per_second: float = 20_000.0
     """COOKIE and version-REJECT replies per second to unvalidated sources, all together: bounds the
     CPU a flood of OPENs from forged addresses costs (each reply is never larger than its OPEN)."""
