@@ -604,7 +604,7 @@ class Connection:
             if size < prefix + PROTECTION_OVERHEAD:
                 stats.count_drop(DropReason.TRUNCATED)
                 return
-            body = opener.open(data, prefix)
+            body = opener.open(data, prefix, now)
             if body is None:
                 self._on_unopened(opener, now)
                 return
