@@ -241,11 +241,11 @@ def test_an_empty_data_packet_is_never_sent_and_dropped_on_arrival() -> None:
     with pytest.raises(EmptyPayloadError, match="at least one byte"):
         pair.master.conn.send(b"", now=pair.now)
     delivered = slave.stats.samples_delivered
-    highest = slave._window.highest if slave._window is not None else None
+    highest = slave._acks.window.highest if slave._acks.window is not None else None
     # The next sequence number, acknowledging something the slave really sent: looks legitimate.
     master = pair.master.conn
     datagram = encode_header(PacketType.DATA, master._recovery.sent.next_seq, 0, 0, 255)
     pair.inject(datagram, to_slave=True, source=MASTER_ADDR)
     assert _drops(pair).get("empty_data") == 1
     assert slave.stats.samples_delivered == delivered
-    assert slave._window is not None and slave._window.highest == highest  # no sequence consumed
+    assert slave._acks.window is not None and slave._acks.window.highest == highest  # no sequence consumed

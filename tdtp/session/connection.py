@@ -11,8 +11,10 @@ The watchdog's reactions live here too: nothing heard from the peer for ``silenc
 :class:`~tdtp.session.events.PeerSilent` event, the next datagram a :class:`~tdtp.session.events.PeerResumed`, and the
 connection survives the outage until ``idle_timeout`` (docs/PROTOCOL.md section 5.2).
 
-:class:`Connection` holds the session's state machine, its receive and send paths and the packet
-protection they apply; the pieces with state of their own live beside it, each owning that state:
+:class:`Connection` holds the session's state machine: it checks the caller's input against the state,
+takes every datagram in (address, size, packet protection, type) and dispatches it, and carries out
+what the opening and the watchdog decide. The pieces with state of their own live beside it, each
+owning that state and importing nothing of the connection:
 
 * :mod:`tdtp.session.handshake`: the opening (nonces, the keyed / cipher choice, cookie, OPEN retries),
   the OPEN and OPEN_ACK messages, the derivation of the session's keys;
@@ -20,7 +22,11 @@ protection they apply; the pieces with state of their own live beside it, each o
   and idle deadlines;
 * :mod:`tdtp.session.recovery`: the sent log, RTT and loss-rate estimators, loss detection, and the
   feedback that turns an acknowledgement into the controller's ``on_ack`` and ``on_loss_event``;
-* :mod:`tdtp.session.event_queue`: the bounded queue of events for the application.
+* :mod:`tdtp.session.ack_scheduler`: the receive window and the acknowledgements owed to the peer;
+* :mod:`tdtp.session.sender`: the newest sample waiting for the pacer or the socket, and its departure;
+* :mod:`tdtp.session.outbox`: the framing, sealing and counting of what leaves, the control queue;
+* :mod:`tdtp.session.event_queue`: the bounded queue of events for the application;
+* :mod:`tdtp.session.timer_hint`: the bound on moved deadlines they all lower (:attr:`Connection.timer_hint`).
 
 Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
 ``stats.drops`` by reason. Misuse by the caller raises a :class:`~tdtp.errors.TdtpError` subclass.
@@ -31,24 +37,17 @@ from __future__ import annotations
 import enum
 import math
 import random
-from collections import deque
 from collections.abc import Callable
 from typing import Final
 
-from tdtp.admission.admission import Admission, AdmittedOpen, Reply
+from tdtp.admission.admission import Admission, AdmittedOpen
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.base import RateController
 from tdtp.control.registry import create_controller
-from tdtp.errors import (
-    ArgumentTypeError,
-    ConnectionClosedError,
-    ConnectionStateError,
-    EmptyPayloadError,
-    PayloadTooLargeError,
-    PayloadTypeError,
-)
+from tdtp.errors import ArgumentTypeError, ConnectionClosedError, ConnectionStateError
 from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey
-from tdtp.protection.packet_protection import PacketOpener, PacketSealer
+from tdtp.protection.packet_protection import PacketOpener
+from tdtp.session.ack_scheduler import AckScheduler
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import (
     Address,
@@ -60,37 +59,31 @@ from tdtp.session.events import (
     PeerSilent,
     new_data_received,
 )
-from tdtp.session.handshake import Handshake, close_reason_text
+from tdtp.session.handshake import Handshake, Reaction, close_reason_text
 from tdtp.session.liveness import Liveness
 from tdtp.session.outbox import Outbox
-from tdtp.session.receive_window import Arrival, ReceiveWindow
+from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
+from tdtp.session.sender import SampleSender
 from tdtp.session.stats import ConnectionStats, DropReason
+from tdtp.session.timer_hint import TimerHint
 from tdtp.wire.control import (
     HANDSHAKE_CODES,
     OPEN_BODY_SIZE,
-    PROTOCOL_VERSION,
     CloseBody,
     CloseReason,
-    ControlCode,
-    CookieBody,
-    KeepaliveBody,
-    OpenAckBody,
-    OpenBody,
     OpenFlags,
     decode_control,
 )
 from tdtp.wire.errors import MalformedPacketError
-from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header, encode_header
-from tdtp.wire.hold import HOLD_NO_ACK, encode_hold
+from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header
+from tdtp.wire.hold import HOLD_NO_ACK
 from tdtp.wire.protected import PROTECTION_OVERHEAD, TAG_SIZE
 from tdtp.wire.seqnum import SEQ_MODULUS
 
 _DATA: Final = int(PacketType.DATA)
 _ACK: Final = int(PacketType.ACK)
 _CONTROL: Final = int(PacketType.CONTROL)
-_NO_ACK: Final = (0, 0, HOLD_NO_ACK)
-_OPEN: Final = int(ControlCode.OPEN)
 _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 """The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
 ``max_payload`` is."""
@@ -137,50 +130,61 @@ class Connection:
         self.config = config = config if config is not None else ConnectionConfig()
         self.role = role
         rng = rng if rng is not None else random.SystemRandom()
-        self._handshake = Handshake(config, role, rng, key=key, keys=keys, admission=admission)
+        self._stats = stats = ConnectionStats()
+        self._liveness = liveness = Liveness(config)
+        self._outbox = outbox = Outbox(config, stats, liveness)
+        # Draws the nonces (and a slave's admission secret) from rng before the first sequence number.
+        self._handshake = Handshake(
+            config,
+            role,
+            rng,
+            key=key,
+            keys=keys,
+            admission=admission,
+            stats=stats,
+            outbox=outbox,
+            liveness=liveness,
+        )
         self._state = State.IDLE if role is Role.MASTER else State.LISTENING
         self._peer: Address | None = None
-        # The peer's packet protection, once keyed (Handshake.protection derives it; ours is the
-        # outbox's sealer).
+        # The peer's packet protection, once keyed (Handshake.keys; ours is the outbox's sealer).
         self._opener: PacketOpener | None = None
         self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
-        self._ack_mode = config.ack_mode
-        self._send_limit = config.max_payload
         # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
         self._size_limit = (
             HEADER_SIZE + max(config.max_payload, _LARGEST_CONTROL) + PROTECTION_OVERHEAD
         )
-        self._controller: RateController = create_controller(
+        self._controller = controller = create_controller(
             config.controller, config.controller_config
         )
         # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
-        self._controller.feedback_delay = config.ack_delay
-        self._controller.sample_waiting = False  # kept up to date below
-        self._stats = ConnectionStats()
-        self._liveness = Liveness(config)
-        self._recovery = LossRecovery(
+        controller.feedback_delay = config.ack_delay
+        controller.sample_waiting = False  # kept up to date by the sender
+        self._hint = hint = TimerHint(controller)
+        self._recovery = recovery = LossRecovery(
             rng.randrange(SEQ_MODULUS),
             config,
-            controller=self._controller,
-            stats=self._stats,
-            liveness=self._liveness,
+            controller=controller,
+            stats=stats,
+            liveness=liveness,
+            hint=hint,
         )
-        self._events = EventQueue(config.max_pending_events, self._stats)
-        self._outbox = Outbox(config, self._stats, self._liveness)
+        self._acks = acks = AckScheduler(config, stats=stats, hint=hint)
+        self._sender = SampleSender(
+            config,
+            controller=controller,
+            stats=stats,
+            recovery=recovery,
+            outbox=outbox,
+            acks=acks,
+            liveness=liveness,
+            hint=hint,
+        )
+        self._events = EventQueue(config.max_pending_events, stats)
         # The settings the per-packet paths read, copied out of the (plain Python) config once.
-        self._ack_delay = config.ack_delay
         self._max_payload = config.max_payload
         self._deliver_late = config.deliver_late
         self._deliver_duplicates = config.deliver_duplicates
-        self._plain_acks = config.plain_acks
-        self._hint = -math.inf  # see timer_hint
-        self._controller_timer: float | None = None  # the controller's deadline at get_timer()
-        self._transmit_errors = 0
-        self._window: ReceiveWindow | None = None
-        self._pending: bytes | None = None
-        self._pending_paced = False  # the pending sample had to wait for the pacer
-        self._separate_acks: deque[tuple[int, float]] = deque()
-        self._send_paused = False
         self._close_event: ConnectionClosed | None = None
 
     # ------------------------------------------------------------------ introspection
@@ -197,12 +201,12 @@ class Connection:
     @property
     def ack_mode(self) -> AckMode:
         """The mode in force: the master's choice, adopted by the slave at the open."""
-        return self._ack_mode
+        return self._acks.mode
 
     @property
     def max_send_payload(self) -> int:
         """The largest payload :meth:`send` accepts: the smaller of ours and the peer's maximum."""
-        return self._send_limit
+        return self._sender.limit
 
     @property
     def controller(self) -> RateController:
@@ -256,10 +260,7 @@ class Connection:
         does nothing and the timer is re-armed), needs :meth:`get_timer` only when ``timer_hint``
         is earlier than the armed deadline, instead of after every input. ``-math.inf`` means
         anything may have changed."""
-        # Loss recovery keeps its own bound for the deadlines it owns; the earlier one counts.
-        hint = self._hint
-        recovery = self._recovery.hint
-        return recovery if recovery < hint else hint
+        return self._hint.value
 
     @property
     def pending_events(self) -> int:
@@ -270,12 +271,12 @@ class Connection:
     def transmit_errors(self) -> int:
         """Datagrams whose ``transmit`` in :meth:`send_direct` raised :class:`OSError` (lost like
         any other)."""
-        return self._transmit_errors
+        return self._sender.transmit_errors
 
     @property
     def sending_paused(self) -> bool:
         """True between :meth:`pause_sending` and :meth:`resume_sending`."""
-        return self._send_paused
+        return self._sender.paused
 
     @property
     def stats(self) -> ConnectionStats:
@@ -307,7 +308,7 @@ class Connection:
             )
         self._peer = addr
         self._state = State.OPENING
-        self._hint = -math.inf
+        self._hint.value = -math.inf
         self._handshake.start(now)
         self._liveness.last_receive = now
 
@@ -326,41 +327,7 @@ class Connection:
             raise ConnectionStateError(
                 f"cannot send while {state.value}: wait for the ConnectionEstablished event"
             )
-        if type(payload) is not bytes:
-            payload = _as_payload(payload)
-        if not payload:
-            raise EmptyPayloadError(
-                "a sample must have at least one byte (TDTP sends no empty DATA packet; the "
-                "connection acknowledges and keeps itself alive on its own)"
-            )
-        if len(payload) > self._send_limit:
-            raise PayloadTooLargeError(
-                f"payload of {len(payload)} bytes exceeds the connection's maximum of "
-                f"{self._send_limit} bytes (the smaller of both ends' max_payload); send less "
-                "or raise max_payload on both ends"
-            )
-        stats = self._stats
-        stats.samples_offered += 1
-        if self._pending is not None:
-            stats.samples_superseded += 1
-            if self._send_paused:
-                stats.samples_blocked += 1
-            self._pending_paced = True
-        else:
-            controller = self._controller
-            due = controller.next_send_time()
-            if now < due:
-                # The controller may owe a settlement that brings the departure forward (trinomial
-                # settles an increase interval's end lazily while no sample waits): settle it, as
-                # its timer would have, before deciding that the pacer holds this sample.
-                controller.on_timer(now=now)
-                due = controller.next_send_time()
-            self._pending_paced = paced = now < due
-            if paced and due < self._hint:
-                self._hint = due  # the pacer's deadline for it
-            controller.sample_waiting = True
-            self._check_controller_timer()
-        self._pending = payload
+        self._sender.offer(payload, now)
 
     def send_direct(
         self,
@@ -380,78 +347,16 @@ class Connection:
         lost like any other. Returns False when it did not send: the sample is then offered as by
         :meth:`send`, and :meth:`datagrams_to_send` must run. Raises what :meth:`send` raises.
         """
-        if (
-            self._state is not State.ESTABLISHED
-            or type(payload) is not bytes
-            or self._send_paused
-            or self._outbox.control
-            or self._separate_acks
-            or not 0 < len(payload) <= self._send_limit
-            or now < self._controller.next_send_time()
-        ):
-            self.send(payload, now=now)
-            return False
-        window = self._window
-        assert window is not None  # ESTABLISHED implies it
-        if window.held:
-            self.send(payload, now=now)
-            return False
-        stats = self._stats
-        stats.samples_offered += 1
-        paced = False
-        if self._pending is not None:
-            # A held sample the pacer would let go now: the newer one wins.
-            stats.samples_superseded += 1
-            paced = True
-            self._pending = None
-            self._controller.sample_waiting = False
-        recovery = self._recovery
-        seq = recovery.sent.next_seq
-        if self._ack_mode is AckMode.BIDIRECTIONAL and window.has_data:
-            window.mark_reported()
-            header = encode_header(
-                _DATA,
-                seq,
-                window.highest,
-                window.sack_below(window.highest),
-                encode_hold(now - window.highest_arrival),
-            )
-        else:
-            header = encode_header(_DATA, seq, 0, 0, HOLD_NO_ACK)
-        outbox = self._outbox
-        sealer = outbox.sealer
-        datagram = header + payload if sealer is None else sealer.seal(header, payload)
         peer = self._peer
-        try:
-            transmit(datagram, None if connected else peer)
-        except OSError:
-            self._transmit_errors += 1
-        # Bookkeeping, after the datagram has left.
-        size = len(datagram)
-        recovery.on_sent(now, size)
-        controller = self._controller
-        controller.on_packet_sent(now=now, size=size, paced=paced)
-        counts = stats.sent
-        counts.data_packets += 1
-        counts.payload_bytes += len(payload)
-        counts.datagrams += 1
-        counts.bytes += size
-        counts.header_bytes += HEADER_SIZE
-        counts.protection_bytes += outbox.overhead
-        self._liveness.last_send = now
-        self._check_controller_timer()
+        if self._state is not State.ESTABLISHED or peer is None:
+            self.send(payload, now=now)
+            return False
+        if not self._sender.send_direct(payload, transmit, peer, connected, now):
+            return False
+        sealer = self._outbox.sealer
         if sealer is not None and sealer.exhausted:
             self._exhausted()
         return True
-
-    def _check_controller_timer(self) -> None:
-        """After a controller hook: lower :attr:`timer_hint` if the controller's deadline moved
-        earlier than get_timer() last saw it."""
-        deadline = self._controller.get_timer()
-        if deadline is not None and deadline < self._hint:
-            seen = self._controller_timer
-            if seen is None or deadline < seen:
-                self._hint = deadline
 
     def _exhausted(self) -> None:
         self._terminate(
@@ -467,14 +372,11 @@ class Connection:
         Acknowledgements and control packets still go out. Call :meth:`resume_sending` when the
         buffer has drained, then :meth:`datagrams_to_send`.
         """
-        if not self._send_paused:
-            self._send_paused = True
-            self._stats.send_pauses += 1
+        self._sender.pause()
 
     def resume_sending(self) -> None:
         """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
-        self._send_paused = False
-        self._hint = -math.inf
+        self._sender.resume()
 
     def close(self, *, now: float) -> None:
         """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`."""
@@ -494,7 +396,7 @@ class Connection:
                 f"{self._state.value}); create a new Connection for each master"
             )
         self._stats.datagrams_in += 1
-        self._hint = -math.inf
+        self._hint.value = -math.inf
         self._open_session(admitted, addr, now)
 
     def next_event(self) -> Event | None:
@@ -597,11 +499,11 @@ class Connection:
         stats.longest_silence = max(stats.longest_silence, silent_for)
         self._push_watchdog_event(PeerResumed(silent_for, now))
         self._controller.on_peer_resumed(now=now, silent_for=silent_for)
-        self._hint = -math.inf  # the watchdog's deadline is silence_timeout again, not idle
+        self._hint.value = -math.inf  # the watchdog's deadline is silence_timeout again, not idle
 
     def _on_data(self, data: bytes, seq: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
-        window = self._window
+        window = self._acks.window
         if self._state is not State.ESTABLISHED or window is None:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
@@ -616,28 +518,12 @@ class Connection:
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)
             return
-        quiet = window.unreported_since is None
-        arrival = window.classify(seq, now)
-        if window.held:
-            self._hint = -math.inf  # an ACK is due at once
-        elif quiet and window.unreported_since is not None:
-            due = now + self._ack_delay  # an ACK is due by then
-            if due < self._hint:
-                self._hint = due
-        if arrival is Arrival.NEW:
-            stats.peer_gaps += window.last_gap
-            if self._ack_mode is AckMode.SEPARATE:
-                self._separate_acks.append((window.last_seq, now))
-                self._hint = -math.inf
-        elif arrival is Arrival.STALE:
-            self._heard(now)
-            stats.count_drop(DropReason.STALE)
-            return
-        else:
-            if self._ack_mode is AckMode.SEPARATE and arrival is not Arrival.DUPLICATE:
-                # Trinomial acknowledges every arrival, whether or not the sample is delivered.
-                self._separate_acks.append((window.last_seq, now))
-                self._hint = -math.inf
+        arrival = self._acks.on_arrival(window, seq, now)
+        if arrival is not Arrival.NEW:
+            if arrival is Arrival.STALE:
+                self._heard(now)
+                stats.count_drop(DropReason.STALE)
+                return
             if arrival is Arrival.LATE:
                 stats.reordered += 1
                 if not self._deliver_late:
@@ -683,9 +569,10 @@ class Connection:
         never sent."""
         newly = self._recovery.on_feedback(ack, sack, hold, now)
         if newly > 0:
-            if self._pending is not None:
-                self._hint = -math.inf  # a new rate may let the held sample go earlier
-            self._check_controller_timer()
+            hint = self._hint
+            if self._sender.pending is not None:
+                hint.value = -math.inf  # a new rate may let the held sample go earlier
+            hint.check_controller()
         return newly >= 0
 
     def _on_session_control(
@@ -705,7 +592,8 @@ class Connection:
             ):
                 stats.count_drop(DropReason.NONCE_MISMATCH)
                 return
-            self._accept_control(size, now)
+            self._accept(size, size - HEADER_SIZE, now)
+            stats.received.control_packets += 1
             self._terminate(CloseCause.PEER_CLOSE, close_reason_text(body.reason))
             return
         # KEEPALIVE
@@ -715,98 +603,45 @@ class Connection:
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)
             return
-        self._accept_control(size, now)
-
-    def _accept_control(self, size: int, now: float) -> None:
         self._accept(size, size - HEADER_SIZE, now)
-        self._stats.received.control_packets += 1
-
-    def _accept_handshake(self, size: int, now: float, tag: int = 0, *, alive: bool = True) -> None:
-        """Count a handshake message taken in; ``tag`` is the bytes of its tag (keyed OPEN and
-        OPEN_ACK), counted as protection. ``alive``: it shows the peer is there (refreshes the idle
-        timer)."""
-        received = self._stats.received
-        received.datagrams += 1
-        received.bytes += size
-        received.header_bytes += HEADER_SIZE
-        received.payload_bytes += size - HEADER_SIZE - tag
-        received.protection_bytes += tag
-        received.control_packets += 1
-        if alive:
-            self._heard(now)
+        stats.received.control_packets += 1
 
     # ------------------------------------------------------------------ opening
 
     def _on_handshake(self, data: bytes, addr: Address, now: float) -> None:
-        """OPEN, OPEN_ACK, COOKIE or REJECT: the messages whose fields travel in the clear."""
-        self._hint = -math.inf  # the opening's timers may move
-        stats = self._stats
-        if self.role is Role.SLAVE:
-            if data[HEADER_SIZE] != _OPEN:
-                stats.count_drop(DropReason.UNEXPECTED_CONTROL)
-                return
-            self._on_open(data, addr, now)
-            return
-        try:
-            body = decode_control(data[HEADER_SIZE:])
-        except MalformedPacketError:
-            stats.count_drop(DropReason.BAD_CONTROL)
-            return
-        if isinstance(body, OpenBody | KeepaliveBody):
-            stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
-        elif body.nonce != self._handshake.master_nonce:
-            stats.count_drop(DropReason.NONCE_MISMATCH)
-        elif self._state is not State.OPENING:
-            if isinstance(body, OpenAckBody) and self._state is State.ESTABLISHED:
-                self._on_duplicate_open_ack(body, data, now)
-            else:
-                stats.count_drop(DropReason.UNEXPECTED_CONTROL)
-        elif isinstance(body, CookieBody):
-            if body.version != PROTOCOL_VERSION:
-                stats.count_drop(DropReason.UNKNOWN_VERSION)
-                return
-            self._accept_handshake(len(data), now)
-            self._handshake.on_cookie(body, now)
-        elif isinstance(body, OpenAckBody):
-            self._on_open_ack(body, data, now)
-        elif isinstance(body, CloseBody):  # REJECT
-            self._accept_handshake(len(data), now)
-            self._terminate(CloseCause.REJECTED, self._handshake.reject_text(body.reason))
-        else:  # pragma: no cover - decode_control returns one of the above for these codes
-            stats.count_drop(DropReason.BAD_CONTROL)
-
-    def _on_open(self, data: bytes, addr: Address, now: float) -> None:
-        """A slave's OPEN: through admission first (cookie, rate, key), then by state."""
-        stats = self._stats
+        """OPEN, OPEN_ACK, COOKIE or REJECT: the messages whose fields travel in the clear, read by
+        the handshake; what they change in the session happens here."""
+        self._hint.value = -math.inf  # the opening's timers may move
         handshake = self._handshake
-        admission = handshake.admission
-        assert admission is not None  # every slave has one
-        verdict = admission.admit(data, addr, now)
-        if isinstance(verdict, DropReason):
-            stats.count_drop(verdict)
-            return
-        if isinstance(verdict, Reply):
-            stats.count_drop(verdict.reason)
-            self._outbox.queue(verdict.datagram, addr, 0, False)
-            return
-        if self._state is State.LISTENING:
-            self._open_session(verdict, addr, now)
-        elif verdict.body.nonce == handshake.master_nonce:
-            # The master did not hear our OPEN_ACK: answer its retransmission again. Not a sign
-            # of life: a master sends OPENs only until it is established, so once the session is
-            # established this is a delayed duplicate or a replay (PROTOCOL.md 5.2).
-            self._accept_handshake(verdict.size, now, handshake.tag_size, alive=False)
-            self._queue_open_ack()
-        elif self._liveness.silent_longer_than_live(now, self._recovery.rtt.srtt):
-            # The same address opens anew and this session has been silent longer than a live
-            # master ever is (it sends at least a KEEPALIVE per interval): the master restarted.
-            # A live session is never replaced, so a replayed OPEN cannot end it.
-            stats.count_drop(DropReason.NONCE_MISMATCH)
-            self._terminate(
-                CloseCause.REPLACED, "the master opened a new connection from the same address"
+        state = self._state
+        if self.role is Role.SLAVE:
+            verdict = handshake.on_open(
+                data, addr, now, listening=state is State.LISTENING, srtt=self._recovery.rtt.srtt
             )
-        else:
-            stats.count_drop(DropReason.NONCE_MISMATCH)
+            if isinstance(verdict, AdmittedOpen):
+                self._open_session(verdict, addr, now)
+            elif verdict is Reaction.ANSWER_AGAIN:
+                self._queue_open_ack()
+            elif verdict is Reaction.REPLACED:
+                self._terminate(
+                    CloseCause.REPLACED, "the master opened a new connection from the same address"
+                )
+            return
+        reaction = handshake.on_reply(
+            data,
+            now,
+            opening=state is State.OPENING,
+            established=state is State.ESTABLISHED,
+            ack_mode=self._acks.mode,
+            opener=self._opener,
+        )
+        if reaction is Reaction.IGNORED:
+            return
+        self._heard(now)
+        if reaction is Reaction.REJECTED:
+            self._terminate(CloseCause.REJECTED, handshake.detail)
+        elif reaction is Reaction.OPENED:
+            self._on_opened(decode_header(data).seq, now)
 
     def _open_session(self, admitted: AdmittedOpen, addr: Address, now: float) -> None:
         """A listening slave takes the admitted OPEN: adopt its settings, answer OPEN_ACK, and wait
@@ -815,52 +650,36 @@ class Connection:
         handshake = self._handshake
         self._peer = addr
         handshake.adopt(admitted)
-        self._ack_mode = (
+        acks = self._acks
+        acks.mode = (
             AckMode.SEPARATE if body.flags & OpenFlags.SEPARATE_ACKS else AckMode.BIDIRECTIONAL
         )
-        self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = self._new_window(admitted.initial_seq)
-        if handshake.keyed:
-            self._install_protection(*handshake.protection())
-        self._accept_handshake(admitted.size, now, handshake.tag_size)
+        self._sender.limit = min(self.config.max_payload, body.max_payload)
+        acks.open(admitted.initial_seq)
+        self._install_protection()
+        self._stats.count_handshake(admitted.size, handshake.tag_size)
+        self._heard(now)
         self._state = State.OPENING
         handshake.confirming = True
         handshake.open_deadline = now + self.config.open_timeout
         self._liveness.last_send = now
         self._queue_open_ack()
 
-    def _install_protection(self, sealer: PacketSealer, opener: PacketOpener) -> None:
-        outbox = self._outbox
-        outbox.sealer = sealer
-        outbox.overhead = PROTECTION_OVERHEAD
-        self._opener = opener
-        self._overhead = PROTECTION_OVERHEAD
-
-    def _on_open_ack(self, body: OpenAckBody, data: bytes, now: float) -> None:
-        stats = self._stats
-        handshake = self._handshake
-        reason = handshake.check_open_ack(body, self._ack_mode)
-        if reason is not None:
-            stats.count_drop(reason)
-            return
-        handshake.slave_nonce = body.slave_nonce
-        if handshake.keyed:
-            sealer, opener = handshake.protection()
-            if not opener.verify_numbered(body.packet_number, data[:-TAG_SIZE], data[-TAG_SIZE:]):
-                stats.count_drop(DropReason(opener.failure))
-                return  # not the slave we opened towards: its keys are not installed
-            self._install_protection(sealer, opener)
-        self._accept_handshake(len(data), now, handshake.tag_size)
-        if body.max_payload < self.config.min_peer_payload:
+    def _on_opened(self, initial_seq: int, now: float) -> None:
+        """A master's OPEN_ACK (already counted): the session opens, unless the slave's payloads
+        are too small for us."""
+        self._install_protection()
+        peer_max_payload = self._handshake.peer_max_payload
+        if peer_max_payload < self.config.min_peer_payload:
             self._queue_close(CloseReason.PAYLOAD_TOO_SMALL, self._peer_address())
             self._terminate(
                 CloseCause.REJECTED,
-                f"the slave accepts payloads of at most {body.max_payload} bytes, smaller than "
+                f"the slave accepts payloads of at most {peer_max_payload} bytes, smaller than "
                 f"min_peer_payload ({self.config.min_peer_payload})",
             )
             return
-        self._send_limit = min(self.config.max_payload, body.max_payload)
-        self._window = self._new_window(decode_header(data).seq)
+        self._sender.limit = min(self.config.max_payload, peer_max_payload)
+        self._acks.open(initial_seq)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
@@ -868,33 +687,23 @@ class Connection:
         liveness = self._liveness
         liveness.last_send = now - 2.0 * liveness.keepalive
 
-    def _on_duplicate_open_ack(self, body: OpenAckBody, data: bytes, now: float) -> None:
-        """The slave answered a retransmitted OPEN again; our open is already done. In a keyed
-        session it must still authenticate (through the replay window) to count as a sign of life."""
-        opener = self._opener
-        if opener is not None and not opener.verify_numbered(
-            body.packet_number, data[:-TAG_SIZE], data[-TAG_SIZE:]
-        ):
-            self._stats.count_drop(DropReason(opener.failure))
+    def _install_protection(self) -> None:
+        """A keyed session's keys, derived at the open, protect every datagram from now on."""
+        keys = self._handshake.keys
+        if keys is None:
             return
-        self._accept_handshake(len(data), now, self._handshake.tag_size)
+        outbox = self._outbox
+        outbox.sealer, self._opener = keys
+        outbox.overhead = self._overhead = PROTECTION_OVERHEAD
 
     def _peer_address(self) -> Address:
         peer = self._peer
         assert peer is not None  # set by connect() or at the OPEN
         return peer
 
-    def _new_window(self, initial_seq: int) -> ReceiveWindow:
-        """The receive window for the peer's data from ``initial_seq``, in this session's ACK mode."""
-        return ReceiveWindow(
-            initial_seq,
-            coverage=self._ack_mode is AckMode.BIDIRECTIONAL,
-            silence_guard=self._liveness.silence,
-        )
-
     def _establish(self, now: float) -> None:
         self._state = State.ESTABLISHED
-        self._hint = -math.inf
+        self._hint.value = -math.inf
         self._handshake.confirming = False
         liveness = self._liveness
         liveness.last_receive = now
@@ -905,9 +714,8 @@ class Connection:
 
     def get_timer(self) -> float | None:
         """The next absolute time :meth:`handle_timer` (then :meth:`datagrams_to_send`) is due."""
-        self._hint = math.inf
-        recovery = self._recovery
-        recovery.hint = math.inf
+        hint = self._hint
+        hint.value = math.inf
         state = self._state
         if state is State.OPENING:
             handshake = self._handshake
@@ -916,37 +724,21 @@ class Connection:
             return min(handshake.open_next, handshake.open_deadline)
         if state is not State.ESTABLISHED:
             return None
-        # The watchdog until the peer is silent, then the outage limit; the keep-alive.
-        deadline = self._liveness.deadline()
-        controller = self._controller
-        if self._pending is not None and not self._send_paused:
-            candidate = controller.next_send_time()
-            if candidate < deadline:
-                deadline = candidate
-        window = self._window
-        if window is not None:
-            if self._ack_mode is AckMode.BIDIRECTIONAL:
-                since = window.unreported_since
-                if since is not None and since + self._ack_delay < deadline:
-                    deadline = since + self._ack_delay
-                if window.held and window.highest_arrival < deadline:
-                    deadline = window.highest_arrival  # due since the jump
-            elif self._separate_acks:
-                candidate = self._separate_acks[0][1]
-                if candidate < deadline:
-                    deadline = candidate
-        loss_deadline = recovery.loss_deadline()
+        # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
+        # for a waiting sample; the next ACK; the next loss; the controller's own.
+        deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
+        loss_deadline = self._recovery.loss_deadline()
         if loss_deadline is not None and loss_deadline < deadline:
             deadline = loss_deadline
-        controller_deadline = controller.get_timer()
-        self._controller_timer = controller_deadline
+        controller_deadline = self._controller.get_timer()
+        hint.controller_seen = controller_deadline
         if controller_deadline is not None and controller_deadline < deadline:
             deadline = controller_deadline
         return deadline
 
     def handle_timer(self, *, now: float) -> None:
         """Act on whatever is due at ``now``. Calling it early or late is harmless."""
-        self._hint = -math.inf
+        self._hint.value = -math.inf
         state = self._state
         if state is State.OPENING:
             if now >= self._handshake.open_deadline:
@@ -993,47 +785,15 @@ class Connection:
             return out
         peer = self._peer
         assert peer is not None  # ESTABLISHED implies it
-        window = self._window
-        assert window is not None
         sent = self._recovery.sent
-        bidirectional = self._ack_mode is AckMode.BIDIRECTIONAL
-        if bidirectional and window.held:
-            # The jump rule (section 3.2): report what a newer packet put out of reach, first.
-            for held in window.take_held():
-                hold = encode_hold(now - held.arrival)
-                outbox.emit_ack(out, sent.next_seq, held.ack, held.sack, hold, peer, now)
-        payload = self._pending
-        if (
-            payload is not None
-            and not self._send_paused
-            and now >= self._controller.next_send_time()
-        ):
-            self._pending = None
-            self._controller.sample_waiting = False
-            ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
-            datagram = outbox.protect(encode_header(_DATA, sent.next_seq, ack, sack, hold), payload)
-            size = len(datagram)
-            self._recovery.on_sent(now, size)
-            self._controller.on_packet_sent(now=now, size=size, paced=self._pending_paced)
-            outbox.emit_data(out, datagram, len(payload), peer, now)
-            self._check_controller_timer()
-        if bidirectional:
-            if window.unreported_since is not None and (
-                now >= window.unreported_since + self._ack_delay or window.coverage_exhausted()
-            ):
-                ack, sack, hold = self._piggyback(window, now)
-                outbox.emit_ack(out, sent.next_seq, ack, sack, hold, peer, now)
-        else:
-            acks = self._separate_acks
-            plain = self._plain_acks
-            while acks:
-                seq, arrival = acks.popleft()
-                sack = 0 if plain else window.sack_below(seq)  # plain: this packet only
-                outbox.emit_ack(
-                    out, sent.next_seq, seq, sack, encode_hold(now - arrival), peer, now
-                )
+        acks = self._acks
+        acks.emit_held(out, outbox, sent.next_seq, peer, now)  # before the sample: the jump rule
+        self._sender.take_due(out, peer, now)
+        acks.emit_due(out, outbox, sent.next_seq, peer, now)
         if self._liveness.keepalive_due(now):
-            ack, sack, hold = self._piggyback(window, now) if bidirectional else _NO_ACK
+            window = acks.window
+            assert window is not None
+            ack, sack, hold = acks.piggyback(window, now)
             outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, peer, now)
         sealer = outbox.sealer
         if sealer is not None and sealer.exhausted:
@@ -1042,7 +802,7 @@ class Connection:
 
     def _emit_open(self, out: list[tuple[bytes, Address]], now: float) -> None:
         handshake = self._handshake
-        datagram = handshake.next_open(self._recovery.sent.next_seq, self._ack_mode)
+        datagram = handshake.next_open(self._recovery.sent.next_seq, self._acks.mode)
         if datagram is None:
             self._terminate(CloseCause.OPEN_TIMEOUT, "no answer to 65536 OPENs")
             return
@@ -1050,23 +810,13 @@ class Connection:
             out, datagram, self._peer_address(), now, handshake.tag_size, True
         )
 
-    def _piggyback(self, window: ReceiveWindow, now: float) -> tuple[int, int, int]:
-        """ACK fields reporting the newest peer data (or none before any arrived)."""
-        if not window.has_data:
-            return _NO_ACK
-        window.mark_reported()
-        return (
-            window.highest,
-            window.sack_below(window.highest),
-            encode_hold(now - window.highest_arrival),
-        )
-
     # ------------------------------------------------------------------ helpers
 
     def _queue_open_ack(self) -> None:
         handshake = self._handshake
         outbox = self._outbox
-        datagram = handshake.open_ack(self._recovery.sent.next_seq, self._ack_mode, outbox.sealer)
+        seq = self._recovery.sent.next_seq
+        datagram = handshake.open_ack(seq, self._acks.mode, outbox.sealer)
         outbox.queue(datagram, self._peer_address(), handshake.tag_size, True)
 
     def _queue_close(self, reason: CloseReason, addr: Address) -> None:
@@ -1076,29 +826,18 @@ class Connection:
 
     def _terminate(self, cause: CloseCause, detail: str) -> None:
         self._state = State.CLOSED
-        self._hint = -math.inf
+        self._hint.value = -math.inf
         self._handshake.confirming = False
-        self._pending = None
-        self._controller.sample_waiting = False
-        self._separate_acks.clear()
+        self._sender.drop()
+        self._acks.separate.clear()
         self._close_event = event = ConnectionClosed(cause, detail)
         self._push_other_event(event)
 
     def _push_other_event(self, event: Event) -> None:
         self._events.push(event)
-        self._hint = -math.inf
+        self._hint.value = -math.inf
 
     def _push_watchdog_event(self, event: PeerSilent | PeerResumed) -> None:
         """Watchdog events share the ``max_pending_events`` bound (EventQueue.push_watchdog)."""
         self._events.push_watchdog(event)
-        self._hint = -math.inf
-
-
-def _as_payload(payload: object) -> bytes:
-    if isinstance(payload, bytes | bytearray | memoryview):
-        return bytes(payload)
-    hint = "; encode text first, e.g. text.encode()" if isinstance(payload, str) else ""
-    raise PayloadTypeError(
-        "a sample must be bytes-like (bytes, bytearray or memoryview), got "
-        f"{type(payload).__name__}{hint}"
-    )
+        self._hint.value = -math.inf

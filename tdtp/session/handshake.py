@@ -8,42 +8,73 @@ and waits for the master's first packet of the session to confirm it (docs/PROTO
 connection's identifier on control packets), builds both messages, checks an OPEN_ACK against what we
 asked for, and derives the session's packet protection from the pre-shared key and both nonces.
 
-Which state the connection is in, and what each answer sets off (the receive window, the events,
-the statistics), stays in :class:`~tdtp.session.connection.Connection`: this class never reaches back.
+It also reads the opening messages that arrive: a master's COOKIE, OPEN_ACK and REJECT, a slave's
+OPENs (through admission), counting each in the statistics and queueing the answers that need no
+state change (a COOKIE or REJECT for an OPEN not admitted, an OPEN_ACK again). What a message changes
+in the session (its state, the receive window, the events) it reports as a :class:`Reaction` for
+:class:`~tdtp.session.connection.Connection` to carry out: this class never reaches back.
 """
 
 from __future__ import annotations
 
+import enum
 import math
 import random
 
-from tdtp.admission.admission import Admission, AdmittedOpen
+from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.errors import InvalidKeyError
 from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
 from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey, as_key, as_key_ring
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
-from tdtp.session.stats import DropReason
+from tdtp.session.events import Address
+from tdtp.session.liveness import Liveness
+from tdtp.session.outbox import Outbox
+from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.wire.control import (
     NO_COOKIE,
     NO_KEY_ID,
     NONCE_SIZE,
     PROTOCOL_VERSION,
     CipherSuite,
+    CloseBody,
     CloseReason,
+    ControlCode,
     CookieBody,
+    KeepaliveBody,
     OpenAckBody,
     OpenBody,
     OpenFlags,
+    decode_control,
     encode_open,
     encode_open_ack,
 )
-from tdtp.wire.header import PacketType, encode_header
+from tdtp.wire.errors import MalformedPacketError
+from tdtp.wire.header import HEADER_SIZE, PacketType, encode_header
 from tdtp.wire.hold import HOLD_NO_ACK
 from tdtp.wire.protected import TAG_SIZE
 
 _CONTROL = int(PacketType.CONTROL)
+_OPEN = int(ControlCode.OPEN)
 _MAX_OPEN_ATTEMPT = 0xFFFF  # the OPEN tag's nonce counter must never repeat
+
+
+class Reaction(enum.Enum):
+    """What an opening message asks of the connection (it has been counted already)."""
+
+    IGNORED = "ignored"
+    """Dropped (counted by reason), or answered from here: nothing changes."""
+    HEARD = "heard"
+    """Taken in (a COOKIE, an OPEN_ACK again): a sign of life from the peer."""
+    REJECTED = "rejected"
+    """The slave refused us: a sign of life, then the end (:attr:`Handshake.detail` says why)."""
+    OPENED = "opened"
+    """A valid OPEN_ACK: a sign of life; the session opens (:attr:`Handshake.peer_max_payload`,
+    :attr:`Handshake.keys`)."""
+    ANSWER_AGAIN = "answer again"
+    """A slave's master resent its OPEN (counted, not a sign of life): send the OPEN_ACK again."""
+    REPLACED = "replaced"
+    """A slave's master restarted from the same address: this session ends."""
 
 
 class Handshake:
@@ -62,8 +93,14 @@ class Handshake:
         key: KeyInput | None,
         keys: KeysInput | None,
         admission: Admission | None,
+        stats: ConnectionStats,
+        outbox: Outbox,
+        liveness: Liveness,
     ) -> None:
         self._config = config
+        self._stats = stats
+        self._outbox = outbox
+        self._liveness = liveness
         self.key: PresharedKey | None = None
         self.admission: Admission | None = None
         if role is Role.MASTER:
@@ -98,6 +135,12 @@ class Handshake:
         self.open_deadline = 0.0
         self.open_next = 0.0
         """A master's next OPEN (re)transmission."""
+        self.keys: tuple[PacketSealer, PacketOpener] | None = None
+        """A keyed session's packet protection, ours and the peer's, once derived at the open."""
+        self.peer_max_payload = 0
+        """The largest payload the slave sends, from its OPEN_ACK (a master's)."""
+        self.detail = ""
+        """Why the slave refused us (:attr:`Reaction.REJECTED`)."""
         self._open_tagger: Direction | None = None  # a keyed master's OPEN key
         self._cookie = NO_COOKIE
         self._cookie_answered_at = -math.inf
@@ -158,26 +201,88 @@ class Handshake:
             datagram += tagger.tag(attempt, datagram)
         return datagram
 
-    def on_cookie(self, body: CookieBody, now: float) -> None:
+    def on_reply(
+        self,
+        data: bytes,
+        now: float,
+        *,
+        opening: bool,
+        established: bool,
+        ack_mode: AckMode,
+        opener: PacketOpener | None,
+    ) -> Reaction:
+        """A COOKIE, OPEN_ACK or REJECT for a master (``opener``: the session's, once keyed)."""
+        stats = self._stats
+        try:
+            body = decode_control(data[HEADER_SIZE:])
+        except MalformedPacketError:
+            stats.count_drop(DropReason.BAD_CONTROL)
+            return Reaction.IGNORED
+        if isinstance(body, OpenBody | KeepaliveBody):
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
+        elif body.nonce != self.master_nonce:
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+        elif not opening:
+            if isinstance(body, OpenAckBody) and established:
+                # The slave answered a retransmitted OPEN again; our open is already done. In a
+                # keyed session it must still authenticate (through the replay window) to count
+                # as a sign of life.
+                if opener is not None and not opener.verify_numbered(
+                    body.packet_number, data[:-TAG_SIZE], data[-TAG_SIZE:]
+                ):
+                    stats.count_drop(DropReason(opener.failure))
+                    return Reaction.IGNORED
+                stats.count_handshake(len(data), self.tag_size)
+                return Reaction.HEARD
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+        elif isinstance(body, CookieBody):
+            return self._on_cookie(body, len(data), now)
+        elif isinstance(body, OpenAckBody):
+            return self._on_open_ack(body, data, ack_mode)
+        elif isinstance(body, CloseBody):  # REJECT
+            stats.count_handshake(len(data), 0)
+            self.detail = self.reject_text(body.reason)
+            return Reaction.REJECTED
+        else:  # pragma: no cover - decode_control returns one of the above for these codes
+            stats.count_drop(DropReason.BAD_CONTROL)
+        return Reaction.IGNORED
+
+    def _on_cookie(self, body: CookieBody, size: int, now: float) -> Reaction:
         """The slave wants proof that we receive at our address: echo its cookie in the OPEN, at
         once, but at most once per retry interval (COOKIEs cannot make us flood)."""
+        if body.version != PROTOCOL_VERSION:
+            self._stats.count_drop(DropReason.UNKNOWN_VERSION)
+            return Reaction.IGNORED
+        self._stats.count_handshake(size, 0)
         self._cookie = body.cookie
         if now >= self._cookie_answered_at + self._config.open_retry_interval:
             self._cookie_answered_at = now
             self.open_next = now
+        return Reaction.HEARD
 
-    def check_open_ack(self, body: OpenAckBody, ack_mode: AckMode) -> DropReason | None:
-        """Why an OPEN_ACK does not answer our OPEN, else ``None`` (its tag is checked with the
-        session's keys, :meth:`protection`, once the slave's nonce is adopted)."""
+    def _on_open_ack(self, body: OpenAckBody, data: bytes, ack_mode: AckMode) -> Reaction:
+        stats = self._stats
         if body.version != PROTOCOL_VERSION:
-            return DropReason.UNKNOWN_VERSION
+            stats.count_drop(DropReason.UNKNOWN_VERSION)
+            return Reaction.IGNORED
         if (
             body.max_payload == 0
             or body.flags != self.open_flags(ack_mode)
             or body.suite != self.suite
         ):
-            return DropReason.BAD_CONTROL
-        return None
+            stats.count_drop(DropReason.BAD_CONTROL)
+            return Reaction.IGNORED
+        self.slave_nonce = body.slave_nonce
+        if self.keyed:
+            keys = self.protection()
+            opener = keys[1]
+            if not opener.verify_numbered(body.packet_number, data[:-TAG_SIZE], data[-TAG_SIZE:]):
+                stats.count_drop(DropReason(opener.failure))
+                return Reaction.IGNORED  # not the slave we opened towards
+            self.keys = keys
+        stats.count_handshake(len(data), self.tag_size)
+        self.peer_max_payload = body.max_payload
+        return Reaction.OPENED
 
     def reject_text(self, reason: int) -> str:
         """Why the slave refused us, in words a user can act on."""
@@ -197,8 +302,44 @@ class Handshake:
 
     # ------------------------------------------------------------------ slave
 
+    def on_open(
+        self, data: bytes, addr: Address, now: float, *, listening: bool, srtt: float
+    ) -> AdmittedOpen | Reaction:
+        """A message for a slave: an OPEN goes through admission first (cookie, rate, key), then by
+        state. Returns the admitted OPEN of a new master for a ``listening`` slave."""
+        stats = self._stats
+        if data[HEADER_SIZE] != _OPEN:
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            return Reaction.IGNORED
+        admission = self.admission
+        assert admission is not None  # every slave has one
+        verdict = admission.admit(data, addr, now)
+        if isinstance(verdict, DropReason):
+            stats.count_drop(verdict)
+            return Reaction.IGNORED
+        if isinstance(verdict, Reply):
+            stats.count_drop(verdict.reason)
+            self._outbox.queue(verdict.datagram, addr, 0, False)
+            return Reaction.IGNORED
+        if listening:
+            return verdict
+        if verdict.body.nonce == self.master_nonce:
+            # The master did not hear our OPEN_ACK: answer its retransmission again. Not a sign
+            # of life: a master sends OPENs only until it is established, so once the session is
+            # established this is a delayed duplicate or a replay (PROTOCOL.md 5.2).
+            stats.count_handshake(verdict.size, self.tag_size)
+            return Reaction.ANSWER_AGAIN
+        stats.count_drop(DropReason.NONCE_MISMATCH)
+        if self._liveness.silent_longer_than_live(now, srtt):
+            # The same address opens anew and this session has been silent longer than a live
+            # master ever is (it sends at least a KEEPALIVE per interval): the master restarted.
+            # A live session is never replaced, so a replayed OPEN cannot end it.
+            return Reaction.REPLACED
+        return Reaction.IGNORED
+
     def adopt(self, admitted: AdmittedOpen) -> None:
-        """A listening slave takes the master's choices from its admitted OPEN."""
+        """A listening slave takes the master's choices from its admitted OPEN (and, keyed, derives
+        the session's :attr:`keys`)."""
         body = admitted.body
         self.master_nonce = body.nonce
         if admitted.key is not None:
@@ -206,6 +347,7 @@ class Handshake:
             self.keyed = True
             self.encrypt = bool(body.flags & OpenFlags.ENCRYPTED)
             self.suite = CipherSuite(body.suite)
+            self.keys = self.protection()
 
     def open_ack(self, seq: int, ack_mode: AckMode, sealer: PacketSealer | None) -> bytes:
         """The OPEN_ACK answering the master's OPEN (tagged with the session's key if keyed)."""

@@ -10,8 +10,8 @@ about it through ``on_ack`` and ``on_loss_event``.
 
 :class:`LossRecovery` owns all of that state. It reads the watchdog's outage from
 :class:`~tdtp.session.liveness.Liveness` (packets sent into a silent path are lost together, one loss
-event per outage) and reports which of its deadlines moved in :attr:`LossRecovery.hint`, which the
-connection folds into its ``timer_hint``.
+event per outage) and lowers the session's :class:`~tdtp.session.timer_hint.TimerHint` when a loss
+deadline moves earlier.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from tdtp.session.loss_rate import LossIntervalEstimator
 from tdtp.session.rtt import RttEstimator
 from tdtp.session.sent_log import LostPacket, SentPacketLog
 from tdtp.session.stats import ConnectionStats
+from tdtp.session.timer_hint import TimerHint
 from tdtp.wire.hold import decode_hold
 
 LOSS_DELAY_SRTT: Final = 1.2
@@ -45,6 +46,7 @@ class LossRecovery:
         controller: RateController,
         stats: ConnectionStats,
         liveness: Liveness,
+        hint: TimerHint,
     ) -> None:
         self.sent = SentPacketLog(
             first_seq,
@@ -56,9 +58,7 @@ class LossRecovery:
         self._ack_delay = config.ack_delay
         self.loss_delay = self._compute_loss_delay()
         """How long a packet reported absent may still turn up, as of the last RTT sample."""
-        self.hint = -math.inf
-        """No deadline of this object moved earlier than this since the connection's get_timer()
-        reset it to ``math.inf`` (see Connection.timer_hint)."""
+        self._hint = hint
         self._lost: list[LostPacket] = []  # reused: filled by the sent log, emptied by _on_losses
         self._controller = controller
         self._stats = stats
@@ -92,12 +92,13 @@ class LossRecovery:
             if delay < self.loss_delay:
                 # A shorter loss delay brings a pending loss deadline forward.
                 due = sent.loss_deadline(delay)
-                if due is not None and due < self.hint:
-                    self.hint = due
+                hint = self._hint
+                if due is not None and due < hint.value:
+                    hint.value = due
             self.loss_delay = delay
         if sent.marked_missing:
             sent.marked_missing = False
-            self.hint = -math.inf  # a loss deadline may be due earlier
+            self._hint.value = -math.inf  # a loss deadline may be due earlier
         lost = self._lost
         sent.detect_losses(now, self.loss_delay, lost)
         if lost:
@@ -150,7 +151,7 @@ class LossRecovery:
                         now=now, srtt=srtt, loss_event_rate=estimator.loss_event_rate
                     )
         lost.clear()
-        self.hint = -math.inf
+        self._hint.value = -math.inf
 
     def _compute_loss_delay(self) -> float:
         """How long a packet reported absent may still turn up (RAP's timeout, mu 1.2 and phi 4).
