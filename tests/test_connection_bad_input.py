@@ -248,4 +248,5 @@ def test_an_empty_data_packet_is_never_sent_and_dropped_on_arrival() -> None:
     pair.inject(datagram, to_slave=True, source=MASTER_ADDR)
     assert _drops(pair).get("empty_data") == 1
     assert slave.stats.samples_delivered == delivered
-    assert slave._acks.window is not None and slave._acks.window.highest == highest  # no sequence consumed
+    window = slave._acks.window
+    assert window is not None and window.highest == highest  # no sequence consumed
