@@ -271,7 +271,7 @@ def test_a_master_opens_in_one_cookie_round_trip_while_forged_opens_flood_the_sl
         flood()
     assert pair.master.conn.state is State.ESTABLISHED
     assert pair.now - start == pytest.approx(0.040, abs=0.0011)
-    assert pair.master.conn._open_attempt == 2
+    assert pair.master.conn._handshake.open_attempt == 2
     admission = pair.slave.conn.admission
     assert admission is not None and admission.stats.cookies_sent > 400
 

@@ -7,6 +7,8 @@ import logging
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from tdtp.wire.header import HEADER_SIZE
+
 _logger = logging.getLogger("tdtp")
 
 
@@ -128,6 +130,17 @@ class ConnectionStats:
     @property
     def dropped(self) -> int:
         return sum(self.drops.values())
+
+    def count_handshake(self, size: int, tag: int) -> None:
+        """A handshake message taken in: ``size`` bytes, the last ``tag`` of them its tag (a keyed
+        OPEN or OPEN_ACK), counted as protection."""
+        received = self.received
+        received.datagrams += 1
+        received.bytes += size
+        received.header_bytes += HEADER_SIZE
+        received.payload_bytes += size - HEADER_SIZE - tag
+        received.protection_bytes += tag
+        received.control_packets += 1
 
     def count_drop(self, reason: DropReason) -> None:
         key = reason.value
