@@ -30,6 +30,8 @@ KEEPALIVE_PER_SILENCE = 3
 
 
 class Role(enum.Enum):
+    """Which end of a session a connection is: the master opens it, the slave accepts it."""
+
     MASTER = "master"
     """Opens the connection (the operator's side: joystick, haptic device)."""
     SLAVE = "slave"
@@ -37,6 +39,8 @@ class Role(enum.Enum):
 
 
 class AckMode(enum.Enum):
+    """How acknowledgements travel: piggybacked on reverse samples (TDTP), or one ACK per packet."""
+
     BIDIRECTIONAL = "bidirectional"
     """TDTP: acknowledgements ride in the reverse data packets."""
     SEPARATE = "separate"

@@ -204,8 +204,16 @@ def summary_text(summary: dict[str, Any]) -> str:
             if session.get("task_error"):
                 lines.append(f"  failed: {session['task_error']}")
         return "\n".join(lines)
-    return "\n".join(
+    lines = [
         direction_line(label, summary[key])
         for key, label in (("master_to_slave", "M->S"), ("slave_to_master", "S->M"))
         if key in summary
-    )
+    ]
+    if "peer_silences" in summary:
+        close = summary.get("close")
+        ended = "open at the end" if close is None else f"closed ({close['cause']})"
+        lines.append(
+            f"session {ended}, slave silent {summary['peer_silences']} time(s), longest "
+            f"{summary['longest_silence_s']:.1f} s"
+        )
+    return "\n".join(lines)

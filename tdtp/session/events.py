@@ -37,6 +37,8 @@ class CloseCause(enum.Enum):
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
 @dataclass(frozen=True, slots=True)
 class ConnectionEstablished:
+    """The opening handshake completed: samples may flow to and from :attr:`peer`."""
+
     peer: Address
 
 
@@ -102,6 +104,8 @@ new_data_received: Final = _constructor()
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
 @dataclass(frozen=True, slots=True)
 class ConnectionClosed:
+    """The connection ended: why (:attr:`cause`) and, in words a user can act on, :attr:`detail`."""
+
     cause: CloseCause
     detail: str
 

@@ -74,6 +74,9 @@ class DirectionStats:
 
 @dataclass(slots=True)
 class ConnectionStats:
+    """A connection's live counters: both directions' bytes and packets, samples offered, superseded
+    and delivered, losses, RTT, the allowed rate, and every dropped datagram by reason."""
+
     sent: DirectionStats = field(default_factory=DirectionStats)
     received: DirectionStats = field(default_factory=DirectionStats)
     """Datagrams taken in (dropped ones are in ``drops`` only)."""

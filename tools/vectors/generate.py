@@ -795,7 +795,11 @@ def keyed_vectors() -> dict[str, Any]:
         ("replay of 63", sealed(63, b"d")),
         ("ciphertext altered", sealed(101, b"h")[:7] + b"\x00" + sealed(101, b"h")[8:]),
         ("101 for real", sealed(101, b"h")),
-        ("across the 16-bit wrap: 65537 arrives as 0x0001", sealed(65537, b"i")),
+        (
+            "65436 ahead, across the 16-bit wrap: 65537 arrives as 0x0001 and is found by the "
+            "resynchronisation search (section 6)",
+            sealed(65537, b"i"),
+        ),
         ("the old 1 now reads as 65537: a replay", sealed(1, b"b")),
     ]
     steps = []
