@@ -25,16 +25,20 @@ here are a lower bound on what real TCP would suffer.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import heapq
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 from tdtp.netem import NetemLink, parse_netem
 
 MSS = 1448
 FIRST_RTO = 0.2
 FAST_RETRANSMIT_SEGMENTS_S = 0.003
+
+
+class Writer(Protocol):
+    def write(self, data: bytes) -> None: ...
 
 
 @dataclass
@@ -46,7 +50,8 @@ class PathStats:
 
 
 class TcpPath:
-    """One direction of the relayed connection."""
+    """One direction of the relayed connection, driven by the event loop's callbacks: bytes arriving
+    and the link's next delivery or retransmission time (no task of its own, no polling)."""
 
     def __init__(self, spec: str, seed: int) -> None:
         parsed = parse_netem(spec)
@@ -61,11 +66,25 @@ class TcpPath:
         self._retransmit: list[tuple[float, int, int, bytes]] = []  # (due, seq, attempt, data)
         self._arrived: dict[int, bytes] = {}
         self._expected = 0
-        self._wake = asyncio.Event()
+        self._timer: asyncio.TimerHandle | None = None
+        self._writer: Writer | None = None
 
     def srtt(self) -> float:
         back = self.reverse.one_way if self.reverse is not None else self.one_way
         return self.one_way + back
+
+    async def run(self, reader: asyncio.StreamReader, writer: Writer) -> None:
+        """Carry ``reader``'s bytes to ``writer`` until the reader's end closes."""
+        self._writer = writer
+        try:
+            while chunk := await reader.read(65536):
+                self._backlog += chunk
+                self._service()
+        except ConnectionError:
+            pass  # an end closed abruptly: the run is over
+        finally:
+            if self._timer is not None:
+                self._timer.cancel()
 
     def _put(self, seq: int, data: bytes, attempt: int, now: float) -> None:
         stats = self.link.stats
@@ -80,48 +99,38 @@ class TcpPath:
             )
             heapq.heappush(self._retransmit, (now + wait, seq, attempt + 1, data))
 
-    async def run(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        pump = asyncio.get_running_loop().create_task(self._pump(writer))
-        try:
-            while chunk := await reader.read(65536):
-                self._backlog += chunk
-                self._wake.set()
-        finally:
-            pump.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await pump
-
-    async def _pump(self, writer: asyncio.StreamWriter) -> None:
-        link = self.link
-        while True:
-            now = time.monotonic()
-            while self._retransmit and self._retransmit[0][0] <= now:
-                _, seq, attempt, data = heapq.heappop(self._retransmit)
-                self.stats.retransmissions += 1
-                self._put(seq, data, attempt, now)
-            while self._backlog and link.in_flight < self._limit:
-                data = bytes(self._backlog[:MSS])
-                del self._backlog[:MSS]
-                self._put(self._next_seq, data, 0, now)
-                self._next_seq += 1
-            for data, tag in link.deliver(now):
-                seq, sent = tag  # type: ignore[misc]
-                self.one_way += ((now - sent) - self.one_way) / 8
-                self._arrived[seq] = data
-            while self._expected in self._arrived:
-                data = self._arrived.pop(self._expected)
-                self._expected += 1
-                self.stats.bytes_delivered += len(data)
+    def _service(self) -> None:
+        link, writer = self.link, self._writer
+        now = time.monotonic()  # the event loop's clock too
+        while self._retransmit and self._retransmit[0][0] <= now:
+            _, seq, attempt, data = heapq.heappop(self._retransmit)
+            self.stats.retransmissions += 1
+            self._put(seq, data, attempt, now)
+        while self._backlog and link.in_flight < self._limit:
+            data = bytes(self._backlog[:MSS])
+            del self._backlog[:MSS]
+            self._put(self._next_seq, data, 0, now)
+            self._next_seq += 1
+        for data, tag in link.deliver(now):
+            seq, sent = tag  # type: ignore[misc]
+            self.one_way += ((now - sent) - self.one_way) / 8
+            self._arrived[seq] = data
+        while self._expected in self._arrived:
+            data = self._arrived.pop(self._expected)
+            self._expected += 1
+            self.stats.bytes_delivered += len(data)
+            if writer is not None:
                 writer.write(data)
-            deadlines = [t for t in (link.next_delivery(),) if t is not None]
-            if self._retransmit:
-                deadlines.append(self._retransmit[0][0])
-            if self._backlog and link.in_flight >= self._limit:
-                deadlines.append(now + 0.0005)  # the queue drains with time: look again soon
-            self._wake.clear()
-            timeout = max(0.0, min(deadlines) - time.monotonic()) if deadlines else None
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), timeout)
+        deadlines = [t for t in (link.next_delivery(),) if t is not None]
+        if self._retransmit:
+            deadlines.append(self._retransmit[0][0])
+        if self._backlog and link.in_flight >= self._limit:
+            deadlines.append(now + 0.0005)  # the queue drains with time: look again soon
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if deadlines:
+            self._timer = asyncio.get_running_loop().call_at(min(deadlines), self._service)
 
 
 def paths(spec: str, seed: int) -> tuple[TcpPath, TcpPath]:
