@@ -97,7 +97,9 @@ def _imports_of(node: ast.AST) -> Iterator[str]:
         yield from _imports(node)
 
 
-IMPORTS = {name: sorted(set(_imports(ast.parse(path.read_text())))) for name, path in MODULES.items()}
+IMPORTS = {
+    name: sorted(set(_imports(ast.parse(path.read_text())))) for name, path in MODULES.items()
+}
 
 
 def _group(module: str) -> str:
