@@ -18,7 +18,9 @@ MARK_BUILT := find tdtp -name '_core__mypyc.*' -exec touch {} +
 PURE_TESTS := $(filter-out tests/test_benchmarks_smoke.py,$(wildcard tests/test_*.py)) tests/wire tests/control
 PURE_REST := $(filter-out tests/wire/ tests/control/,$(wildcard tests/*/))
 
-.PHONY: demo bench build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
+CLOSED_LOOP_ARGS ?=
+
+.PHONY: demo bench closed-loop build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,7 +33,7 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -c 'import tomllib; print("\n".join(tomllib.load(open("pyproject.toml", "rb"))["build-system"]["requires"]))' \
 		| xargs -d '\n' $(BIN)/python -m pip install --quiet --upgrade
-	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,plot]'
+	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,plot,loop]'
 	$(MARK_BUILT)
 	touch $(STAMP) $(BUILD_STAMP)
 
@@ -55,6 +57,11 @@ $(BENCH_STAMP): pyproject.toml | $(STAMP)
 # The benchmark suite (~4 min on 2 cores): prints the table, writes benchmarks/results/latest.*
 bench: $(BENCH_STAMP) $(BUILD_STAMP)
 	$(BIN)/python benchmarks/run_all.py
+
+# A bilateral haptic loop (operator model, MuJoCo arm against a wall) over tdtp, UDP, TCP and Zenoh
+# through the same netem profiles (~4-5 min on 2 cores): benchmarks/results/closed_loop/.
+closed-loop: $(BENCH_STAMP) $(BUILD_STAMP)
+	nice -n 5 $(BIN)/python benchmarks/closed_loop.py $(CLOSED_LOOP_ARGS)
 
 # The paper's figures 7 and 8 and the other scenarios, in virtual time (docs/REPRODUCTION.md).
 figures: $(BUILD_STAMP)
