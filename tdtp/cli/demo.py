@@ -107,14 +107,18 @@ async def _demo(
                     silence_note(master, "master"),
                 )
             )
-            bands = (master_side.deadband, slave_side.deadband)
-            if bands[0] is not None and bands[1] is not None:
+            bands = [
+                (label, side.deadband)
+                for label, side in (("M->S", master_side), ("S->M", slave_side))
+                if side.deadband is not None
+            ]
+            if bands:
                 lines.append(
                     "deadband  "
                     + "  ".join(
                         f"{label} sends {band.stats.sent / max(band.stats.offered, 1) * 100:5.1f} % "
                         f"of {band.stats.offered} offered"
-                        for label, band in zip(("M->S", "S->M"), bands, strict=True)
+                        for label, band in bands
                     )
                 )
             display.update(lines)

@@ -31,7 +31,7 @@ class Side:
     name: str
     latency: LatencyRecorder = field(default_factory=LatencyRecorder)
     received: int = 0
-    last_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    last_position: tuple[float, ...] = (0.0, 0.0, 0.0)
     not_haptic: int = 0
     clock_mismatch: int = 0
     started: float = 0.0

@@ -17,13 +17,11 @@ feedback loop.
 from __future__ import annotations
 
 import math
-import struct
 from dataclasses import dataclass
 
 from tdtp.errors import InvalidArgumentError
+from tdtp.teleop.schema import SampleCodec, SampleFormatError
 
-_LAYOUT = struct.Struct(">dI3f3f")
-SAMPLE_SIZE = _LAYOUT.size
 POSITION_LIMIT = 10.0
 """Metres: the largest coordinate a haptic sample may carry (a workspace, not a float32's range)."""
 FORCE_LIMIT = 1e4
@@ -32,18 +30,22 @@ FORCE_LIMIT = 1e4
 
 @dataclass(frozen=True, slots=True)
 class HapticSample:
+    """One demo sample: when it was sent, its number, a position and a force."""
+
     sent_at: float
     index: int
-    position: tuple[float, float, float]
-    force: tuple[float, float, float]
+    position: tuple[float, ...]
+    force: tuple[float, ...]
 
-    def encode(self, size: int = SAMPLE_SIZE) -> bytes:
-        """The sample padded with zeros to ``size`` bytes (at least :data:`SAMPLE_SIZE`)."""
+    def encode(self, size: int | None = None) -> bytes:
+        """The sample padded with zeros to ``size`` bytes (at least :data:`SAMPLE_SIZE`, the default)."""
+        if size is None:
+            size = SAMPLE_SIZE
         if size < SAMPLE_SIZE:
             raise InvalidArgumentError(
                 f"a haptic sample needs at least {SAMPLE_SIZE} bytes, got size={size}"
             )
-        body = _LAYOUT.pack(self.sent_at, self.index & 0xFFFFFFFF, *self.position, *self.force)
+        body = CODEC.encode_values(self.sent_at, self.index & 0xFFFFFFFF, self.position, self.force)
         return body + bytes(size - SAMPLE_SIZE)
 
     @classmethod
@@ -52,16 +54,26 @@ class HapticSample:
         that is not finite or lies outside the workspace limits, or padding that is not zero."""
         if len(payload) < SAMPLE_SIZE or any(payload[SAMPLE_SIZE:]):
             return None
-        sent_at, index, x, y, z, fx, fy, fz = _LAYOUT.unpack_from(payload)
-        if not math.isfinite(sent_at) or sent_at < 0.0:
+        try:
+            sample = CODEC.decode(payload[:SAMPLE_SIZE])
+        except SampleFormatError:  # a NaN or an infinity: not the demo's sample
             return None
-        for value in (x, y, z):
-            if not -POSITION_LIMIT <= value <= POSITION_LIMIT:  # False for NaN too
+        if sample.sent_at < 0.0:
+            return None
+        for value in sample.position:
+            if not -POSITION_LIMIT <= value <= POSITION_LIMIT:
                 return None
-        for value in (fx, fy, fz):
+        for value in sample.force:
             if not -FORCE_LIMIT <= value <= FORCE_LIMIT:
                 return None
-        return cls(sent_at, index, (x, y, z), (fx, fy, fz))
+        return sample
+
+
+CODEC = SampleCodec(
+    HapticSample, byte_order=">", sent_at="f64", index="u32", position="f32[3]", force="f32[3]"
+)
+"""The layout above, as a :class:`~tdtp.teleop.schema.SampleCodec`."""
+SAMPLE_SIZE = CODEC.size
 
 
 WALL_X = 0.05
@@ -77,7 +89,7 @@ def _minimum_jerk(s: float) -> float:
     return s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
-def operator_motion(t: float) -> tuple[float, float, float]:
+def operator_motion(t: float) -> tuple[float, ...]:
     """Where a person's hand is at ``t`` seconds: a repeating teleoperation task with contact.
 
     Each 4-second cycle: rest at the start (0.4 s), a minimum-jerk reach of 6 cm towards the wall at
@@ -107,9 +119,7 @@ def master_trajectory(t: float, index: int, sent_at: float) -> HapticSample:
     return HapticSample(sent_at, index, operator_motion(t), (0.0, 0.0, 0.0))
 
 
-def slave_feedback(
-    position: tuple[float, float, float], index: int, sent_at: float
-) -> HapticSample:
+def slave_feedback(position: tuple[float, ...], index: int, sent_at: float) -> HapticSample:
     """A spring wall at x = :data:`WALL_X` (stiffness 500 N/m) pushing back on the commanded position.
 
     The position is clamped to the workspace first, so whatever a caller passes the force stays
