@@ -42,7 +42,7 @@ from tdtp.cli_parser import EXIT_USAGE, CommandParser
 from tdtp.cli_summary import LatencyCounts, capture_report, direction_report
 from tdtp.config import MAX_UDP_PAYLOAD, AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
-from tdtp.control.registry import available_controllers
+from tdtp.control.registry import DEFAULT_CONTROLLER, available_controllers
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,
@@ -162,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     common.add_argument("--duration", type=_duration, help="seconds to run")
     common.add_argument(
-        "--controller", default="trinomial", choices=available_controllers(), help="rate control"
+        "--controller", default=DEFAULT_CONTROLLER, choices=available_controllers(), help="rate control"
     )
     common.add_argument(
         "--separate-acks",

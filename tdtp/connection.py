@@ -98,8 +98,9 @@ _KEEPALIVE_PREFIX: Final = encode_keepalive()
 _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 """The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
 ``max_payload`` is."""
-LOSS_DELAY_SRTT: Final = 1.2
 LOSS_DELAY_RTTVAR: Final = 4.0
+REORDER_WINDOW_MIN_RTT: Final = 0.25
+"""RACK's initial reorder window, a quarter of the minimum RTT (RFC 8985 section 6.2)."""
 TIMER_GRANULARITY: Final = 0.001
 """Slack for timers firing late (RFC 9002's kGranularity)."""
 
@@ -340,7 +341,9 @@ class Connection:
         stats.min_rtt = rtt.min_rtt if rtt.has_sample else 0.0
         stats.loss_event_rate = self._loss.loss_event_rate
         stats.packets_unreported = self._sent.unknown
+        stats.packets_reordered = self._sent.reordered
         stats.rate = self._controller.rate
+        stats.rate_limit = self._controller.rate_limit
         return stats
 
     # ------------------------------------------------------------------ caller API
@@ -821,15 +824,19 @@ class Connection:
         self._hint = -math.inf
 
     def _loss_delay(self) -> float:
-        """How long a packet reported absent may still turn up (RAP's timeout, mu 1.2 and phi 4).
-
-        The peer's ACK delay is added because RTT samples exclude it: a late arrival is reported only
-        with the peer's next reverse packet, up to ``ack_delay`` later.
+        """How long a packet reported absent may still turn up: srtt plus a reorder window (RFC 8985:
+        ``min_rtt / 4`` at first, scaled up by each spurious loss, at most srtt; never less than
+        RAP's ``4 rttvar`` nor the timer granularity), plus the peer's ACK delay, because RTT samples
+        exclude it: a late arrival is reported only with the peer's next reverse packet.
         """
         rtt = self._rtt
+        srtt = rtt.srtt
+        reorder = 0.0
+        if rtt.has_sample:
+            reorder = min(REORDER_WINDOW_MIN_RTT * rtt.min_rtt * self._sent.reorder_window_scale, srtt)
         return (
-            LOSS_DELAY_SRTT * rtt.srtt
-            + max(LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
+            srtt
+            + max(reorder, LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
             + self._ack_delay
         )
 
