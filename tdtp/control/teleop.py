@@ -60,6 +60,10 @@ MIN_SAMPLES: Final = 16
 """RTT samples a control interval needs before it judges the queue: the smallest of fewer would
 read jitter as queue. An interval without them is stretched, up to ``MAX_STRETCH`` times its length."""
 MAX_STRETCH: Final = 8.0
+NOISE_GAIN: Final = 0.125
+"""Gain of the moving average of the standing RTT's interval-to-interval change."""
+NOISE_CAP: Final = 0.005
+"""One interval's change counts at most this much (s) in it: a queue building up is not noise."""
 
 LIMIT_APPLICATION: Final = "application"
 """The application sends less than it is allowed: nothing on the path holds it back."""
@@ -242,6 +246,8 @@ class TeleopController(RateController):
         self._queue_delay = 0.0
         self._prev_queue_delay = 0.0
         self._prev2_queue_delay = 0.0
+        self._noise = 0.0
+        self._rate_before_decrease = 0.0
         self._last_congestion = -math.inf
         self._congested_once = False
         self._last_decrease = -math.inf
@@ -389,7 +395,7 @@ class TeleopController(RateController):
             self._srtt = srtt
         if not math.isnan(loss_event_rate):
             self._p = min(max(loss_event_rate, 0.0), 1.0)
-        target = self._cfg.target_queue_delay
+        target = self._target()
         # As the last complete interval measured the queue (a part of one has too few samples to
         # see through jitter): standing above half the target, or grown by a quarter of it.
         queue = self._queue_delay
@@ -398,7 +404,7 @@ class TeleopController(RateController):
             queue > 0.5 * target and queue > previous > self._prev2_queue_delay
         )
         if growing and now - self._last_decrease >= self._srtt:
-            self._set_rate(now, self._rate_in_use() * self._cfg.loss_decrease)
+            self._decrease(now, self._rate_in_use() * self._cfg.loss_decrease)
             self._loss_decreases += 1
             self._last_decrease = self._last_congestion = now
             self._congested_once = True
@@ -463,6 +469,11 @@ class TeleopController(RateController):
         if now >= self._iv_end:
             self._end_interval(now)
 
+    def _target(self) -> float:
+        """The queue delay that counts as congestion: the configured target plus twice the
+        interval-to-interval noise of the standing RTT."""
+        return self._cfg.target_queue_delay + 2.0 * self._noise
+
     def _nominal_interval(self) -> float:
         return max(self._srtt, self._cfg.interval)
 
@@ -485,13 +496,16 @@ class TeleopController(RateController):
         if duration <= 0.0:
             self._start_interval(now)
             return
-        target = cfg.target_queue_delay
         self._on_standing_rtt(now, self._iv_min_rtt)
         queue = max(self._iv_min_rtt - self.base_rtt, 0.0)
         previous = self._queue_delay
         self._prev2_queue_delay = self._prev_queue_delay
         self._prev_queue_delay = previous
         self._queue_delay = queue
+        # How much the standing RTT wanders from one interval to the next on its own (jitter the
+        # interval's minimum did not filter out): the threshold sits this much above the target.
+        self._noise += NOISE_GAIN * (min(abs(queue - previous), NOISE_CAP) - self._noise)
+        target = self._target()
         delivered = self._iv_acked / duration
         if queue > target:
             self._last_congestion = now
@@ -502,7 +516,7 @@ class TeleopController(RateController):
                 base = self._rate_in_use()
                 if delivered > 0.0:
                     base = min(base, delivered)
-                self._set_rate(now, base * cfg.delay_decrease)
+                self._decrease(now, base * cfg.delay_decrease)
                 self._delay_decreases += 1
                 self._last_decrease = now
                 self._reason = LIMIT_QUEUE_DELAY
@@ -524,7 +538,13 @@ class TeleopController(RateController):
         if self._paced_avg < 0.5:
             ceiling = min(ceiling, max(rate, cfg.app_headroom * self._send_rate()))
         if ceiling > rate * (1.0 + 1e-9):
-            self._set_rate(now, min(rate * (1.0 + gain), ceiling))
+            # Below the rate a decrease started from, close half the distance per interval (the
+            # path carried it a moment ago); beyond it, probe.
+            # The probe is additive below initial_rate (a fixed step for every flow, so that flows
+            # sharing a queue converge to equal rates, as AIMD does) and proportional above it.
+            grow = gain * rate if ramp else gain * max(rate, cfg.initial_rate)
+            step = max(grow, 0.5 * (self._rate_before_decrease - rate))
+            self._set_rate(now, min(rate + step, ceiling))
             self._increases += 1
             if self._paced_avg >= 0.5:
                 self._reason = LIMIT_PROBING
@@ -561,6 +581,11 @@ class TeleopController(RateController):
         ceiling = min(self._cfg.max_rate, self._ceiling())
         if self._rate > ceiling:
             self._set_rate(now, ceiling)
+
+    def _decrease(self, now: float, rate: float) -> None:
+        """A decrease for congestion: remember where from, so that recovery aims back at it."""
+        self._rate_before_decrease = self._rate
+        self._set_rate(now, rate)
 
     def _set_rate(self, now: float, rate: float) -> None:
         rate = min(max(rate, self._floor), self._cfg.max_rate)
