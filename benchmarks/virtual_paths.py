@@ -18,7 +18,6 @@ capacity the data used.
 from __future__ import annotations
 
 import argparse
-import heapq
 import json
 import random
 import statistics
@@ -53,14 +52,22 @@ def _percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
-def run(profile: str, controller: str, *, seed: int, duration: float, rate: float, size: int) -> dict[str, Any]:
+def run(
+    profile: str, controller: str, *, seed: int, duration: float, rate: float, size: int
+) -> dict[str, Any]:
     spec = parse_netem(profile)
     config = ConnectionConfig(controller=controller)  # type: ignore[arg-type]
     rng = random.Random(seed)
-    master = Side(Connection(config, role=Role.MASTER, rng=random.Random(rng.random())), MASTER,
-                  NetemLink(spec, seed=rng.getrandbits(32)))
-    slave = Side(Connection(config, role=Role.SLAVE, rng=random.Random(rng.random())), SLAVE,
-                 NetemLink(spec, seed=rng.getrandbits(32)))
+    master = Side(
+        Connection(config, role=Role.MASTER, rng=random.Random(rng.random())),
+        MASTER,
+        NetemLink(spec, seed=rng.getrandbits(32)),
+    )
+    slave = Side(
+        Connection(config, role=Role.SLAVE, rng=random.Random(rng.random())),
+        SLAVE,
+        NetemLink(spec, seed=rng.getrandbits(32)),
+    )
     peer_of = {id(master): slave, id(slave): master}
     padding = bytes(size - _STAMP.size)
     now = 0.0
@@ -172,20 +179,41 @@ def main(argv: list[str] | None = None) -> int:
     for profile in args.profiles:
         for controller in args.controllers.split(","):
             runs = [
-                run(profile, controller, seed=s, duration=args.duration, rate=args.rate, size=args.size)
+                run(
+                    profile,
+                    controller,
+                    seed=s,
+                    duration=args.duration,
+                    rate=args.rate,
+                    size=args.size,
+                )
                 for s in seeds
             ]
             results.setdefault(profile, {})[controller] = runs
             for way in ("M->S", "S->M"):
                 row = []
-                for key in ("arrived_per_s", "newest_per_s", "late_per_s", "latency_p50_ms",
-                            "latency_p99_ms", "declared_lost", "reordered", "link_use"):
+                for key in (
+                    "arrived_per_s",
+                    "newest_per_s",
+                    "late_per_s",
+                    "latency_p50_ms",
+                    "latency_p99_ms",
+                    "declared_lost",
+                    "reordered",
+                    "link_use",
+                ):
                     values = [r[way][key] for r in runs if key in r[way]]
                     if values:
-                        row.append(f"{key}={statistics.median(values):g}[{min(values):g},{max(values):g}]")
+                        row.append(
+                            f"{key}={statistics.median(values):g}[{min(values):g},{max(values):g}]"
+                        )
                 if not args.json:
-                    print(f"{profile!r:32s} {controller:9s} {way} " + " ".join(row)
-                          + f" limits={runs[0][way]['limits']} dec={runs[0][way]['decreases']}", flush=True)
+                    print(
+                        f"{profile!r:32s} {controller:9s} {way} "
+                        + " ".join(row)
+                        + f" limits={runs[0][way]['limits']} dec={runs[0][way]['decreases']}",
+                        flush=True,
+                    )
     if args.json:
         json.dump(results, sys.stdout, indent=1)
     return 0

@@ -162,7 +162,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     common.add_argument("--duration", type=_duration, help="seconds to run")
     common.add_argument(
-        "--controller", default=DEFAULT_CONTROLLER, choices=available_controllers(), help="rate control"
+        "--controller",
+        default=DEFAULT_CONTROLLER,
+        choices=available_controllers(),
+        help="rate control",
     )
     common.add_argument(
         "--separate-acks",

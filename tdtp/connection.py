@@ -833,11 +833,11 @@ class Connection:
         srtt = rtt.srtt
         reorder = 0.0
         if rtt.has_sample:
-            reorder = min(REORDER_WINDOW_MIN_RTT * rtt.min_rtt * self._sent.reorder_window_scale, srtt)
+            reorder = min(
+                REORDER_WINDOW_MIN_RTT * rtt.min_rtt * self._sent.reorder_window_scale, srtt
+            )
         return (
-            srtt
-            + max(reorder, LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
-            + self._ack_delay
+            srtt + max(reorder, LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY) + self._ack_delay
         )
 
     def _on_session_control(

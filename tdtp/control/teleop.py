@@ -488,11 +488,13 @@ class TeleopController(RateController):
         cfg = self._cfg
         duration = now - self._iv_start
         if self._iv_samples < MIN_SAMPLES:
-            if self._blackout or duration >= MAX_STRETCH * self._nominal_interval():
-                self._start_interval(now)  # too few samples to judge (the blackout timer acts)
-            else:
+            if self._blackout or not self._iv_samples:
+                self._start_interval(now)  # nothing to judge (the blackout timer acts)
+                return
+            if duration < MAX_STRETCH * self._nominal_interval():
                 self._iv_end = now + self._nominal_interval() / 2.0  # wait for more samples
-            return
+                return
+            # Stretched as far as it goes (a slow sender): judge on what there is.
         if duration <= 0.0:
             self._start_interval(now)
             return
