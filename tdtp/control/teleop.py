@@ -109,7 +109,13 @@ class TeleopConfig:
     """Shortest control interval, seconds (an interval is ``max(srtt, interval)``): long enough that a
     1 kHz stream's RTT samples in one interval show the queue's floor through jitter."""
     base_window: float = 10.0
-    """Seconds over which the smallest RTT sample is the path's base RTT."""
+    """Seconds over which the smallest standing RTT is the path's base RTT."""
+    drain_every: float = 4.0
+    """Every this many seconds one control interval runs at ``drain_fraction`` of the rate, so that
+    a queue this flow keeps standing drains and the base RTT is measured without it (BBR's
+    ProbeRTT). Keep it below half of ``base_window``; ``math.inf`` never drains."""
+    drain_fraction: float = 0.5
+    """The rate during a drain interval, as a fraction of the rate in use."""
     delay_decrease: float = 0.85
     """A queue above the target sets the rate to this fraction of the rate the peer received."""
     loss_decrease: float = 0.5
@@ -167,6 +173,15 @@ class TeleopConfig:
             _positive_finite(self.base_window) and self.base_window >= self.interval,
             f"base_window must be a finite number of seconds, at least interval "
             f"({self.interval!r}), got {self.base_window!r}",
+        )
+        need(
+            self.drain_every > 0.0 and not math.isnan(self.drain_every),
+            f"drain_every must be a positive number of seconds (math.inf: never), "
+            f"got {self.drain_every!r}",
+        )
+        need(
+            0.0 < self.drain_fraction < 1.0,
+            f"drain_fraction must be strictly between 0 and 1, got {self.drain_fraction!r}",
         )
         need(
             0.0 < self.delay_decrease < 1.0,
@@ -248,6 +263,8 @@ class TeleopController(RateController):
         self._prev2_queue_delay = 0.0
         self._noise = 0.0
         self._rate_before_decrease = 0.0
+        self._next_drain = cfg.drain_every
+        self._draining_from: float | None = None  # the rate to restore after a drain interval
         self._last_congestion = -math.inf
         self._congested_once = False
         self._last_decrease = -math.inf
@@ -400,8 +417,9 @@ class TeleopController(RateController):
         # see through jitter): standing above half the target, or grown by a quarter of it.
         queue = self._queue_delay
         previous = self._prev_queue_delay
+        earlier = self._prev2_queue_delay
         growing = queue > target or (
-            queue > 0.5 * target and queue > previous > self._prev2_queue_delay
+            queue > 0.5 * target and queue > previous > earlier and queue - earlier > 0.5 * target
         )
         if growing and now - self._last_decrease >= self._srtt:
             self._decrease(now, self._rate_in_use() * self._cfg.loss_decrease)
@@ -454,6 +472,7 @@ class TeleopController(RateController):
         if not self._started:
             self._started = True
             self._base_since = now
+            self._next_drain = now + self._cfg.drain_every
             self._start_interval(now)
             return
         deadline = self._nf_deadline
@@ -498,6 +517,15 @@ class TeleopController(RateController):
         if duration <= 0.0:
             self._start_interval(now)
             return
+        restore = self._draining_from
+        if restore is not None:
+            # The drain interval's standing RTT is the best view of the empty path; it judges
+            # nothing else (the flow held itself back), and the rate returns to what it was.
+            self._draining_from = None
+            self._on_standing_rtt(now, self._iv_min_rtt)
+            self._set_rate(now, max(restore, self._rate))
+            self._start_interval(now)
+            return
         self._on_standing_rtt(now, self._iv_min_rtt)
         queue = max(self._iv_min_rtt - self.base_rtt, 0.0)
         previous = self._queue_delay
@@ -530,6 +558,13 @@ class TeleopController(RateController):
             else:
                 self._increase(now)
         self._start_interval(now)
+        if now >= self._next_drain and now - self._last_decrease >= self._srtt:
+            # A drain interval, twice as long as the others: the queue it drains shows in the RTT
+            # samples one round trip later.
+            self._next_drain = now + cfg.drain_every
+            self._draining_from = self._rate
+            self._set_rate(now, self._rate_in_use() * cfg.drain_fraction)
+            self._iv_end = now + 2.0 * self._nominal_interval()
 
     def _increase(self, now: float) -> None:
         cfg = self._cfg

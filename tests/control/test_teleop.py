@@ -185,6 +185,8 @@ def test_it_is_the_default_and_selectable_by_name() -> None:
         ("app_headroom", 0.5, "app_headroom must be"),
         ("no_feedback_rtts", 0.5, "no_feedback_rtts must be"),
         ("initial_rtt", 0.0, "initial_rtt must be"),
+        ("drain_every", 0.0, "drain_every must be"),
+        ("drain_fraction", 1.0, "drain_fraction must be"),
         ("target_queue_delay", math.nan, "target_queue_delay must be"),
     ],
 )
