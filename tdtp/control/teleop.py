@@ -111,9 +111,10 @@ class TeleopConfig:
     base_window: float = 10.0
     """Seconds over which the smallest standing RTT is the path's base RTT."""
     drain_every: float = 4.0
-    """Every this many seconds one control interval runs at ``drain_fraction`` of the rate, so that
-    a queue this flow keeps standing drains and the base RTT is measured without it (BBR's
-    ProbeRTT). Keep it below half of ``base_window``; ``math.inf`` never drains."""
+    """At most every this many seconds, and only after a loss event (losses with no queue in sight
+    are what a hidden standing queue looks like), one control interval runs at ``drain_fraction`` of
+    the rate, so that a queue this flow keeps standing drains and the base RTT is measured without it
+    (BBR's ProbeRTT). Keep it below half of ``base_window``; ``math.inf`` never drains."""
     drain_fraction: float = 0.5
     """The rate during a drain interval, as a fraction of the rate in use."""
     delay_decrease: float = 0.85
@@ -265,6 +266,7 @@ class TeleopController(RateController):
         self._rate_before_decrease = 0.0
         self._next_drain = cfg.drain_every
         self._draining_from: float | None = None  # the rate to restore after a drain interval
+        self._loss_since_drain = False  # a loss event since the last drain interval
         self._last_congestion = -math.inf
         self._congested_once = False
         self._last_decrease = -math.inf
@@ -412,6 +414,7 @@ class TeleopController(RateController):
             self._srtt = srtt
         if not math.isnan(loss_event_rate):
             self._p = min(max(loss_event_rate, 0.0), 1.0)
+        self._loss_since_drain = True
         target = self._target()
         # As the last complete interval measured the queue (a part of one has too few samples to
         # see through jitter): standing above half the target, or grown by a quarter of it.
@@ -558,10 +561,15 @@ class TeleopController(RateController):
             else:
                 self._increase(now)
         self._start_interval(now)
-        if now >= self._next_drain and now - self._last_decrease >= self._srtt:
+        if (
+            self._loss_since_drain
+            and now >= self._next_drain
+            and now - self._last_decrease >= self._srtt
+        ):
             # A drain interval, twice as long as the others: the queue it drains shows in the RTT
             # samples one round trip later.
             self._next_drain = now + cfg.drain_every
+            self._loss_since_drain = False
             self._draining_from = self._rate
             self._set_rate(now, self._rate_in_use() * cfg.drain_fraction)
             self._iv_end = now + 2.0 * self._nominal_interval()

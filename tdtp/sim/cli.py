@@ -540,6 +540,8 @@ def simulate_main(argv: Sequence[str]) -> int:
             "figures": [str(p) for p in figures[name]],
             "headline": result.headline(),
         }
+        if isinstance(result, LockoutStudy):
+            summaries[name]["controllers"] = result.by_controller()
         if not args.json:
             print(summary_text(result))
             print(f"  wrote {json_path}" + "".join(f", {p}" for p in figures[name]))

@@ -732,7 +732,7 @@ def lockout_study(
                     ],
                     tdtp_goodput_kbps=_mi(r.goodput_kbps[MS]["all"] for r in recs),
                     tcp_goodput_kbps=_mi(r.tcp[MS]["goodput_kbps"] for r in recs),
-                    share_after=_mi(r.tcp[MS]["share_after"] for r in recs),
+                    share_after=_mi(r.tcp[MS].get("share_after", math.nan) for r in recs),
                     bands={
                         MS: _band([r.series[MS]["goodput_kbps"] for r in recs]),
                         f"tcp {MS}": _band([r.series[f"tcp {MS}"]["goodput_kbps"] for r in recs]),

@@ -180,7 +180,6 @@ def test_it_is_the_default_and_selectable_by_name() -> None:
         ("ramp_reset", -1.0, "ramp_reset must be"),
         ("heavy_loss", 0.0, "heavy_loss must be"),
         ("tcp_segment", 0, "tcp_segment must be"),
-        ("tcp_segment", 1460.0, "tcp_segment must be"),
         ("ip_overhead", -1, "ip_overhead must be"),
         ("app_headroom", 0.5, "app_headroom must be"),
         ("no_feedback_rtts", 0.5, "no_feedback_rtts must be"),
