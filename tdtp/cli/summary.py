@@ -35,6 +35,8 @@ _SENDER_KEYS = (
     "loss_events",
     "loss_event_rate",
     "spurious_losses",
+    "packets_reordered",
+    "rate_limit",
     "srtt_ms",
     "rttvar_ms",
     "min_rtt_ms",
