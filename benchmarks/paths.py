@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import signal
@@ -290,27 +291,40 @@ def directions(meters: tuple[Meter, Meter], offered: list[int], duration: float)
 # ---------------------------------------------------------------------------- tdtp cells
 
 
-async def tdtp_cell(controller: str, spec: str | None, duration: float, seed: int) -> Json:
+async def tdtp_cell(
+    controller: str, spec: str | None, duration: float, seed: int, via_relay: bool
+) -> Json:
     config = tdtp.ConnectionConfig(controller=controller, min_peer_payload=SIZE)  # type: ignore[arg-type]
     at_slave, at_master = Meter(), Meter()
-    async with (
-        tdtp.listen(
-            "127.0.0.1",
-            0,
-            config=config,
-            on_data=lambda e: at_slave.arrived(e.payload, e.received_at),
-            netem=spec,
-            netem_seed=None if spec is None else seed + 1,
-        ) as server,
-        tdtp.connect(
-            "127.0.0.1",
-            server.port,
-            config=config,
-            on_data=lambda e: at_master.arrived(e.payload, e.received_at),
-            netem=spec,
-            netem_seed=None if spec is None else seed,
-        ) as master,
-    ):
+    in_process = None if via_relay else spec
+    relay: Relay | None = None
+    async with contextlib.AsyncExitStack() as stack:
+        server = await stack.enter_async_context(
+            tdtp.listen(
+                "127.0.0.1",
+                0,
+                config=config,
+                on_data=lambda e: at_slave.arrived(e.payload, e.received_at),
+                netem=in_process,
+                netem_seed=None if in_process is None else seed + 1,
+            )
+        )
+        port = server.port
+        if via_relay:
+            relay = Relay(spec, port, seed)
+            stack.callback(relay.close)
+            await asyncio.sleep(0.5)  # the relay's interpreter starting
+            port = relay.port
+        master = await stack.enter_async_context(
+            tdtp.connect(
+                "127.0.0.1",
+                port,
+                config=config,
+                on_data=lambda e: at_master.arrived(e.payload, e.received_at),
+                netem=in_process,
+                netem_seed=None if in_process is None else seed,
+            )
+        )
         slave = await server.accept()
         meters = (at_slave, at_master)
 
@@ -345,6 +359,7 @@ async def tdtp_cell(controller: str, spec: str | None, duration: float, seed: in
             }
         result["closed_early"] = not running()
         result["build"] = tdtp.build_info().build
+        result["netem"] = "relay" if via_relay else "in-process"
     return result
 
 
@@ -562,7 +577,9 @@ async def udp_cell(spec: str | None, duration: float, seed: int) -> Json:
 # ---------------------------------------------------------------------------- cells in workers
 
 
-def cell_worker(conn: Any, *, row: str, spec: str | None, duration: float, seed: int) -> None:
+def cell_worker(
+    conn: Any, *, row: str, spec: str | None, duration: float, seed: int, via_relay: bool
+) -> None:
     loop = "uvloop" if common.have_uvloop() else "asyncio"
 
     async def run() -> Json:
@@ -570,7 +587,7 @@ def cell_worker(conn: Any, *, row: str, spec: str | None, duration: float, seed:
             return await zenoh_cell(spec, duration, seed)
         if row == "udp":
             return await udp_cell(spec, duration, seed)
-        return await tdtp_cell(row, spec, duration, seed)
+        return await tdtp_cell(row, spec, duration, seed, via_relay)
 
     t0 = time.monotonic()
     result: Json = common.run_in_loop(loop, run)
@@ -579,7 +596,8 @@ def cell_worker(conn: Any, *, row: str, spec: str | None, duration: float, seed:
     conn.send(result)
 
 
-def run_cell(row: str, profile: Profile, duration: float, seed: int) -> Json:
+def run_cell(row: str, profile: Profile, duration: float, seed: int, via_relay: bool) -> Json:
+    others = common.OthersMeter()
     handle = common.start_worker(
         f"paths-{profile.name}-{row}",
         cell_worker,
@@ -587,11 +605,17 @@ def run_cell(row: str, profile: Profile, duration: float, seed: int) -> Json:
         spec=profile.spec,
         duration=duration,
         seed=seed,
+        via_relay=via_relay,
     )
     try:
-        return handle.recv(timeout=duration + PATIENCE + OPEN_PATIENCE + 30.0)
+        result = handle.recv(timeout=duration + PATIENCE + OPEN_PATIENCE + 30.0)
     finally:
         handle.finish()
+    result["others_percent"] = others.percent()  # the worker and its relay joined: ours
+    result["ticks_run"] = min(w["offered"] for w in (result["ms"], result["sm"])) / (
+        RATE * duration
+    )
+    return result
 
 
 # ---------------------------------------------------------------------------- report
@@ -638,20 +662,35 @@ def fmt_ms(value: float) -> str:
     return f"{value:,.0f}" if value >= 100 else f"{value:.1f}" if value >= 1 else f"{value:.2f}"
 
 
+STARVED = 0.98
+"""A cell whose sending application ran fewer of its 1 kHz ticks than this was short of CPU."""
+
+
+def health(cell: Json) -> str:
+    """Ticks the sending applications ran (the lower end) and the other tenants' CPU meanwhile."""
+    ran = f"{100 * cell['ticks_run']:.0f} %"
+    if cell["ticks_run"] < STARVED:
+        ran = f"**{ran}**"
+    return f"{ran}, {cell['others_percent']:.0f} %"
+
+
 def markdown(cells: list[Json], default: str) -> str:
     lines = [
         "Each cell: M->S / S->M. Latency and age in ms; wire kbit/s is what each sender put on the "
-        "socket with IPv4 + UDP headers.",
+        "socket with IPv4 + UDP headers. *Ticks run*: the share of its 1 kHz ticks the sending "
+        f"application ran (bold below {STARVED:.0%}: the process was short of CPU and the row says "
+        "more about the machine than the transport); *others*: CPU the other tenants used meanwhile, "
+        "in % of one core.",
         "",
         "| path | netem | row | samples/s | latency p50 | latency p99 | age p99 | wire kbit/s "
-        "| issue 19 target |",
-        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | --- |",
+        "| ticks run, others | issue 19 target |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
     for cell in cells:
         if "error" in cell:
             lines.append(
                 f"| {cell['profile']} | `{cell['spec'] or '-'}` | {row_label(cell['row'], default)} "
-                f"| failed: {cell['error'].splitlines()[-1][:80]} | | | | | |"
+                f"| failed: {cell['error'].splitlines()[-1][:80]} | | | | | | |"
             )
             continue
         ms, sm = cell["ms"], cell["sm"]
@@ -670,7 +709,7 @@ def markdown(cells: list[Json], default: str) -> str:
             f"| {pair(lambda w: fmt_ms(w['latency_ms']['p99']))} "
             f"| {pair(lambda w: fmt_ms(w['age_ms']['p99']))} "
             f"| {pair(lambda w, d=duration: f'{8 * w[WIRE] / d / 1e3:,.0f}')} "
-            f"| {target} |"
+            f"| {health(cell)} | {target} |"
         )
     return "\n".join(lines)
 
@@ -729,6 +768,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="tdtp controllers (every registered one) and/or the baselines zenoh, udp",
     )
     p.add_argument("--seed", type=int, default=1, help="netem seed (1)")
+    p.add_argument(
+        "--tdtp-via-relay",
+        action="store_true",
+        help="impair the tdtp rows with tdtp netem-relay too (default: the in-process netem)",
+    )
     p.add_argument("--json", action="store_true", help="one JSON report on stdout")
     args = p.parse_args(argv)
     if args.duration is not None and not (0.0 < args.duration <= 3600.0):
@@ -778,7 +822,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 "default": row == default,
             }
             try:
-                cell = {**base, **run_cell(row, profile, args.duration, args.seed)}
+                cell = {
+                    **base,
+                    **run_cell(row, profile, args.duration, args.seed, args.tdtp_via_relay),
+                }
             except RuntimeError as exc:
                 print(f"{label}: failed: {exc}", file=sys.stderr, flush=True)
                 cells.append({**base, "error": str(exc)})
@@ -790,7 +837,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"{label}: {ms['samples_per_s']:.0f} / {sm['samples_per_s']:.0f} samples/s, "
                 f"latency p99 {fmt_ms(ms['latency_ms']['p99'])} / "
                 f"{fmt_ms(sm['latency_ms']['p99'])} ms, age p99 {fmt_ms(ms['age_ms']['p99'])} / "
-                f"{fmt_ms(sm['age_ms']['p99'])} ms",
+                f"{fmt_ms(sm['age_ms']['p99'])} ms; ticks run {100 * cell['ticks_run']:.0f} %, "
+                f"other tenants {cell['others_percent']:.0f} % of a core",
                 file=sys.stderr,
                 flush=True,
             )
