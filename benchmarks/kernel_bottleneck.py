@@ -373,8 +373,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 t = result["tdtp"]
                 line += (
                     f", tdtp {t['ms']['samples_per_s']:.0f} / {t['sm']['samples_per_s']:.0f} "
-                    f"samples/s, latency p99 {t['ms']['latency_p99_ms']} / "
-                    f"{t['sm']['latency_p99_ms']} ms"
+                    f"samples/s, latency p99 {ms_text(t['ms']['latency_p99_ms'])} / "
+                    f"{ms_text(t['sm']['latency_p99_ms'])} ms"
                 )
             print(line, file=sys.stderr, flush=True)
             runs.append(result)
@@ -427,7 +427,7 @@ def markdown(runs: list[Json], args: argparse.Namespace, default: str, busy: flo
             tdtp_cells = [
                 f"{100 * tbf['tdtp_fraction']:.0f} %",
                 f"{t['ms']['samples_per_s']:.0f} / {t['sm']['samples_per_s']:.0f}",
-                f"{t['ms']['latency_p99_ms']} / {t['sm']['latency_p99_ms']}",
+                f"{ms_text(t['ms']['latency_p99_ms'])} / {ms_text(t['sm']['latency_p99_ms'])}",
             ]
         lines.append(
             f"| {label} | {tcp['goodput_bps'] / 1e3:.0f} ({100 * tcp['share']:.0f} %) "
@@ -435,6 +435,10 @@ def markdown(runs: list[Json], args: argparse.Namespace, default: str, busy: flo
             f"| {tcp['retransmits']} | {' | '.join(tdtp_cells)} | {tbf['dropped']} |"
         )
     return "\n".join(lines)
+
+
+def ms_text(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1f}"
 
 
 def rows_of(runs: list[Json], default: str) -> list[Row]:
@@ -452,7 +456,7 @@ def rows_of(runs: list[Json], default: str) -> list[Row]:
             t = r["tdtp"]["ms"]
             note = (
                 f"tdtp {t['samples_per_s']:.0f} samples/s M->S, latency p99 "
-                f"{t['latency_p99_ms']} ms"
+                f"{ms_text(t['latency_p99_ms'])} ms"
             )
         rows.append(
             Row(

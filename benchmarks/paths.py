@@ -457,10 +457,10 @@ def zenoh_config(listen: list[str], connect: list[str]) -> Any:
         ("connect/endpoints", json.dumps(connect)),
         ("scouting/multicast/enabled", "false"),
         ("scouting/gossip/enabled", "false"),
-        # Over a lossy UDP path the open handshake can lose a message: retry it quickly instead
-        # of after the default 10 s.
-        ("transport/unicast/open_timeout", "300"),
-        ("transport/unicast/accept_timeout", "300"),
+        # Over a lossy UDP path the open handshake can lose a message: retry it after 1.5 s (two
+        # round trips of the slowest path and then some) instead of the default 10 s.
+        ("transport/unicast/open_timeout", "1500"),
+        ("transport/unicast/accept_timeout", "1500"),
         ("connect/timeout_ms", "-1"),
         (
             "connect/retry",
