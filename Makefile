@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 BENCH_STAMP := $(VENV)/.installed-bench
 BUILD_STAMP := $(VENV)/.built
 # What setup.py may compile (a superset of its list: any change here recompiles the core in place).
-CORE_SOURCES := $(wildcard tdtp/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) setup.py
+CORE_SOURCES := $(wildcard tdtp/*.py tdtp/session/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) setup.py
 # mypyc leaves the library untouched when the sources' content has not changed (a checkout or a
 # `touch` moves only their times); tdtp judges staleness by time, so mark the library as built now.
 MARK_BUILT := find tdtp -name '_core__mypyc.*' -exec touch {} +
@@ -18,7 +18,9 @@ MARK_BUILT := find tdtp -name '_core__mypyc.*' -exec touch {} +
 PURE_TESTS := $(filter-out tests/test_benchmarks_smoke.py tests/test_kernel_bottleneck.py,$(wildcard tests/test_*.py)) tests/wire tests/control
 PURE_REST := $(filter-out tests/wire/ tests/control/,$(wildcard tests/*/))
 
-.PHONY: demo bench paths kernel-check build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
+CLOSED_LOOP_ARGS ?=
+
+.PHONY: demo bench paths kernel-check closed-loop build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,7 +33,7 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -c 'import tomllib; print("\n".join(tomllib.load(open("pyproject.toml", "rb"))["build-system"]["requires"]))' \
 		| xargs -d '\n' $(BIN)/python -m pip install --quiet --upgrade
-	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,plot]'
+	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,plot,loop]'
 	$(MARK_BUILT)
 	touch $(STAMP) $(BUILD_STAMP)
 
@@ -68,6 +70,11 @@ kernel-check: $(BUILD_STAMP)
 		apt-get install -y -q iperf3 >/dev/null 2>&1 || \
 		{ apt-get update -q >/dev/null && apt-get install -y -q iperf3 >/dev/null; }; }
 	$(BIN)/python benchmarks/kernel_bottleneck.py
+
+# A bilateral haptic loop (operator model, MuJoCo arm against a wall) over tdtp, UDP, TCP and Zenoh
+# through the same netem profiles (~4-5 min on 2 cores): benchmarks/results/closed_loop/.
+closed-loop: $(BENCH_STAMP) $(BUILD_STAMP)
+	nice -n 5 $(BIN)/python benchmarks/closed_loop.py $(CLOSED_LOOP_ARGS)
 
 # The paper's figures 7 and 8 and the other scenarios, in virtual time (docs/REPRODUCTION.md).
 figures: $(BUILD_STAMP)

@@ -2,7 +2,7 @@
 
 Usage: ``python benchmarks/bandwidth_figure.py [--out benchmarks/results] [--json]``
 
-Computed with ``tdtp.bandwidth`` (the paper's eqs. 3-8) at 400 kbit/s of application data in each
+Computed with ``tdtp.analysis.bandwidth`` (the paper's eqs. 3-8) at 400 kbit/s of application data in each
 direction, data sizes 1..1000 bytes, for the paper's native encapsulation (the 5-byte header on IP) and
 ours (over UDP). Writes into ``--out``:
 
@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
 from _common import Row, Stat
 
-from tdtp.bandwidth import (
+from tdtp.analysis.bandwidth import (
     PAPER_APP_RATE,
     Encapsulation,
     PlotUnavailableError,
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     common.write_text(
         out / "figure5.md",
         f"Figure 5: wire bandwidth, both directions, {PAPER_APP_RATE / 1e3:g} kbit/s of "
-        "application data each way (tdtp.bandwidth).\n\n" + table + "\n",
+        "application data each way (tdtp.analysis.bandwidth).\n\n" + table + "\n",
     )
     try:
         png: str = str(plot_figure5(out / "figure5.png"))

@@ -18,7 +18,7 @@ counts every datagram passed to ``sendto`` (handshake, data, ACK, keepalive and 
 each costs its length plus 28 bytes (IPv4 20 + UDP 8). The connections' own counters
 (``stats.sent.bytes`` and ``.datagrams``) are checked against the proxies.
 
-**Prediction.** The paper's eqs. 7/8 (``tdtp.bandwidth``) applied to the application data actually carried
+**Prediction.** The paper's eqs. 7/8 (``tdtp.analysis.bandwidth``) applied to the application data actually carried
 (data packets counted on the wire x 100 bytes): TDTP ``N (SD + SH)``, separate ACKs ``(1 + (SA + SH) /
 (SD + SH)) N (SD + SH)``, UDP ``N (SD + 28)``, with ``SH = 20 + 8 + 5 = 33``. The deviation measured /
 predicted is what the model leaves out: the open and close handshakes, keepalives and any stand-alone ACK.
@@ -46,7 +46,7 @@ from tdtp import AckMode, ConnectionConfig, Ticker
 from tdtp.aio.api import connect, listen
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.timer import monotonic
-from tdtp.bandwidth import (
+from tdtp.analysis.bandwidth import (
     IP_HEADER,
     UDP_HEADER,
     Encapsulation,
@@ -216,7 +216,7 @@ async def one_repetition(seconds: float) -> dict[str, Json]:
         tally = TALLIES[mode]
         wire = tally.udp_payload + UDP_IP * tally.datagrams
         span = tally.last_data - tally.first_data + 1.0 / RATE
-        # eq. 7/8 for the data actually carried (tdtp.bandwidth), in bytes: bit/s x span / 8.
+        # eq. 7/8 for the data actually carried (tdtp.analysis.bandwidth), in bytes: bit/s x span / 8.
         data_rate = tally.data_packets * DATA_SIZE * 8 / span
         predicted_bits = eq7_total(
             tally.data_packets, DATA_SIZE, model.header, max(0, model.ack - model.header)

@@ -14,7 +14,7 @@ import asyncio
 import contextlib
 
 import tdtp
-from tdtp.haptic_sample import HapticSample, master_trajectory
+from tdtp.teleop.haptic_sample import HapticSample, master_trajectory
 
 
 async def main() -> None:

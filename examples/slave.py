@@ -16,7 +16,7 @@ import asyncio
 import contextlib
 
 import tdtp
-from tdtp.haptic_sample import HapticSample, slave_feedback
+from tdtp.teleop.haptic_sample import HapticSample, slave_feedback
 
 
 async def serve_master(ep: tdtp.Endpoint, rate: float) -> None:

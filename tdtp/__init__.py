@@ -8,12 +8,13 @@ points (:func:`connect`, :func:`listen`) run it over real UDP sockets.
 import logging
 
 from tdtp._build import BuildInfo, build_info  # first: it decides which build of the core loads
+from tdtp._build import restore_class_docstrings as _restore_class_docstrings
+from tdtp._moved_modules import install as _install_moved_modules
 from tdtp.aio.api import Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
 from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, ControllerName, Role
-from tdtp.connection import Connection, State
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,
@@ -30,7 +31,10 @@ from tdtp.errors import (
     ServerClosedError,
     TdtpError,
 )
-from tdtp.events import (
+from tdtp.protection.key_file import load_keys, write_key_file
+from tdtp.protection.keys import KeyRing, PresharedKey
+from tdtp.session.connection import Connection, State
+from tdtp.session.events import (
     Address,
     CloseCause,
     ConnectionClosed,
@@ -40,14 +44,15 @@ from tdtp.events import (
     PeerResumed,
     PeerSilent,
 )
-from tdtp.protection.key_file import load_keys, write_key_file
-from tdtp.protection.keys import KeyRing, PresharedKey
-from tdtp.stats import ConnectionStats, DirectionStats, DropReason
+from tdtp.session.stats import ConnectionStats, DirectionStats, DropReason
 from tdtp.wire import HEADER_SIZE, CipherSuite
 
 # A library leaves logging's configuration to the application: without a handler of its own, the
 # watchdog's warnings would go to stderr through logging's last-resort handler.
 logging.getLogger("tdtp").addHandler(logging.NullHandler())
+
+# The module paths that changed after 0.1.0 keep working, with a DeprecationWarning, for one release.
+_install_moved_modules()
 
 __version__ = "0.1.0"
 """The package version, kept in this one place: ``pyproject.toml`` reads it from here."""
@@ -102,3 +107,7 @@ __all__ = [
     "monotonic",
     "write_key_file",
 ]
+
+# mypyc drops class docstrings: put those of the public classes back, so that help(tdtp.DataReceived)
+# reads the same in both builds.
+_restore_class_docstrings(sorted({getattr(globals()[name], "__module__", "") for name in __all__}))

@@ -2,6 +2,6 @@
 
 import sys
 
-from tdtp.cli import main
+from tdtp.cli.main import main
 
 sys.exit(main())

@@ -19,10 +19,12 @@ compiled.
 
 from __future__ import annotations
 
+import ast
 import importlib.abc
 import importlib.machinery
 import importlib.util
 import os
+import re
 import sys
 import warnings
 from collections.abc import Sequence
@@ -37,13 +39,21 @@ COMPILED_MODULES: Final = (
     "tdtp.wire.hold",
     "tdtp.wire.seqnum",
     "tdtp.wire.protected",
-    "tdtp.connection",
-    "tdtp.events",
-    "tdtp.stats",
-    "tdtp.sent_log",
-    "tdtp.receive_window",
-    "tdtp.rtt",
-    "tdtp.loss_rate",
+    "tdtp.session.connection",
+    "tdtp.session.events",
+    "tdtp.session.stats",
+    "tdtp.session.sent_log",
+    "tdtp.session.receive_window",
+    "tdtp.session.rtt",
+    "tdtp.session.loss_rate",
+    "tdtp.session.handshake",
+    "tdtp.session.liveness",
+    "tdtp.session.recovery",
+    "tdtp.session.event_queue",
+    "tdtp.session.outbox",
+    "tdtp.session.ack_scheduler",
+    "tdtp.session.sender",
+    "tdtp.session.timer_hint",
     "tdtp.protection.replay_window",
     "tdtp.protection.packet_protection",
     "tdtp.control.base",
@@ -157,8 +167,47 @@ _INFO: Final = _choose()
 def build_info() -> BuildInfo:
     """Which build of the core runs in this process, and why."""
     if _INFO.compiled:
-        connection = sys.modules.get("tdtp.connection")
+        connection = sys.modules.get("tdtp.session.connection")
         origin = getattr(connection, "__file__", None) or ""
         if origin.endswith(".py"):  # the shared library is there, this module's extension is not
             return BuildInfo("pure", "the compiled extensions are incomplete; reinstall tdtp")
     return _INFO
+
+
+_CLASS_DOC: Final = re.compile(
+    r'^class (\w+)\b[^\n]*:\n(?:    #[^\n]*\n)*    ([rRbBuU]?(?:"""|\'\'\').*?(?:"""|\'\'\'))',
+    re.M | re.S,
+)
+"""A top-level class and the string literal that opens its body: its docstring."""
+
+
+def restore_class_docstrings(modules: Sequence[str] = COMPILED_MODULES) -> int:
+    """Give the classes of the compiled modules their docstrings back, from the ``.py`` beside them.
+
+    mypyc drops class docstrings (native classes get none, plain ones ``"mypyc filler docstring"``),
+    so ``help(tdtp.DataReceived)`` would say nothing in the compiled build. A scan of the sources (a
+    regular expression, not a parse: about a millisecond for the whole core) puts them back. Returns
+    how many classes got theirs; does nothing in the pure build, where Python kept them.
+    """
+    if not _INFO.compiled:
+        return 0
+    restored = 0
+    for name in modules:
+        module = sys.modules.get(name)
+        origin = getattr(module, "__file__", None) or ""
+        if module is None or origin.endswith(".py"):
+            continue
+        source = _PACKAGE_DIR.parent.joinpath(*name.split(".")).with_suffix(".py")
+        try:
+            text = source.read_text(encoding="utf-8")
+        except OSError:  # an install without sources beside the extensions: nothing to restore
+            continue
+        for match in _CLASS_DOC.finditer(text):
+            cls = getattr(module, match.group(1), None)
+            if isinstance(cls, type) and (not cls.__doc__ or cls.__doc__.startswith("mypyc")):
+                try:
+                    cls.__doc__ = ast.literal_eval(match.group(2))
+                    restored += 1
+                except (ValueError, SyntaxError, TypeError, AttributeError):
+                    continue
+    return restored

@@ -30,6 +30,8 @@ KEEPALIVE_PER_SILENCE = 3
 
 
 class Role(enum.Enum):
+    """Which end of a session a connection is: the master opens it, the slave accepts it."""
+
     MASTER = "master"
     """Opens the connection (the operator's side: joystick, haptic device)."""
     SLAVE = "slave"
@@ -37,6 +39,8 @@ class Role(enum.Enum):
 
 
 class AckMode(enum.Enum):
+    """How acknowledgements travel: piggybacked on reverse samples (TDTP), or one ACK per packet."""
+
     BIDIRECTIONAL = "bidirectional"
     """TDTP: acknowledgements ride in the reverse data packets."""
     SEPARATE = "separate"
@@ -63,11 +67,12 @@ class AdmissionConfig:
     """Seconds an address-validation cookie stays valid: longer than any RTT a master may have,
     short enough to bound how long a captured OPEN can be replayed from the master's address."""
     opens_per_source: float = 20.0
-    """OPENs per second one source host may send (a master retries every 0.25 s)."""
+    """OPENs without a valid cookie per second one source address (host and port) may send (a master
+    retries every 0.25 s); an OPEN with a valid cookie is not counted."""
     open_burst: int = 40
     """OPENs a source may send at once before its rate applies."""
     max_sources: int = 4096
-    """Sources whose OPEN rate is tracked (least recently seen forgotten first)."""
+    """Source addresses whose OPEN rate is tracked (least recently seen forgotten first)."""
     replies_per_second: float = 20_000.0
     """COOKIE and version-REJECT replies per second to unvalidated sources, all together: bounds the
     CPU a flood of OPENs from forged addresses costs (each reply is never larger than its OPEN)."""
@@ -86,7 +91,7 @@ class AdmissionConfig:
 
 @dataclass(frozen=True, slots=True)
 class ConnectionConfig:
-    """Everything a :class:`~tdtp.connection.Connection` can be told. Times are in seconds."""
+    """Everything a :class:`~tdtp.session.connection.Connection` can be told. Times are in seconds."""
 
     max_payload: int = 1200
     """Largest payload this endpoint sends or accepts (bytes, header excluded). The peer's value,
@@ -105,7 +110,7 @@ class ConnectionConfig:
     goes out (bidirectional mode). At most 31.232 ms, so every ACK can report its hold time."""
     silence_timeout: float = 0.1
     """The watchdog: after this long without any datagram from the peer the connection reports
-    :class:`~tdtp.events.PeerSilent` (and :class:`~tdtp.events.PeerResumed` when the peer is heard
+    :class:`~tdtp.session.events.PeerSilent` (and :class:`~tdtp.session.events.PeerResumed` when the peer is heard
     again). 100 ms is five times a 1 kHz loop's worst normal gap and short enough for a slave to stop
     a machine safely; it must be shorter than ``idle_timeout``."""
     keepalive_interval: float | None = None

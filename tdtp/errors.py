@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from tdtp.events import ConnectionClosed
+    from tdtp.session.events import ConnectionClosed
 
 
 class TdtpError(Exception):

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from tdtp import Connection, ConnectionConfig, DataReceived, Event, Role
-from tdtp.pcap import PcapWriter
+from tdtp.capture.pcap import PcapWriter
 from tdtp.protection.keys import KeyInput, KeysInput
 
 MASTER_ADDR = ("192.0.2.1", 40001)

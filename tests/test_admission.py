@@ -19,7 +19,7 @@ from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.rate_limit import SourceRateLimiter
 from tdtp.protection import KeyRing, PresharedKey
-from tdtp.stats import DropReason
+from tdtp.session.stats import DropReason
 from tdtp.wire import (
     HEADER_SIZE,
     CloseReason,
@@ -42,6 +42,21 @@ def _open(
     return encode_header(2, 0x123, 0, 0, 255) + encode_open(
         OpenBody(2, flags, 0, max_payload, 0, nonce, bytes(8), cookie)
     )
+
+
+def _forged_keyed_open(rng: random.Random) -> bytes:
+    """A well-formed keyed OPEN naming the slave's key, with a tag nobody computed."""
+    body = OpenBody(
+        2,
+        OpenFlags.KEYED | OpenFlags.ENCRYPTED,
+        1,
+        1200,
+        0,
+        rng.randbytes(16),
+        KEY.key_id,
+        bytes(16),
+    )
+    return encode_header(2, 0x123, 0, 0, 255) + encode_open(body) + rng.randbytes(16)
 
 
 def _cookie_for(admission: Admission, addr: tuple[str, int], nonce: bytes, now: float) -> bytes:
@@ -94,8 +109,8 @@ def test_opens_per_source_are_rate_limited() -> None:
     verdicts = [admission.admit(_open(), MASTER_ADDR, 0.0) for _ in range(10)]
     assert sum(isinstance(v, Reply) for v in verdicts) == 5
     assert verdicts[5:] == [DropReason.RATE_LIMITED] * 5
-    # Another port of the same host shares the bucket; another host has its own.
-    assert admission.admit(_open(), (MASTER_ADDR[0], 1), 0.0) is DropReason.RATE_LIMITED
+    # Every source address has its own bucket: another port of the same host, another host.
+    assert isinstance(admission.admit(_open(), (MASTER_ADDR[0], 1), 0.0), Reply)
     assert isinstance(admission.admit(_open(), ("192.0.2.77", 1), 0.0), Reply)
     # The bucket refills at opens_per_source (20/s).
     assert isinstance(admission.admit(_open(), MASTER_ADDR, 0.1), Reply)
@@ -256,6 +271,47 @@ def test_a_master_opens_in_one_cookie_round_trip_while_forged_opens_flood_the_sl
         flood()
     assert pair.master.conn.state is State.ESTABLISHED
     assert pair.now - start == pytest.approx(0.040, abs=0.0011)
-    assert pair.master.conn._open_attempt == 2
+    assert pair.master.conn._handshake.open_attempt == 2
     admission = pair.slave.conn.admission
     assert admission is not None and admission.stats.cookies_sent > 400
+
+
+def test_a_valid_cookie_is_never_held_back_by_the_rate_limit() -> None:
+    """An OPEN that proves its address skips the per-source limit that OPENs proving nothing use up."""
+    admission = Admission(ConnectionConfig(admission=AdmissionConfig(open_burst=2)))
+    cookie = _cookie_for(admission, MASTER_ADDR, NONCE, 0.0)
+    for _ in range(50):  # the source's bucket is empty now
+        admission.admit(_open(), MASTER_ADDR, 0.0)
+    assert admission.admit(_open(), MASTER_ADDR, 0.0) is DropReason.RATE_LIMITED
+    assert isinstance(admission.admit(_open(cookie=cookie), MASTER_ADDR, 0.0), AdmittedOpen)
+
+
+@pytest.mark.parametrize("keyed", [False, True], ids=["unkeyed", "keyed"])
+def test_forged_opens_from_the_masters_host_do_not_lock_it_out(keyed: bool) -> None:
+    """Issue 20, item 1: forged OPENs at 1,000/s from the master's own IP with random ports (an
+    off-path attacker knows the host, not the port) used up the host's OPEN budget, and 0 of 8 real
+    connects succeeded. Now the master opens in its usual two round trips, in every try."""
+    key = KEY if keyed else None
+    for attempt in range(8):
+        pair = Pair(master_key=key, slave_keys=key) if keyed else Pair()
+        rng = random.Random(attempt)
+
+        def flood(pair: Pair = pair, rng: random.Random = rng) -> None:
+            source = (MASTER_ADDR[0], rng.randrange(1024, 65536))
+            if source[1] == MASTER_ADDR[1]:
+                return
+            forged = _forged_keyed_open(rng) if keyed else _open(rng.randbytes(16))
+            pair.slave.conn.receive_datagram(forged, source, now=pair.now)
+            pair.slave.conn.datagrams_to_send(now=pair.now)
+
+        for step in range(500):  # half a second of flood before the master starts
+            pair.now = step * 0.001
+            flood()
+        start = pair.now
+        pair.master.conn.connect(SLAVE_ADDR, now=start)
+        pair._flush(pair.master)
+        while pair.master.conn.state is not State.ESTABLISHED and pair.now < start + 2.0:
+            pair.run_for(0.001)
+            flood()
+        assert pair.master.conn.state is State.ESTABLISHED, f"try {attempt}"
+        assert pair.now - start == pytest.approx(0.040, abs=0.0011)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tdtp.bandwidth import (
+from tdtp.analysis.bandwidth import (
     FIGURE5_SIZES,
     PAPER_APP_RATE,
     Encapsulation,

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from tdtp.bandwidth_cli import bandwidth_main
-from tdtp.cli import main
+from tdtp.cli.bandwidth import bandwidth_main
+from tdtp.cli.main import main
 
 
 def test_default_table_has_the_papers_worked_example(capsys: pytest.CaptureFixture[str]) -> None:

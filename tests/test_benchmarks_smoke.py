@@ -307,3 +307,64 @@ def test_paths_misuse_is_one_line_and_status_2(argv: list[str], option: str) -> 
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and option in lines[0], done.stderr
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("zenoh") is None,
+    reason="mujoco or eclipse-zenoh not installed (the loop extra)",
+)
+def test_closed_loop(tmp_path: Path) -> None:
+    """Three transports through one lossy profile for a second: the processes, tdtp's in-process
+    netem, the datagram relay (under Zenoh, as under raw UDP) and the TCP relay, the figures, the
+    table and the plot. The figures themselves are the benchmark's business."""
+    done = subprocess.run(
+        [
+            sys.executable,
+            str(BENCHMARKS / "closed_loop.py"),
+            "--quick",
+            "--seconds",
+            "1",
+            "--profiles",
+            "wan",
+            "--transports",
+            "tdtp,tcp,zenoh",
+            "--out",
+            str(tmp_path),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    cells = report["profiles"]["wan"]
+    assert list(cells) == ["tdtp", "tcp", "zenoh"]
+    for transport, cell in cells.items():
+        assert cell["position_rmse_mm"] >= 0 and cell["force_rmse_n"] >= 0, transport
+        assert cell["ticks"]["master"] > 0 and cell["ticks"]["slave"] > 0, transport
+        assert set(cell["packets_per_s"]) == {"m2s", "s2m"}
+        assert cell["packets_per_s"]["m2s"] > 0, transport  # something entered the path
+        assert cell["channel_energy_j"]["injected"] >= 0
+    assert (tmp_path / "closed_loop_wan.png").stat().st_size > 0
+    assert "| wan | zenoh |" in (tmp_path / "closed_loop.md").read_text()
+    assert "wan" in done.stderr  # progress
+
+
+def test_closed_loop_usage_errors() -> None:
+    for args, says in (
+        (["--profiles", "moon"], "unknown profile moon"),
+        (["--transports", "carrier-pigeon"], "unknown transport carrier-pigeon"),
+        (["--seconds", "0"], "--seconds"),
+    ):
+        done = subprocess.run(
+            [sys.executable, str(BENCHMARKS / "closed_loop.py"), *args],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+        assert done.returncode == 2, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and says in lines[0], done.stderr

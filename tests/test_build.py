@@ -36,9 +36,9 @@ def test_setup_py_compiles_exactly_the_modules_the_runtime_knows() -> None:
 
 def _which_build(env: dict[str, str]) -> list[str]:
     code = (
-        "import tdtp, tdtp.connection, tdtp.control.trinomial as t;"
+        "import tdtp, tdtp.session.connection, tdtp.control.trinomial as t;"
         "info = tdtp.build_info();"
-        "print(info.build, tdtp.connection.__file__.endswith('.py'), t.__file__.endswith('.py'))"
+        "print(info.build, tdtp.session.connection.__file__.endswith('.py'), t.__file__.endswith('.py'))"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
@@ -63,3 +63,15 @@ def test_build_info_describes_itself() -> None:
     assert info.build in ("compiled", "pure")
     assert info.describe().startswith("compiled" if info.compiled else "pure Python (")
     assert info.as_dict() == {"build": info.build, "reason": info.reason}
+
+
+def test_public_classes_keep_their_docstrings_in_both_builds() -> None:
+    """help(tdtp.DataReceived) said "mypyc filler docstring" in the compiled build (issue 20, 9)."""
+    import inspect
+
+    import tdtp
+
+    for name in tdtp.__all__:
+        obj = getattr(tdtp, name)
+        if inspect.isclass(obj):
+            assert obj.__doc__ and "mypyc" not in obj.__doc__, name

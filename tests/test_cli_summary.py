@@ -1,12 +1,12 @@
-"""The --json story of each direction (tdtp.cli_summary): both views, nulls, latency notes."""
+"""The --json story of each direction (tdtp.cli.summary): both views, nulls, latency notes."""
 
 from __future__ import annotations
 
 from tdtp import ConnectionConfig
-from tdtp.cli_summary import LatencyCounts, direction_report, latency_report
+from tdtp.cli.live_stats import LatencyRecorder
+from tdtp.cli.summary import LatencyCounts, direction_report, latency_report
 from tdtp.control.fixed import FixedConfig
-from tdtp.live_stats import LatencyRecorder
-from tdtp.stats import ConnectionStats
+from tdtp.session.stats import ConnectionStats
 
 from pair import Direction, Pair
 

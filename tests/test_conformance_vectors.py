@@ -22,10 +22,10 @@ from tdtp.protection.derivation import (
     derive_session_secrets,
 )
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
-from tdtp.receive_window import ReceiveWindow
-from tdtp.rtt import RttEstimator
-from tdtp.sent_log import LostPacket, SentPacketLog
-from tdtp.stats import DropReason
+from tdtp.session.receive_window import ReceiveWindow
+from tdtp.session.rtt import RttEstimator
+from tdtp.session.sent_log import LostPacket, SentPacketLog
+from tdtp.session.stats import DropReason
 from tdtp.wire import (
     CipherSuite,
     ControlCode,

@@ -92,7 +92,7 @@ def test_bad_datagrams_are_dropped_by_reason(
 def test_optimistic_ack_is_dropped() -> None:
     pair = _established()
     master = pair.master.conn
-    ahead = master._sent.next_seq + 100  # a packet the master has not sent yet
+    ahead = master._recovery.sent.next_seq + 100  # a packet the master has not sent yet
     forged = encode_header(PacketType.DATA, 0, ahead, 0, 0) + b"x"
     pair.inject(forged, to_slave=False, source=SLAVE_ADDR)
     assert master.stats.drops == {"optimistic_ack": 1}
@@ -241,11 +241,12 @@ def test_an_empty_data_packet_is_never_sent_and_dropped_on_arrival() -> None:
     with pytest.raises(EmptyPayloadError, match="at least one byte"):
         pair.master.conn.send(b"", now=pair.now)
     delivered = slave.stats.samples_delivered
-    highest = slave._window.highest if slave._window is not None else None
+    highest = slave._acks.window.highest if slave._acks.window is not None else None
     # The next sequence number, acknowledging something the slave really sent: looks legitimate.
     master = pair.master.conn
-    datagram = encode_header(PacketType.DATA, master._sent.next_seq, 0, 0, 255)
+    datagram = encode_header(PacketType.DATA, master._recovery.sent.next_seq, 0, 0, 255)
     pair.inject(datagram, to_slave=True, source=MASTER_ADDR)
     assert _drops(pair).get("empty_data") == 1
     assert slave.stats.samples_delivered == delivered
-    assert slave._window is not None and slave._window.highest == highest  # no sequence consumed
+    window = slave._acks.window
+    assert window is not None and window.highest == highest  # no sequence consumed

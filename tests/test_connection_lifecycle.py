@@ -149,7 +149,7 @@ def test_faster_samples_than_allowed_keep_only_the_freshest() -> None:
     stats = pair.master.conn.stats
     assert 195 <= stats.sent.data_packets <= 202  # the pacer allows 100 packets/s
     assert stats.samples_superseded == stats.samples_offered - stats.sent.data_packets - (
-        1 if pair.master.conn._pending is not None else 0
+        1 if pair.master.conn._sender.pending is not None else 0
     )
     # Each delivered sample was the newest one offered when it left: stamps advance ~10 at a time.
     stamps = [int.from_bytes(e.payload[:4], "big") for e in pair.slave.received]

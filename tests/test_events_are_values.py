@@ -9,7 +9,7 @@ import pickle
 
 import pytest
 
-from tdtp.events import (
+from tdtp.session.events import (
     CloseCause,
     ConnectionClosed,
     ConnectionEstablished,

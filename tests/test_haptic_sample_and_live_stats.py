@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from tdtp.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
-from tdtp.live_stats import LatencyRecorder, LiveDisplay, percentile
+from tdtp.cli.live_stats import LatencyRecorder, LiveDisplay, percentile
+from tdtp.teleop.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
 
 
 def test_sample_round_trip_and_padding() -> None:

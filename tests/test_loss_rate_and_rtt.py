@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from tdtp.loss_rate import LossIntervalEstimator
-from tdtp.rtt import RttEstimator
+from tdtp.session.loss_rate import LossIntervalEstimator
+from tdtp.session.rtt import RttEstimator
 
 
 def test_no_loss_means_p_zero() -> None:

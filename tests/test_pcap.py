@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tdtp.pcap import LINKTYPE_RAW, CaptureError, PcapWriter
+from tdtp.capture.pcap import LINKTYPE_RAW, CaptureError, PcapWriter
 
 from capture_files import needs_tshark, read_pcap, tshark_fields, udp_payload
 

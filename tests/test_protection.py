@@ -141,3 +141,83 @@ def test_key_files_round_trip_and_refuse_bad_ones(tmp_path: Path) -> None:
         parse_keys("# nothing\n\n")
     with pytest.raises(InvalidKeyError, match="cannot read"):
         load_keys(tmp_path / "missing")
+    secret, other = "11" * 32, "22" * 32
+    # One key under two names would let either master open the other's sessions (issue 20, 9).
+    with pytest.raises(InvalidKeyError, match="line 3: the same key as line 1"):
+        parse_keys(f"a {secret}\nb {other}\nc {secret}\n")
+    with pytest.raises(InvalidKeyError, match="line 2: the name 'a' is already used on line 1"):
+        parse_keys(f"a {secret}\na {other}\n")
+    assert [k.name for k in parse_keys(f"a {secret}\nb {other}\n")] == ["a", "b"]
+
+
+# ---------------------------------------------------------------- long loss runs (issue 20, item 2)
+
+
+def _pair(encrypt: bool = True) -> tuple[PacketSealer, PacketOpener]:
+    secret = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, SUITE).master_to_slave
+    return PacketSealer(SUITE, secret, encrypt=encrypt), PacketOpener(
+        SUITE, secret, encrypt=encrypt
+    )
+
+
+def _run(sealer: PacketSealer, opener: PacketOpener, count: int, now: float, rate: float) -> int:
+    """Seal ``count`` datagrams at ``rate`` per second from ``now`` and open them all: how many open."""
+    opened = 0
+    for i in range(count):
+        if opener.open(sealer.seal(HEADER, b"x"), len(HEADER), now + i / rate) is not None:
+            opened += 1
+    return opened
+
+
+@pytest.mark.parametrize("lost", [32_767, 32_768, 60_000, 65_536, 200_000, 1_000_000])
+def test_a_keyed_receiver_recovers_from_any_loss_run(lost: int) -> None:
+    """After 70,000 packets, the next 2000 open whatever ran before them: 32,768 lost in a row used
+    to desynchronise the packet numbers for good (every later datagram refused as a replay)."""
+    sealer, opener = _pair()
+    assert _run(sealer, opener, 70_000, 0.0, 1000.0) == 70_000
+    gap_start = 70.0
+    sealer.next_number += lost  # the peer sent them; none arrived (1000/s, lost/1000 seconds)
+    back = gap_start + lost / 1000.0
+    assert _run(sealer, opener, 2000, back, 1000.0) == 2000
+    assert opener.resyncs == (1 if lost >= 32_768 else 0)
+
+
+def test_without_a_clock_the_search_still_spans_two_steps() -> None:
+    sealer, opener = _pair(encrypt=False)
+    for _ in range(10):
+        opener.open(sealer.seal(HEADER, b"x"), len(HEADER))
+    sealer.next_number += 100_000  # 1.5 steps of 65536
+    assert opener.open(sealer.seal(HEADER, b"y"), len(HEADER)) == b"y"
+
+
+def test_resynchronisation_keeps_the_replay_guarantee() -> None:
+    sealer, opener = _pair()
+    old = [sealer.seal(HEADER, b"old %d" % i) for i in range(100)]
+    for i, datagram in enumerate(old):
+        assert opener.open(datagram, len(HEADER), i / 1000) is not None
+    sealer.next_number += 50_000
+    assert opener.open(sealer.seal(HEADER, b"new"), len(HEADER), 60.0) == b"new"
+    for datagram in old:  # replayed after the resync: every one refused
+        assert opener.open(datagram, len(HEADER), 61.0) is None
+    assert opener.failure in ("replayed", "unauthenticated")
+    assert opener.window.highest == 100 + 50_000
+
+
+def test_forgeries_cannot_buy_more_than_the_resync_budget() -> None:
+    """A flood of forged datagrams during an outage: each failing datagram may start a search, but
+    at most RESYNC_TRIES_PER_SECOND searches a second run, and none of them moves the window."""
+    from tdtp.protection import packet_protection
+
+    sealer, opener = _pair()
+    assert _run(sealer, opener, 1000, 0.0, 1000.0) == 1000
+    forged = bytearray(sealer.seal(HEADER, b"x" * 20))
+    forged[-1] ^= 1  # a tag nobody can compute
+    searches = 0
+    real = opener.resyncs
+    for i in range(10_000):  # 10,000 forgeries over one second of a 30-second silence
+        before = opener._resync_budget
+        assert opener.open(bytes(forged), len(HEADER), 31.0 + i / 10_000) is None
+        searches += opener._resync_budget < before
+    # What was saved up (one second's worth) plus one second of refill.
+    assert searches <= 2 * packet_protection.RESYNC_TRIES_PER_SECOND + 1
+    assert opener.resyncs == real and opener.window.highest == 999

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tdtp.receive_window import RESYNC_RUN, Arrival, HeldAck, ReceiveWindow
+from tdtp.session.receive_window import RESYNC_RUN, Arrival, HeldAck, ReceiveWindow
 
 
 def test_in_order_gap_late_duplicate_and_stale() -> None:

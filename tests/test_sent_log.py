@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tdtp.sent_log import LostPacket, SentPacketLog
+from tdtp.session.sent_log import LostPacket, SentPacketLog
 
 
 def _log(first: int = 4000, count: int = 0, gap: float = 0.001) -> SentPacketLog:

@@ -125,7 +125,7 @@ def _slave_established() -> tuple[Connection, bytes]:
     pair.open()
     slave = pair.slave.conn
     assert slave.state is State.ESTABLISHED
-    return slave, slave._master_nonce
+    return slave, slave._handshake.master_nonce
 
 
 def _slave_closed() -> tuple[Connection, bytes]:
@@ -167,5 +167,7 @@ def test_the_master_counts_any_open_as_unexpected() -> None:
     pair = Pair()
     pair.open()
     master = pair.master.conn
-    pair.inject(_open(master._master_nonce, max_payload=0), to_slave=False, source=SLAVE_ADDR)
+    pair.inject(
+        _open(master._handshake.master_nonce, max_payload=0), to_slave=False, source=SLAVE_ADDR
+    )
     assert master.stats.drops == {"unexpected_control": 1}

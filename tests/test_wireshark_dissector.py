@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 
 from tdtp import ConnectionConfig
+from tdtp.capture.pcap import PcapWriter
 from tdtp.config import AckMode
-from tdtp.pcap import PcapWriter
 from tdtp.protection import PresharedKey
 from tdtp.wire import (
     CloseBody,

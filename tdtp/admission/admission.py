@@ -7,16 +7,17 @@ Sans-IO, like the connection. :meth:`Admission.admit` takes one OPEN datagram an
   create a connection, answer OPEN_ACK and spend a ``max_peers`` slot;
 * a :class:`Reply`: a datagram to send back to the source, never larger than the OPEN (a COOKIE, or
   a REJECT that says why the master cannot be served), with the reason the OPEN was not taken;
-* a :class:`~tdtp.stats.DropReason`: nothing is sent.
+* a :class:`~tdtp.session.stats.DropReason`: nothing is sent.
 
-Checks, in order: the per-source OPEN rate; the version (an unknown one gets REJECT if that is no
-larger than the OPEN); the body; the cookie (none or a stale one: answer COOKIE, within the global
-reply budget); then, with the address validated, the key (REJECT ``KEY_REQUIRED`` / ``KEY_UNKNOWN``
+Checks, in order: the version (an unknown one gets REJECT if that is no larger than the OPEN); the
+body; the cookie (none or a stale one: the per-source OPEN rate, then a COOKIE within the global
+reply budget; a valid one skips the rate, so floods that prove nothing cannot hold back an OPEN that
+proves its address); then, with the address validated, the key (REJECT ``KEY_REQUIRED`` / ``KEY_UNKNOWN``
 / ``SUITE_UNSUPPORTED``; a tag that does not verify is dropped silently, as WireGuard answers nothing
 unauthenticated) and the payload size (REJECT ``PAYLOAD_TOO_SMALL``).
 
 A server with many sessions shares one :class:`Admission` (one cookie secret, one rate table); a
-stand-alone slave :class:`~tdtp.connection.Connection` makes its own.
+stand-alone slave :class:`~tdtp.session.connection.Connection` makes its own.
 """
 
 from __future__ import annotations
@@ -28,11 +29,11 @@ from typing import Final, NamedTuple
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
 from tdtp.config import ConnectionConfig
-from tdtp.events import Address
 from tdtp.protection.derivation import derive_open_secret
 from tdtp.protection.keys import KeyRing, PresharedKey
 from tdtp.protection.packet_protection import Direction
-from tdtp.stats import DropReason
+from tdtp.session.events import Address
+from tdtp.session.stats import DropReason
 from tdtp.wire.control import (
     CLOSE_BODY_SIZE,
     NO_COOKIE,
@@ -168,11 +169,11 @@ class Admission:
             or data[HEADER_SIZE] != ControlCode.OPEN
         ):
             return DropReason.UNEXPECTED_CONTROL
-        if not self._per_source.allow(addr[0], now):
-            return DropReason.RATE_LIMITED
         body_bytes = data[HEADER_SIZE:]
         version = open_version(body_bytes)
         if version != PROTOCOL_VERSION:
+            if not self._per_source.allow(addr, now):
+                return DropReason.RATE_LIMITED
             if size_allows_reject(len(data)):
                 # The nonce where version 2 has it: a later version that keeps it there can tell.
                 nonce = bytes(body_bytes[OPEN_NONCE_OFFSET : OPEN_NONCE_OFFSET + NONCE_SIZE]).ljust(
@@ -198,6 +199,12 @@ class Admission:
         ):
             return DropReason.BAD_CONTROL
         if body.cookie == NO_COOKIE or not self._cookies.check(body.cookie, addr, body.nonce, now):
+            # Not validated yet: the per-source limit applies, per address *and port*, so that
+            # forged OPENs from the master's host with other ports cannot use up the master's
+            # share. An OPEN with a valid cookie skips it: no flood of OPENs that prove nothing
+            # can hold back one that proves its address (PROTOCOL.md 5.1, rule 2).
+            if not self._per_source.allow(addr, now):
+                return DropReason.RATE_LIMITED
             cookie = self._cookies.mint(addr, body.nonce, now)
             return self._reply(
                 _REPLY_HEADER + encode_cookie(body.nonce, cookie),

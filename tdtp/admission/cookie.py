@@ -17,7 +17,7 @@ import hmac
 import struct
 from typing import Final
 
-from tdtp.events import Address
+from tdtp.session.events import Address
 from tdtp.wire.control import COOKIE_SIZE
 
 TICKS_PER_SECOND: Final = 16

@@ -33,7 +33,11 @@ class TokenBucket:
 
 
 class SourceRateLimiter:
-    """A token bucket per source (the host part of an address), in a bounded LRU table."""
+    """A token bucket per source address (host and port), in a bounded LRU table.
+
+    Keyed on the whole address, not the host: forged datagrams from a master's host with other ports
+    (which an off-path attacker can send, not knowing the master's port) do not touch the master's
+    own bucket."""
 
     __slots__ = ("_buckets", "_burst", "_max_sources", "_rate")
 

@@ -35,7 +35,6 @@ from tdtp.aio.endpoint import (
 from tdtp.aio.impairment import ImpairedTransport, as_spec
 from tdtp.aio.timer import TimerPreference, check_timer_preference, monotonic
 from tdtp.config import ConnectionConfig, Role
-from tdtp.connection import Connection, State
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,
@@ -46,9 +45,10 @@ from tdtp.errors import (
     PortUnreachableError,
     ServerClosedError,
 )
-from tdtp.events import Address
 from tdtp.netem import NetemSpec
 from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
+from tdtp.session.connection import Connection, State
+from tdtp.session.events import Address
 from tdtp.wire.control import CloseReason, ControlCode
 from tdtp.wire.header import HEADER_SIZE, PacketType
 
@@ -240,7 +240,7 @@ def connect(
     datagram authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must
     hold the same key.
 
-    ``pcap`` (a path, or a shared :class:`~tdtp.pcap.PcapWriter`) records every datagram the socket
+    ``pcap`` (a path, or a shared :class:`~tdtp.capture.pcap.PcapWriter`) records every datagram the socket
     sends and receives, with UDP/IP headers, for Wireshark (``tools/wireshark/tdtp.lua``).
     """
     if not isinstance(host, str) or not host:
@@ -657,7 +657,7 @@ def listen(
     the port can open a session.
 
     ``netem`` impairs everything the slave sends (all its masters share the one emulated link).
-    ``pcap`` (a path, or a shared :class:`~tdtp.pcap.PcapWriter`) records every datagram the
+    ``pcap`` (a path, or a shared :class:`~tdtp.capture.pcap.PcapWriter`) records every datagram the
     socket sends and receives, every master's and the strangers' alike, until the server closes.
 
     ``reuse_port=True`` (Linux, BSD) binds with ``SO_REUSEPORT``, so that several processes can

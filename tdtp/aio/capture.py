@@ -13,17 +13,17 @@ import asyncio
 import os
 from typing import Any
 
-from tdtp.events import Address
-from tdtp.pcap import PcapWriter
+from tdtp.capture.pcap import PcapWriter
+from tdtp.session.events import Address
 
 CaptureTarget = str | os.PathLike[str] | PcapWriter
 """Where to capture: a path (a new file, closed with the endpoint or server) or an open
-:class:`~tdtp.pcap.PcapWriter` (shared, closed by its owner)."""
+:class:`~tdtp.capture.pcap.PcapWriter` (shared, closed by its owner)."""
 
 
 def open_capture(target: CaptureTarget) -> tuple[PcapWriter, bool]:
     """The writer for ``target`` and whether the caller owns (must close) it. Raises
-    :class:`~tdtp.pcap.CaptureError` when the file cannot be created."""
+    :class:`~tdtp.capture.pcap.CaptureError` when the file cannot be created."""
     if isinstance(target, PcapWriter):
         return target, False
     return PcapWriter(target), True
@@ -31,7 +31,7 @@ def open_capture(target: CaptureTarget) -> tuple[PcapWriter, bool]:
 
 class CapturingTransport(asyncio.DatagramTransport):
     """A datagram transport that records every datagram it sends, and every datagram its
-    protocol reports received, into a :class:`~tdtp.pcap.PcapWriter`."""
+    protocol reports received, into a :class:`~tdtp.capture.pcap.PcapWriter`."""
 
     def __init__(
         self, transport: asyncio.DatagramTransport, writer: PcapWriter, *, owned: bool

@@ -15,8 +15,8 @@ transport, whose high-water mark is set to zero): while the operating system can
 is held in the core, where a newer sample supersedes it, instead of queueing in the event loop.
 
 The watchdog. :attr:`Endpoint.peer_silent`, :meth:`Endpoint.wait_silent`, :meth:`Endpoint.wait_resumed`
-and ``on_watchdog`` callbacks report the core's :class:`~tdtp.events.PeerSilent` and
-:class:`~tdtp.events.PeerResumed` events, so a slave can hold its machine while its master is silent.
+and ``on_watchdog`` callbacks report the core's :class:`~tdtp.session.events.PeerSilent` and
+:class:`~tdtp.session.events.PeerResumed` events, so a slave can hold its machine while its master is silent.
 
 Callbacks that raise. An exception from ``on_data`` or ``on_watchdog`` goes to the loop's exception
 handler (logged by default, as asyncio logs a failed callback) and the session goes on: its timer is
@@ -34,9 +34,9 @@ from typing import Protocol
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.sample_iteration import samples_until_closed
 from tdtp.aio.timer import monotonic
-from tdtp.connection import Connection, State
 from tdtp.errors import ConnectionClosedError, EndpointClosedError
-from tdtp.events import (
+from tdtp.session.connection import Connection, State
+from tdtp.session.events import (
     Address,
     ConnectionClosed,
     ConnectionEstablished,
@@ -44,7 +44,7 @@ from tdtp.events import (
     PeerResumed,
     PeerSilent,
 )
-from tdtp.stats import ConnectionStats
+from tdtp.session.stats import ConnectionStats
 
 __all__ = [
     "DataCallback",

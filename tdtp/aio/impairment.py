@@ -18,8 +18,8 @@ import asyncio
 from collections.abc import Callable
 
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
-from tdtp.events import Address
 from tdtp.netem import NetemLink, NetemSpec, parse_netem
+from tdtp.session.events import Address
 
 DeliverFn = Callable[[bytes, Address | None], None]
 

@@ -17,8 +17,8 @@ from tdtp.aio.api import address_error
 from tdtp.aio.impairment import DelayLine, as_spec
 from tdtp.aio.timer import monotonic
 from tdtp.errors import InvalidArgumentError
-from tdtp.events import Address
 from tdtp.netem import NetemLink, NetemSpec
+from tdtp.session.events import Address
 
 BACKLOG_LIMIT = 64
 """Datagrams held per client while its upstream socket opens (a few milliseconds at most)."""

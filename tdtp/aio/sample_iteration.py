@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator, Awaitable, Callable
 
 from tdtp.errors import EndpointClosedError
-from tdtp.events import DataReceived
+from tdtp.session.events import DataReceived
 
 
 async def samples_until_closed(

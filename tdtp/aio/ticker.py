@@ -25,6 +25,9 @@ from tdtp.errors import InvalidArgumentError
 
 
 class Ticker:
+    """``async for tick in Ticker(rate)``: tick numbers on absolute deadlines ``start + k / rate``,
+    late wake-ups never drifting the schedule (see the module docstring)."""
+
     def __init__(
         self,
         rate: float,

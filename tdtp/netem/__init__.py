@@ -1,6 +1,6 @@
 """In-process network impairment with tc-netem's parameters, semantics and syntax.
 
-* :func:`parse_netem` / :meth:`NetemSpec.parse` read netem options (``"delay 20ms 5ms loss 1%"``) into a
+* :func:`parse_netem` reads netem options (``"delay 20ms 5ms loss 1%"``) into a
   :class:`NetemSpec`; ``str(spec)`` writes them back.
 * :class:`NetemLink` is a sans-IO model of one direction: datagrams in with ``now``, out at their
   delivery time, with netem's order of operations and a seeded random generator.

@@ -9,7 +9,7 @@ kernel ``net/sched/sch_netem.c``). Units are SI and fractions, never tc's scaled
   second),
 * sizes and overheads are **bytes**.
 
-``str(spec)`` renders netem syntax and :meth:`NetemSpec.parse` reads it back: ``NetemSpec.parse(str(spec))
+``str(spec)`` renders netem syntax and :func:`~tdtp.netem.parser.parse_netem` reads it back: ``parse_netem(str(spec))
 == spec`` holds exactly for every valid spec (numbers are rendered through :mod:`decimal`, so no float
 rounding creeps in).
 """
@@ -513,17 +513,6 @@ class NetemSpec:
                 "reordering needs a delay: netem sends a reordered packet at once and delays the "
                 "others, so add one, e.g. 'delay 10ms reorder 25%'"
             )
-
-    @classmethod
-    def parse(cls, text: str) -> NetemSpec:
-        """Read netem syntax, e.g. ``"delay 20ms 5ms 25% distribution normal loss 1% rate 1mbit"``.
-
-        Raises :class:`~tdtp.netem.parser.NetemSyntaxError` (a :class:`ValueError`) naming the bad token.
-        """
-        # The parser builds NetemSpec objects, so it imports this module: import it late.
-        from tdtp.netem.parser import parse_netem  # noqa: PLC0415
-
-        return parse_netem(text)
 
     def __str__(self) -> str:
         parts = [

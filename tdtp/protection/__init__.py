@@ -1,7 +1,7 @@
 """Keyed sessions: pre-shared keys, key derivation, packet protection and the replay window.
 
 One layer around the wire codec: a keyed and an unkeyed session run the same
-:class:`~tdtp.connection.Connection`, which hands its datagrams through this layer when it has keys.
+:class:`~tdtp.session.connection.Connection`, which hands its datagrams through this layer when it has keys.
 docs/SECURITY.md describes the threat model; docs/PROTOCOL.md the keyed packet layout.
 """
 

@@ -19,6 +19,8 @@ from tdtp.protection.keys import PresharedKey
 def parse_keys(text: str, source: str = "key file") -> list[PresharedKey]:
     """The keys in ``text`` (the key file format); raises :class:`InvalidKeyError` naming the line."""
     keys: list[PresharedKey] = []
+    lines_of_secret: dict[bytes, int] = {}
+    lines_of_name: dict[str, int] = {}
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
@@ -32,9 +34,25 @@ def parse_keys(text: str, source: str = "key file") -> list[PresharedKey]:
         except ValueError:
             raise InvalidKeyError(f"{source}, line {number}: the key is not hexadecimal") from None
         try:
-            keys.append(PresharedKey(secret, name))
+            key = PresharedKey(secret, name)
         except InvalidKeyError as exc:
             raise InvalidKeyError(f"{source}, line {number}: {exc}") from None
+        # One key, one master: the same secret under two names would let either name open the
+        # other's sessions, and a name twice would make --key-name ambiguous.
+        if secret in lines_of_secret:
+            raise InvalidKeyError(
+                f"{source}, line {number}: the same key as line {lines_of_secret[secret]}; "
+                "give each master a key of its own (tdtp keygen)"
+            )
+        if name and name in lines_of_name:
+            raise InvalidKeyError(
+                f"{source}, line {number}: the name {name!r} is already used on line "
+                f"{lines_of_name[name]}"
+            )
+        lines_of_secret[secret] = number
+        if name:
+            lines_of_name[name] = number
+        keys.append(key)
     if not keys:
         raise InvalidKeyError(f"{source} holds no key (generate one with: tdtp keygen FILE)")
     return keys

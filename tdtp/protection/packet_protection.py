@@ -14,7 +14,14 @@ encryption off the body travels in the clear too and the tag covers it as associ
 The receiver rebuilds the full packet number from the 16 wire bits (nearest to the highest
 authenticated one + 1), refuses numbers its replay window has seen, verifies the tag, and only then
 moves the window. 16 bits decode unambiguously while fewer than 32768 of the peer's datagrams are lost
-in a row: at 1000 packets/s, a 32-second outage with the peer sending all the while.
+in a row. After a longer loss run (a 33-second blackout at 1000 packets/s) that nearest number lies in
+the past and the datagram would be refused as a replay for the rest of the session; so a datagram that
+fails at the nearest number is tried at the numbers with the same 16 low bits further ahead
+(:meth:`PacketOpener.open`, "resynchronisation"): as many steps of 65536 as the peer can have sent since
+its last authenticated datagram (twice its fastest observed rate, at least 1000/s, times the silence,
+plus two), at most :data:`RESYNC_TRIES_PER_SECOND` such searches a second. Only numbers above the
+highest accepted are tried and the window only moves on a tag that verifies, so the replay guarantee
+is unchanged; the budget bounds what a flood of forgeries can cost (docs/SECURITY.md).
 
 The Connection calls this layer; the layer knows nothing about what the body means.
 """
@@ -42,6 +49,15 @@ one session. The connection ends with KEY_EXHAUSTED before the limit."""
 FORGERY_LIMIT: Final = 1 << 36
 """Failed authentications one key tolerates (RFC 9001, section 6.6, for both suites here), after which
 the connection ends. Far beyond any attacker's budget at any realistic link rate."""
+
+RESYNC_TRIES_PER_SECOND: Final = 50.0
+"""Resynchronisation searches a second (and at most this many saved up): the peer's first datagram
+after a blackout is found within 20 ms at 1000 datagrams/s, and forgeries cannot make the receiver
+spend more than this many searches' worth of AEAD checks a second."""
+RESYNC_MAX_STEPS: Final = 4096
+"""The longest search, in steps of 65536 packet numbers (268 million datagrams: three days at 1000/s)."""
+_MIN_PEER_RATE: Final = 1000.0
+_RATE_WINDOW: Final = 1.0
 
 _PN: Final = struct.Struct(">H")
 _pack_pn = _PN.pack
@@ -116,7 +132,19 @@ class PacketSealer(Direction):
 class PacketOpener(Direction):
     """Checks and opens what the peer sends: packet-number expansion, replay window, AEAD."""
 
-    __slots__ = ("_encrypt", "failure", "forgeries", "window")
+    __slots__ = (
+        "_counted",
+        "_counted_since",
+        "_encrypt",
+        "_last_accepted",
+        "_peak_rate",
+        "_resync_budget",
+        "_resync_checked",
+        "failure",
+        "forgeries",
+        "resyncs",
+        "window",
+    )
 
     def __init__(self, suite: CipherSuite, secret: TrafficSecret, *, encrypt: bool) -> None:
         super().__init__(suite, secret)
@@ -126,6 +154,14 @@ class PacketOpener(Direction):
         """Datagrams whose tag did not verify."""
         self.failure = ""
         """Why the last :meth:`open` returned ``None``: ``"unauthenticated"`` or ``"replayed"``."""
+        self.resyncs = 0
+        """Datagrams found only by the resynchronisation search (after a long loss run)."""
+        self._last_accepted: float | None = None  # ``now`` of the last authenticated datagram
+        self._peak_rate = 0.0  # the peer's fastest authenticated datagrams/s over a whole window
+        self._counted = 0
+        self._counted_since: float | None = None
+        self._resync_budget = RESYNC_TRIES_PER_SECOND
+        self._resync_checked: float | None = None
 
     @property
     def exhausted(self) -> bool:
@@ -137,29 +173,90 @@ class PacketOpener(Direction):
         number = expected + ((truncated - expected + _PN_HALF) % PN_MODULUS) - _PN_HALF
         return number if number >= 0 else number + PN_MODULUS
 
-    def open(self, datagram: bytes, prefix_size: int) -> bytes | None:
+    def open(self, datagram: bytes, prefix_size: int, now: float | None = None) -> bytes | None:
         """The plaintext body of ``datagram`` (at least ``prefix_size + PROTECTION_OVERHEAD`` bytes long), or
-        ``None`` with :attr:`failure` saying why."""
+        ``None`` with :attr:`failure` saying why. ``now`` (the caller's clock) bounds the search for
+        the packet number after a long loss run; without it the search spans two steps."""
         head = prefix_size + PN_SIZE
         number = self.expand(_unpack_pn(datagram, prefix_size)[0])
         window = self.window
         if window.seen(number):
             self.failure = "replayed"
-            return None
+            body = None
+        else:
+            body = self._decrypt(datagram, head, number)
+            if body is None:
+                self.forgeries += 1
+                self.failure = "unauthenticated"
+        if body is None:
+            number = self._resync(datagram, head, number, now)
+            if number < 0:
+                return None
+            body = self._decrypt(datagram, head, number)
+            assert body is not None  # _resync verified it
+        window.accept(number)
+        if now is not None:
+            self._on_accepted(now)
+        return body
+
+    def _decrypt(self, datagram: bytes, head: int, number: int) -> bytes | None:
         aad = datagram[:head]
         nonce = (self._iv ^ number).to_bytes(IV_SIZE, "big")
         try:
             if self._encrypt:
-                body = self._aead.decrypt(nonce, datagram[head:], aad)
-            else:
-                body = datagram[head:-TAG_SIZE]
-                self._aead.decrypt(nonce, datagram[-TAG_SIZE:], datagram[:-TAG_SIZE])
+                return self._aead.decrypt(nonce, datagram[head:], aad)
+            self._aead.decrypt(nonce, datagram[-TAG_SIZE:], datagram[:-TAG_SIZE])
         except InvalidTag:
-            self.forgeries += 1
-            self.failure = "unauthenticated"
             return None
-        window.accept(number)
-        return body
+        return datagram[head:-TAG_SIZE]
+
+    def _resync(self, datagram: bytes, head: int, nearest: int, now: float | None) -> int:
+        """The packet number ahead of ``nearest`` (same 16 low bits) under which ``datagram``
+        authenticates, or -1. Only numbers above the highest accepted are tried, within the budget."""
+        if now is not None:
+            checked = self._resync_checked
+            if checked is not None and now > checked:
+                self._resync_budget = min(
+                    RESYNC_TRIES_PER_SECOND,
+                    self._resync_budget + (now - checked) * RESYNC_TRIES_PER_SECOND,
+                )
+            self._resync_checked = now
+        if self._resync_budget < 1.0:
+            return -1
+        self._resync_budget -= 1.0
+        steps = 2
+        last = self._last_accepted
+        if now is not None and last is not None and now > last:
+            rate = 2.0 * max(self._peak_rate, _MIN_PEER_RATE)
+            steps += int((now - last) * rate / PN_MODULUS) + 1
+        if steps > RESYNC_MAX_STEPS:
+            steps = RESYNC_MAX_STEPS
+        highest = self.window.highest
+        number = nearest
+        while number <= highest:
+            number += PN_MODULUS
+        for _ in range(steps):
+            if self._decrypt(datagram, head, number) is not None:
+                self.resyncs += 1
+                return number
+            number += PN_MODULUS
+        return -1
+
+    def _on_accepted(self, now: float) -> None:
+        self._last_accepted = now
+        since = self._counted_since
+        if since is None:
+            self._counted_since = now
+            self._counted = 1
+            return
+        self._counted += 1
+        elapsed = now - since
+        if elapsed >= _RATE_WINDOW:
+            rate = self._counted / elapsed
+            if rate > self._peak_rate:
+                self._peak_rate = rate
+            self._counted_since = now
+            self._counted = 0
 
     def verify_numbered(self, truncated: int, message: bytes, tag: bytes) -> bool:
         """Check a tag over a clear ``message`` that names its own packet number (OPEN_ACK), through

@@ -2,7 +2,7 @@
 
 * :mod:`tdtp.sim.engine`: events, packets, nodes, links (a :class:`~tdtp.netem.NetemLink` per
   direction for the rate and the DropTail queue, plus a propagation delay) and static routes;
-* :mod:`tdtp.sim.endpoints`: the unchanged sans-IO :class:`~tdtp.connection.Connection` at both ends
+* :mod:`tdtp.sim.endpoints`: the unchanged sans-IO :class:`~tdtp.session.connection.Connection` at both ends
   of a session, sampling at a fixed rate; a constant-rate UDP source;
 * :mod:`tdtp.sim.tcp`: ns-2-like Tahoe/Reno/NewReno TCP with an FTP source, for cross traffic;
 * :mod:`tdtp.sim.readings`: what the paper leaves open about its simulation, answered by name;
@@ -10,7 +10,7 @@
 * :mod:`tdtp.sim.spread` and :mod:`tdtp.sim.study`: many seeds in parallel, medians and 95 %
   intervals, starved TCP flows flagged; the lock-out check;
 * :mod:`tdtp.sim.plots`: their figures (needs matplotlib: ``pip install 'tdtp[plot]'``);
-* :mod:`tdtp.sim.cli`: ``tdtp simulate NAME --out DIR``.
+* :mod:`tdtp.cli.simulate`: ``tdtp simulate NAME --out DIR``.
 
 docs/REPRODUCTION.md compares the results with the paper's.
 """

@@ -1,4 +1,4 @@
-"""Applications on simulated hosts: the real TDTP :class:`~tdtp.connection.Connection` at both ends of a
+"""Applications on simulated hosts: the real TDTP :class:`~tdtp.session.connection.Connection` at both ends of a
 teleoperation session, and a constant-rate UDP source.
 
 :class:`TdtpEndpoint` is the simulator's I/O shell around the unchanged sans-IO connection, doing what
@@ -21,9 +21,9 @@ from collections import deque
 from dataclasses import dataclass
 
 from tdtp.config import ConnectionConfig, Role
-from tdtp.connection import Connection, State
 from tdtp.errors import InvalidArgumentError
-from tdtp.events import ConnectionClosed, ConnectionEstablished, DataReceived
+from tdtp.session.connection import Connection, State
+from tdtp.session.events import ConnectionClosed, ConnectionEstablished, DataReceived
 from tdtp.sim.engine import Network, Node, Packet, Timer
 from tdtp.sim.metrics import FlowRecorder
 

@@ -31,20 +31,18 @@ from tdtp.config import AckMode
 from tdtp.control import TfrcConfig, TrinomialConfig
 from tdtp.sim.metrics import mean
 from tdtp.sim.readings import DEFAULT_READING, READINGS, Reading
-from tdtp.sim.scenarios import (
-    DEFAULT_SCHEMES,
+from tdtp.sim.scenarios.paper import (
     MS,
-    SCHEMES,
     SM,
     STARVATION_SHARE,
     WINDOWS,
     PaperRun,
-    _clean,
-    _JsonResult,
     paper,
     tail_window,
     tcp_pause,
 )
+from tdtp.sim.scenarios.results import ScenarioResult, json_safe
+from tdtp.sim.scenarios.schemes import DEFAULT_SCHEMES, SCHEMES
 from tdtp.sim.spread import INTERVAL_METHOD, MedianInterval, median_interval, quantile
 
 __all__ = [
@@ -420,7 +418,7 @@ class ReadingSummary:
 
 
 @dataclass
-class PaperStudy(_JsonResult):
+class PaperStudy(ScenarioResult):
     """The paper scenario under several readings, each over several seeds."""
 
     params: dict[str, Any]
@@ -443,7 +441,7 @@ class PaperStudy(_JsonResult):
             }
             per["tcp_starved_seeds"] = {key: s.starved_seeds for key, s in summary.schemes.items()}
             out[name] = per
-        return _clean(out)  # type: ignore[no-any-return]
+        return json_safe(out)  # type: ignore[no-any-return]
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -619,7 +617,7 @@ class LockoutOutcome:
 
 
 @dataclass
-class LockoutStudy(_JsonResult):
+class LockoutStudy(ScenarioResult):
     params: dict[str, Any]
     outcomes: list[LockoutOutcome]
     traces: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -636,7 +634,7 @@ class LockoutStudy(_JsonResult):
                 "outside_factor_two": o.outside_factor_two,
                 "tcp_share_after_over_before": o.share_ratio.to_dict(3),
             }
-        return _clean(out)  # type: ignore[no-any-return]
+        return json_safe(out)  # type: ignore[no-any-return]
 
     def to_dict(self) -> dict[str, Any]:
         return {

@@ -80,6 +80,8 @@ KNOWN_FLAGS: Final = int(OpenFlags.SEPARATE_ACKS | OpenFlags.KEYED | OpenFlags.E
 
 
 class CipherSuite(enum.IntEnum):
+    """The AEAD a keyed session seals its datagrams with (the OPEN's ``suite`` byte)."""
+
     NONE = 0
     """Unkeyed session."""
     AES_128_GCM = 1

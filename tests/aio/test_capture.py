@@ -9,7 +9,7 @@ import pytest
 
 from tdtp import ConnectionConfig
 from tdtp.aio.api import connect, listen
-from tdtp.pcap import CaptureError, PcapWriter
+from tdtp.capture.pcap import CaptureError, PcapWriter
 
 from capture_files import read_pcap, udp_payload
 

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from tdtp.cli import _host_port, build_parser, main
+from tdtp.cli.main import main
+from tdtp.cli.options import build_parser, host_port
 
 
 def _demo(*extra: str) -> dict[str, object]:
@@ -72,9 +73,9 @@ def test_bad_arguments_are_refused_with_a_message(capsys: pytest.CaptureFixture[
 
 
 def test_host_port_forms() -> None:
-    assert _host_port("127.0.0.1:7000") == ("127.0.0.1", 7000)
-    assert _host_port("[::1]:7000") == ("::1", 7000)
-    assert _host_port("fe80::1:7000") == ("fe80::1", 7000)
+    assert host_port("127.0.0.1:7000") == ("127.0.0.1", 7000)
+    assert host_port("[::1]:7000") == ("::1", 7000)
+    assert host_port("fe80::1:7000") == ("fe80::1", 7000)
 
 
 def _free_udp_port() -> int:
@@ -157,3 +158,70 @@ def test_an_unwritable_capture_is_one_line_and_status_2(capsys: pytest.CaptureFi
     assert main(["demo", "--duration", "0.5", "--pcap", "/nonexistent/dir/x.pcap"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("tdtp: cannot write the capture file") and err.count("\n") == 1
+
+
+HOSTILE_PAYLOADS = [
+    bytes(range(100)),  # random-looking bytes
+    b"\xff" * 100,  # NaNs everywhere in the demo's layout
+    __import__("struct").pack(">dI3f3f", 1.0, 1, 1e38, 0, 0, 0, 0, 0) + bytes(64),
+    __import__("struct").pack(">dI3f3f", 1.0, 1, 7e35, 0, 0, 0, 0, 0) + bytes(64),
+    b"x",  # one byte
+    bytes(1200),  # the largest payload the slave takes
+]
+
+
+def test_the_cli_slave_keeps_serving_whatever_the_payload_bytes() -> None:
+    """Issue 20, item 5: payloads the demo does not recognise are opaque; the session goes on."""
+    import asyncio
+    import signal
+
+    import tdtp
+
+    from eventually import eventually
+
+    port = _free_udp_port()
+    slave = subprocess.Popen(
+        [sys.executable, "-m", "tdtp", "slave", "--host", "127.0.0.1", "--port", str(port),
+         "--rate", "200", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+
+    async def hostile_master() -> tuple[int, int]:
+        async with tdtp.connect("127.0.0.1", port) as ep:
+            for payload in HOSTILE_PAYLOADS * 20:
+                ep.send(payload)
+                await asyncio.sleep(0.002)
+            offered = ep.stats.samples_offered
+            sent = ep.stats.sent.data_packets
+            # Every hostile sample that left has its fate (loopback: acknowledged)...
+            await eventually(lambda: ep.stats.packets_acked >= sent, within=30)
+            # ...and the slave still answers afterwards: its send task survived them.
+            heard = ep.stats.samples_delivered
+            await eventually(lambda: ep.stats.samples_delivered >= heard + 20, within=30)
+            return offered, sent
+
+    try:
+        _wait_until_listening(port)
+        offered, sent = asyncio.run(hostile_master())
+        slave.send_signal(signal.SIGINT)
+        out, err = slave.communicate(timeout=60)
+    finally:
+        slave.kill()
+    assert slave.returncode == 130, err
+    assert offered == len(HOSTILE_PAYLOADS) * 20 and sent > 0
+    (session,) = json.loads(out)["sessions"]
+    assert session["task_error"] is None and "Traceback" not in err
+    assert session["samples_received"] == sent  # loopback: every one arrived, none fatal
+    assert session["samples_sent"] > 0
+
+
+def test_master_and_slave_print_text_unless_json_is_asked_for() -> None:
+    """Issue 20, item 9: the 89-line JSON came after the live display even without --json."""
+    done = subprocess.run(
+        [sys.executable, "-m", "tdtp", "slave", "--host", "127.0.0.1", "--port", "0",
+         "--duration", "0.3"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    last = done.stdout.strip().splitlines()[-1]
+    assert last == "served 0 master(s), refused 0" and "{" not in done.stdout

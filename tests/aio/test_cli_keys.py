@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from tdtp import load_keys
-from tdtp.cli import main
+from tdtp.cli.main import main
 
 
 def _tdtp(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:

@@ -20,8 +20,8 @@ import pytest
 
 from tdtp import __version__, listen
 from tdtp.aio.relay import start_relay
-from tdtp.cli import main
-from tdtp.live_stats import LiveDisplay
+from tdtp.cli.live_stats import LiveDisplay
+from tdtp.cli.main import main
 
 from eventually import eventually
 
@@ -75,7 +75,7 @@ MISUSES: list[tuple[list[str], str]] = [
     (["demo", "--rate", "0"], "--rate"),
     (["demo", "--rate", "1e9"], "at most 100000"),
     (["demo", "--rate", "fast"], "expected a number"),
-    (["demo", "--size", "8"], "--size: must be in 36..65502"),
+    (["demo", "--size", "8"], "--size: must be in 36..65484"),
     (["demo", "--size", "70000"], "--size"),
     (["demo", "--ack-size", "3"], "--ack-size"),
     (["demo", "--ack-size", "5000"], "--ack-size: ack_size must be an integer in 5..1205"),
@@ -274,8 +274,8 @@ async def test_a_master_that_loses_its_slave_reports_the_true_cause() -> None:
                 rest, err = await process.communicate()
             assert process.returncode == 1, err
             assert b"session lost (idle_timeout)" in err
-            summary = json.loads(rest.decode()[rest.decode().index("{") :])
-            assert summary["close"]["cause"] == "idle_timeout"
-            assert summary["peer_silences"] == 2
+            # Without --json, the summary's last line says how the session ended.
+            last = rest.decode().strip().splitlines()[-1]
+            assert last.startswith("session closed (idle_timeout), slave silent 2 time(s)")
         finally:
             await relay.close()

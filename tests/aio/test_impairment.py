@@ -14,7 +14,7 @@ from tdtp.aio.api import connect, listen
 from tdtp.aio.relay import start_relay
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
-from tdtp.cli import build_parser
+from tdtp.cli.options import build_parser
 
 
 class _Echo(asyncio.DatagramProtocol):

@@ -143,7 +143,7 @@ async def test_a_master_connects_while_forged_opens_flood_the_slave() -> None:
         try:
             await asyncio.sleep(0.2)
             master = await connect(*target)
-            opens_sent = master.connection._open_attempt
+            opens_sent = master.connection._handshake.open_attempt
             slave = await server.accept()
             master.send(b"command")
             sample = await asyncio.wait_for(slave.recv(), 5.0)

@@ -52,7 +52,9 @@ async def test_an_unknown_address_gets_state_only_through_an_admitted_open() -> 
         assert (admission.cookies_sent, admission.admitted) == (cookies + 1, admitted)
         assert server.endpoints == [slave]  # nothing kept for the stranger
         # From the master's own address, the OPEN reaches its session, and admission drops it.
-        master._transport.sendto(_open(max_payload=0, nonce=slave.connection._master_nonce))
+        master._transport.sendto(
+            _open(max_payload=0, nonce=slave.connection._handshake.master_nonce)
+        )
         for _ in range(500):
             if slave.stats.drops.get("bad_control"):
                 break

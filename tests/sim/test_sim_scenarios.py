@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from tdtp.cli.simulate import simulate_main
 from tdtp.config import AckMode
-from tdtp.sim.cli import simulate_main
 from tdtp.sim.readings import READINGS
 from tdtp.sim.scenarios import (
     SCHEMES,

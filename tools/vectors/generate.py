@@ -29,10 +29,10 @@ from tdtp.protection.derivation import (  # noqa: E402
 )
 from tdtp.protection.keys import PresharedKey  # noqa: E402
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
-from tdtp.receive_window import ReceiveWindow  # noqa: E402
-from tdtp.rtt import RttEstimator  # noqa: E402
-from tdtp.sent_log import LostPacket, SentPacketLog  # noqa: E402
-from tdtp.stats import DropReason  # noqa: E402
+from tdtp.session.receive_window import ReceiveWindow  # noqa: E402
+from tdtp.session.rtt import RttEstimator  # noqa: E402
+from tdtp.session.sent_log import LostPacket, SentPacketLog  # noqa: E402
+from tdtp.session.stats import DropReason  # noqa: E402
 from tdtp.wire import (  # noqa: E402
     CipherSuite,
     CloseReason,
@@ -795,7 +795,11 @@ def keyed_vectors() -> dict[str, Any]:
         ("replay of 63", sealed(63, b"d")),
         ("ciphertext altered", sealed(101, b"h")[:7] + b"\x00" + sealed(101, b"h")[8:]),
         ("101 for real", sealed(101, b"h")),
-        ("across the 16-bit wrap: 65537 arrives as 0x0001", sealed(65537, b"i")),
+        (
+            "65436 ahead, across the 16-bit wrap: 65537 arrives as 0x0001 and is found by the "
+            "resynchronisation search (section 6)",
+            sealed(65537, b"i"),
+        ),
         ("the old 1 now reads as 65537: a replay", sealed(1, b"b")),
     ]
     steps = []

@@ -11,7 +11,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import TextIO
 
-from tdtp.stats import ConnectionStats
+from tdtp.session.stats import ConnectionStats
 
 MAX_LATENCY_SAMPLES = 200_000
 """Latencies kept for the final percentiles (a bounded reservoir: the first ones of a long run)."""

@@ -1,4 +1,4 @@
-"""``tdtp bandwidth``: the paper's figure-5 model (eqs. 3-8, :mod:`tdtp.bandwidth`) on the command line.
+"""``tdtp bandwidth``: the paper's figure-5 model (eqs. 3-8, :mod:`tdtp.analysis.bandwidth`) on the command line.
 
 What one direction's application data costs on the wire, both directions together, for TCP, UDP,
 Trinomial (separate ACKs) and TDTP (piggybacked ACKs)::
@@ -24,7 +24,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from tdtp.bandwidth import (
+from tdtp.analysis.bandwidth import (
     PAPER_APP_RATE,
     Encapsulation,
     Figure5Row,
@@ -35,7 +35,7 @@ from tdtp.bandwidth import (
     plot_figure5,
     schemes,
 )
-from tdtp.cli_parser import EXIT_USAGE, CommandParser
+from tdtp.cli.parser import EXIT_USAGE, CommandParser
 from tdtp.config import MAX_UDP_PAYLOAD
 
 __all__ = ["bandwidth_main", "build_parser"]
@@ -128,7 +128,7 @@ def _table(rows: Sequence[Figure5Row], rate: float) -> str:
     )
     lines = [
         f"wire bandwidth in Mbit/s, both directions, {rate / 1e3:g} kbit/s of data each way "
-        "(tdtp.bandwidth, eqs. 3-8)",
+        "(tdtp.analysis.bandwidth, eqs. 3-8)",
         head,
         "-" * len(head),
     ]

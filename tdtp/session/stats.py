@@ -7,6 +7,8 @@ import logging
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from tdtp.wire.header import HEADER_SIZE
+
 _logger = logging.getLogger("tdtp")
 
 
@@ -72,6 +74,9 @@ class DirectionStats:
 
 @dataclass(slots=True)
 class ConnectionStats:
+    """A connection's live counters: both directions' bytes and packets, samples offered, superseded
+    and delivered, losses, RTT, the allowed rate, and every dropped datagram by reason."""
+
     sent: DirectionStats = field(default_factory=DirectionStats)
     received: DirectionStats = field(default_factory=DirectionStats)
     """Datagrams taken in (dropped ones are in ``drops`` only)."""
@@ -90,7 +95,7 @@ class ConnectionStats:
     send_pauses: int = 0
     """Times the socket's send buffer backed up and data was held back until it drained."""
     samples_delivered: int = 0
-    """Payloads handed to the application as :class:`~tdtp.events.DataReceived`."""
+    """Payloads handed to the application as :class:`~tdtp.session.events.DataReceived`."""
     samples_skipped: int = 0
     """Delivered samples a latest-value reader never saw: a newer one had arrived by the time it
     read (``ep.latest()``, ``async for sample in ep``). Superseded at the receiver."""
@@ -128,6 +133,17 @@ class ConnectionStats:
     @property
     def dropped(self) -> int:
         return sum(self.drops.values())
+
+    def count_handshake(self, size: int, tag: int) -> None:
+        """A handshake message taken in: ``size`` bytes, the last ``tag`` of them its tag (a keyed
+        OPEN or OPEN_ACK), counted as protection."""
+        received = self.received
+        received.datagrams += 1
+        received.bytes += size
+        received.header_bytes += HEADER_SIZE
+        received.payload_bytes += size - HEADER_SIZE - tag
+        received.protection_bytes += tag
+        received.control_packets += 1
 
     def count_drop(self, reason: DropReason) -> None:
         key = reason.value

@@ -14,8 +14,11 @@ Address = tuple[Any, ...]
 
 
 class CloseCause(enum.Enum):
+    """Why a connection ended: the ``cause`` of :class:`ConnectionClosed` and of
+    :class:`~tdtp.errors.ConnectionClosedError`."""
+
     LOCAL_CLOSE = "local_close"
-    """This side called :meth:`~tdtp.connection.Connection.close`."""
+    """This side called :meth:`~tdtp.session.connection.Connection.close`."""
     PEER_CLOSE = "peer_close"
     """The peer sent CLOSE."""
     IDLE_TIMEOUT = "idle_timeout"
@@ -34,6 +37,8 @@ class CloseCause(enum.Enum):
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
 @dataclass(frozen=True, slots=True)
 class ConnectionEstablished:
+    """The opening handshake completed: samples may flow to and from :attr:`peer`."""
+
     peer: Address
 
 
@@ -99,6 +104,8 @@ new_data_received: Final = _constructor()
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
 @dataclass(frozen=True, slots=True)
 class ConnectionClosed:
+    """The connection ended: why (:attr:`cause`) and, in words a user can act on, :attr:`detail`."""
+
     cause: CloseCause
     detail: str
 

@@ -32,7 +32,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from tdtp.cli_parser import CommandParser
+from tdtp.cli.parser import CommandParser
 from tdtp.sim.readings import ACK_FORMS, QUEUE_UNITS, READINGS, TCP_DIRECTIONS, Reading
 from tdtp.sim.scenarios import (
     MS,

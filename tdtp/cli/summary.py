@@ -9,7 +9,7 @@ direction, so every field of the other end is ``null`` and ``observed_at`` says 
 it. Every key is always present, so a script can read the output without guessing.
 
 One-way latency needs the sample's send time on the receiver's clock: it is measured only for samples
-in the demo's haptic format (``tdtp.haptic_sample``) sent from the same host (the monotonic clocks
+in the demo's haptic format (``tdtp.teleop.haptic_sample``) sent from the same host (the monotonic clocks
 agree); ``latency_note`` says why ``latency_ms`` is ``null`` otherwise.
 """
 
@@ -19,9 +19,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from tdtp.live_stats import LatencyRecorder
-from tdtp.pcap import PcapWriter
-from tdtp.stats import ConnectionStats
+from tdtp.capture.pcap import PcapWriter
+from tdtp.cli.live_stats import LatencyRecorder
+from tdtp.session.stats import ConnectionStats
 
 _SENDER_KEYS = (
     "samples_offered",
@@ -165,3 +165,55 @@ def capture_report(writer: PcapWriter | None) -> dict[str, Any] | None:
     if writer is None:
         return None
     return {"file": writer.path, "packets": writer.packets, "error": writer.error}
+
+
+def direction_line(label: str, report: dict[str, Any]) -> str:
+    """One direction of a ``--json`` report in one line, with what this end saw of it."""
+    parts: list[str] = []
+    if report.get("packets_sent") is not None:
+        sent = report["packets_sent"]
+        lost = report["losses"]
+        parts.append(
+            f"offered {report['samples_offered']}, sent {sent}, acked {report['packets_acked']}, "
+            f"lost {lost} ({lost / sent * 100 if sent else 0.0:.2f} %), "
+            f"srtt {report['srtt_ms']:.3f} ms"
+        )
+    if report.get("packets_received") is not None:
+        parts.append(
+            f"received {report['packets_received']} ({report['mean_rate']:.1f}/s), "
+            f"gaps {report['gaps']}, reordered {report['reordered']}"
+        )
+        latency = report.get("latency_ms")
+        if latency:
+            parts.append(f"latency p50 {latency['p50']:.3f} ms p99 {latency['p99']:.3f} ms")
+    return f"{label}: " + ", ".join(parts)
+
+
+def summary_text(summary: dict[str, Any]) -> str:
+    """What ``tdtp master`` and ``tdtp slave`` print at the end without ``--json``."""
+    if summary.get("command") == "slave":
+        lines = [
+            f"served {summary['masters_served']} master(s), refused {summary['masters_refused']}"
+        ]
+        for session in summary["sessions"]:
+            close = session.get("close")
+            ended = "open" if close is None else f"closed ({close['cause']})"
+            lines.append(f"master {session['master']}: {ended}, {session['duration_s']:.1f} s")
+            lines.append("  " + direction_line("M->S", session["master_to_slave"]))
+            lines.append("  " + direction_line("S->M", session["slave_to_master"]))
+            if session.get("task_error"):
+                lines.append(f"  failed: {session['task_error']}")
+        return "\n".join(lines)
+    lines = [
+        direction_line(label, summary[key])
+        for key, label in (("master_to_slave", "M->S"), ("slave_to_master", "S->M"))
+        if key in summary
+    ]
+    if "peer_silences" in summary:
+        close = summary.get("close")
+        ended = "open at the end" if close is None else f"closed ({close['cause']})"
+        lines.append(
+            f"session {ended}, slave silent {summary['peer_silences']} time(s), longest "
+            f"{summary['longest_silence_s']:.1f} s"
+        )
+    return "\n".join(lines)

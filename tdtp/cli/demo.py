@@ -1,0 +1,162 @@
+"""``tdtp demo``: a master and a slave on localhost in one process, with live statistics and a summary."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+from typing import Any
+
+from tdtp.aio.api import connect, listen
+from tdtp.aio.timer import monotonic
+from tdtp.capture.pcap import PcapWriter
+from tdtp.cli.keys import (
+    SessionKeys,
+)
+from tdtp.cli.live_stats import (
+    DirectionMeter,
+    LiveDisplay,
+)
+from tdtp.cli.options import netem_directions, netem_seed, session_config
+from tdtp.cli.outcome import Outcome, Side, header_line, settings_report
+from tdtp.cli.session_tasks import (
+    _settle,
+    _with_display,
+    every_second,
+    open_capture,
+    send_loop,
+    silence_note,
+    watchdog_logger,
+)
+from tdtp.cli.summary import direction_report
+from tdtp.config import ConnectionConfig
+
+
+async def run_demo(args: argparse.Namespace, outcome: Outcome) -> None:
+    config = session_config(args)
+    keys: SessionKeys = args.session_keys
+    master_side, slave_side = Side("master"), Side("slave")
+    with open_capture(args, outcome) as capture:
+        await _demo(args, outcome, config, keys, master_side, slave_side, capture)
+
+
+async def _demo(
+    args: argparse.Namespace,
+    outcome: Outcome,
+    config: ConnectionConfig,
+    keys: SessionKeys,
+    master_side: Side,
+    slave_side: Side,
+    capture: PcapWriter | None,
+) -> None:
+    duration = args.duration if args.duration is not None else 5.0
+    ms_spec, sm_spec = netem_directions(args)
+    async with (
+        listen(
+            "127.0.0.1",
+            0,
+            config=config,
+            timer=args.timer,
+            on_data=slave_side.on_data,
+            netem=sm_spec,
+            netem_seed=netem_seed(args, 1),
+            keys=keys.slave,
+        ) as server,
+        connect(
+            "127.0.0.1",
+            server.port,
+            config=config,
+            timer=args.timer,
+            on_data=master_side.on_data,
+            netem=ms_spec,
+            netem_seed=netem_seed(args, 0),
+            key=keys.master,
+            pcap=capture,
+        ) as master,
+    ):
+        slave = await server.accept()
+        start = monotonic()
+        until = start + duration
+        elapsed: float | None = None
+        display = None if args.json else LiveDisplay()
+        meters = (DirectionMeter("M->S"), DirectionMeter("S->M"))
+        if display is not None:
+            display.message(header_line(args, master))
+        master.set_watchdog_callback(watchdog_logger(display, start, "master", "slave"))
+        slave.set_watchdog_callback(watchdog_logger(display, start, "slave", "master"))
+
+        def show(interval: float) -> None:
+            assert display is not None
+            lines = [f"t={monotonic() - start:6.1f} s"]
+            lines.append(
+                meters[0].line(
+                    master.stats,
+                    slave.stats.received.data_packets,
+                    interval,
+                    slave_side.latency.take_window(),
+                    silence_note(slave, "slave"),
+                )
+            )
+            lines.append(
+                meters[1].line(
+                    slave.stats,
+                    master.stats.received.data_packets,
+                    interval,
+                    master_side.latency.take_window(),
+                    silence_note(master, "master"),
+                )
+            )
+            display.update(lines)
+
+        def summarize() -> None:
+            spent = elapsed if elapsed is not None else monotonic() - start
+            both = ["master", "slave"]
+            outcome.summary = {
+                "command": "demo",
+                "duration_s": round(spent, 3),
+                **settings_report(args, master),
+                "master_to_slave": direction_report(
+                    sender=master.stats,
+                    receiver=slave.stats,
+                    observed_at=both,
+                    duration=spent,
+                    latency=slave_side.latency_counts(),
+                ),
+                "slave_to_master": direction_report(
+                    sender=slave.stats,
+                    receiver=master.stats,
+                    observed_at=both,
+                    duration=spent,
+                    latency=master_side.latency_counts(),
+                ),
+            }
+
+        try:
+            sending = asyncio.gather(
+                send_loop(master, master_side, args.rate, args.size, until, master=True),
+                send_loop(slave, slave_side, args.rate, args.size, until, master=False),
+            )
+            if display is None:
+                await sending
+            else:
+                await _with_display(sending, every_second(until, show))
+            elapsed = monotonic() - start  # the sending window: rates are per second of it
+            await _settle(master, slave)  # let the last samples land before counting
+        finally:
+            summarize()
+
+
+def demo_table(summary: dict[str, Any]) -> str:
+    rows = []
+    for key, label in (("master_to_slave", "M->S"), ("slave_to_master", "S->M")):
+        d = summary[key]
+        latency = d.get("latency_ms") or {}
+        rows.append(
+            f"{label}: offered {d['samples_offered']}, sent {d['packets_sent']}, "
+            f"received {d['packets_received']} ({d['delivery_ratio'] * 100:.2f} %), "
+            f"lost {d['losses']}, {d['mean_rate']:.1f} pkt/s, srtt {d['srtt_ms']:.3f} ms, "
+            f"latency p50 {latency.get('p50', math.nan):.3f} ms p99 "
+            f"{latency.get('p99', math.nan):.3f} ms, header bytes {d['header_bytes']}, "
+            f"ACK packets {d['ack_packets_sent_back']}"
+        )
+    return "\n".join(rows)

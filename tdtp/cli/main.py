@@ -1,0 +1,138 @@
+"""The ``tdtp`` command: ``tdtp demo``, ``tdtp master HOST:PORT``, ``tdtp slave --port N``.
+
+A master sends position samples (a circle traced at 0.5 Hz) at ``--rate`` per second; the slave answers
+each period with force feedback from a virtual spring wall. Both print a live status block once per second,
+or with ``--json`` one JSON object at the end. Ctrl-C ends a run early and still prints the summary.
+
+Exit status: 0 when the run ended as asked, 1 when the session failed (no slave, refused, lost after a
+silence longer than the outage limit), 2 for a usage error (one line on stderr saying what to change),
+130 after Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import sys
+from collections.abc import Callable, Coroutine, Sequence
+from typing import Any
+
+from tdtp.aio.timer import check_timer_preference
+from tdtp.capture.pcap import CaptureError
+from tdtp.cli.bandwidth import bandwidth_main
+from tdtp.cli.demo import demo_table, run_demo
+from tdtp.cli.keys import (
+    KeyArgumentError,
+    keygen_main,
+    session_keys,
+)
+from tdtp.cli.master import run_master
+from tdtp.cli.netem_relay import run_relay
+from tdtp.cli.options import UsageError, build_parser, session_config
+from tdtp.cli.outcome import EXIT_FAILED, EXIT_INTERRUPTED, Outcome
+from tdtp.cli.parser import EXIT_USAGE
+from tdtp.cli.simulate import simulate_main
+from tdtp.cli.slave import run_slave
+from tdtp.cli.summary import summary_text
+from tdtp.errors import (
+    AddressError,
+    ArgumentTypeError,
+    ConnectError,
+    InvalidArgumentError,
+    PayloadTooLargeError,
+    TdtpError,
+)
+
+
+def _loop_factory(choice: str) -> Callable[[], asyncio.AbstractEventLoop] | None:
+    if choice == "asyncio":
+        return None
+    try:
+        import uvloop  # noqa: PLC0415 -- optional (the "fast" extra): imported only when wanted
+    except ImportError:
+        if choice == "uvloop":
+            raise UsageError(
+                "--loop uvloop: uvloop is not installed (pip install 'tdtp[fast]')"
+            ) from None
+        return None
+    factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
+    return factory
+
+
+Runner = Callable[[argparse.Namespace, Outcome], Coroutine[Any, Any, None]]
+RUNNERS: dict[str, Runner] = {
+    "demo": run_demo,
+    "master": run_master,
+    "slave": run_slave,
+    "netem-relay": run_relay,
+}
+_USAGE_ERRORS = (
+    UsageError,
+    KeyArgumentError,
+    CaptureError,
+    InvalidArgumentError,
+    ArgumentTypeError,
+    AddressError,
+    PayloadTooLargeError,
+)
+"""Errors that a different command line fixes: exit status 2."""
+
+
+def _fail(message: object, status: int) -> int:
+    print(f"tdtp: {message}", file=sys.stderr)
+    return status
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    if arguments[:1] == ["simulate"]:
+        # Its own parser (tdtp.cli.simulate); the subcommand below only lists it in --help.
+        return simulate_main(arguments[1:])
+    if arguments[:1] == ["keygen"]:
+        return keygen_main(arguments[1:])
+    if arguments[:1] == ["bandwidth"]:
+        return bandwidth_main(arguments[1:])
+    args = build_parser().parse_args(arguments)  # exits 2 with argparse's message on its own
+    try:
+        if args.command in ("demo", "master", "slave"):
+            args.session_keys = session_keys(args)
+        if hasattr(args, "timer"):
+            check_timer_preference(args.timer)
+        if hasattr(args, "controller"):
+            session_config(args)
+        loop_factory = _loop_factory(args.loop)
+    except (*_USAGE_ERRORS, TdtpError) as exc:
+        return _fail(exc, EXIT_USAGE)
+    outcome = Outcome()
+    interrupted = False
+    try:
+        with asyncio.Runner(loop_factory=loop_factory) as runner:
+            runner.run(RUNNERS[args.command](args, outcome))
+    except KeyboardInterrupt:
+        interrupted = True
+    except _USAGE_ERRORS as exc:
+        return _fail(exc, EXIT_USAGE)
+    except (ConnectError, TdtpError, OSError) as exc:
+        return _fail(exc, EXIT_FAILED)
+    if outcome.summary is not None:
+        try:
+            if args.json or args.command == "netem-relay":
+                print(json.dumps(outcome.summary, indent=2))
+            elif args.command == "demo":
+                print(demo_table(outcome.summary))
+            else:
+                print(summary_text(outcome.summary))
+            sys.stdout.flush()
+        except BrokenPipeError:  # `tdtp ... | head`: the reader has what it wanted
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    if interrupted:
+        return EXIT_INTERRUPTED
+    if outcome.failure is not None:
+        return _fail(outcome.failure, outcome.status)
+    return outcome.status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

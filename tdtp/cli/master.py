@@ -1,0 +1,105 @@
+"""``tdtp master HOST:PORT``: one master streaming samples to a slave, with live statistics."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from tdtp.aio.api import connect
+from tdtp.aio.endpoint import format_address
+from tdtp.aio.timer import monotonic
+from tdtp.capture.pcap import PcapWriter
+from tdtp.cli.live_stats import (
+    DirectionMeter,
+    LiveDisplay,
+    receive_line,
+)
+from tdtp.cli.options import netem_directions, netem_seed, session_config
+from tdtp.cli.outcome import EXIT_FAILED, Outcome, Side, close_info, header_line, settings_report
+from tdtp.cli.session_tasks import (
+    _with_display,
+    every_second,
+    open_capture,
+    send_loop,
+    silence_note,
+    watchdog_logger,
+)
+from tdtp.cli.summary import direction_report
+from tdtp.session.events import CloseCause
+
+
+async def run_master(args: argparse.Namespace, outcome: Outcome) -> None:
+    with open_capture(args, outcome) as capture:
+        await _master(args, outcome, capture)
+
+
+async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWriter | None) -> None:
+    host, port = args.address
+    side = Side("master")
+    ms_spec, _ = netem_directions(args)
+    async with connect(
+        host,
+        port,
+        config=session_config(args),
+        timer=args.timer,
+        on_data=side.on_data,
+        netem=ms_spec,
+        netem_seed=netem_seed(args, 0),
+        key=args.session_keys.master,
+        pcap=capture,
+    ) as ep:
+        start = monotonic()
+        until = start + (args.duration or math.inf)
+        display = None if args.json else LiveDisplay()
+        meter = DirectionMeter("M->S")
+        reverse_meter = DirectionMeter("S->M")
+        if display is not None:
+            display.message(header_line(args, ep) + f", slave {format_address((host, port))}")
+        ep.set_watchdog_callback(watchdog_logger(display, start, "master", "slave"))
+
+        def show(interval: float) -> None:
+            assert display is not None
+            lines = [
+                f"t={monotonic() - start:6.1f} s",
+                meter.line(ep.stats, ep.stats.packets_acked, interval, None),
+                receive_line("S->M", side.received, reverse_meter, interval, side.latency),
+            ]
+            note = silence_note(ep, "master")
+            if note is not None:
+                lines.append(note)
+            display.update(lines)
+
+        try:
+            sending = send_loop(ep, side, args.rate, args.size, until, master=True)
+            if display is None:
+                await sending
+            else:
+                await _with_display(sending, every_second(until, show))
+        finally:
+            elapsed = monotonic() - start
+            outcome.summary = {
+                "command": "master",
+                "duration_s": round(elapsed, 3),
+                **settings_report(args, ep),
+                "master_to_slave": direction_report(
+                    sender=ep.stats,
+                    receiver=None,
+                    observed_at=["master"],
+                    duration=elapsed,
+                    latency=None,
+                ),
+                "slave_to_master": direction_report(
+                    sender=None,
+                    receiver=ep.stats,
+                    observed_at=["master"],
+                    duration=elapsed,
+                    latency=side.latency_counts(),
+                ),
+                "peer_silences": ep.stats.peer_silences,
+                "longest_silence_s": round(ep.stats.longest_silence, 3),
+                "close": close_info(ep),
+            }
+            event = ep.close_event
+            if event is not None and event.cause is not CloseCause.PEER_CLOSE:
+                outcome.status = EXIT_FAILED
+                outcome.failure = f"session lost ({event.cause.value}): {event.detail}"

@@ -1,0 +1,271 @@
+"""The options of ``tdtp demo``, ``tdtp master``, ``tdtp slave`` and ``tdtp netem-relay``: the parser, the
+argument types that turn a bad value into one line of usage error, and the configuration they make."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+
+from tdtp import __version__
+from tdtp.cli.keys import (
+    add_key_arguments,
+)
+from tdtp.cli.parser import CommandParser
+from tdtp.config import MAX_PAYLOAD, AckMode, ConnectionConfig
+from tdtp.control.fixed import FixedConfig
+from tdtp.control.registry import DEFAULT_CONTROLLER, available_controllers
+from tdtp.errors import (
+    InvalidArgumentError,
+)
+from tdtp.netem import NetemSpec, parse_netem
+from tdtp.netem.spec import MAX_SEED
+from tdtp.teleop.haptic_sample import SAMPLE_SIZE
+from tdtp.wire.header import HEADER_SIZE
+
+MAX_RATE = 100_000.0
+"""The highest --rate: the rate controllers' ceiling (and far beyond any supermedia loop)."""
+MAX_SIZE = MAX_PAYLOAD
+"""The largest --size: the largest payload a session may carry (a keyed one has room for its tag)."""
+DEFAULT_MAX_PAYLOAD = ConnectionConfig().max_payload
+
+
+class UsageError(Exception):
+    """A command-line value the library refused; printed as one line, exit status 2."""
+
+
+def host_port(text: str, *, allow_zero: bool = False) -> tuple[str, int]:
+    """``HOST:PORT``, ``[IPv6]:PORT`` or ``IPv6-without-brackets:PORT`` (last colon splits)."""
+    if text.startswith("["):
+        host, sep, port = text[1:].partition("]:")
+    else:
+        host, sep, port = text.rpartition(":")
+    low = 0 if allow_zero else 1
+    if not sep or not host or not port.isdigit() or not low <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(
+            f"expected HOST:PORT with a port in {low}..65535 (e.g. 127.0.0.1:7000), got {text!r}"
+        )
+    return host, int(port)
+
+
+def _host_port_or_port(text: str) -> tuple[str, int]:
+    """``:PORT`` (all interfaces) or ``HOST:PORT``; port 0 picks a free one."""
+    if text.startswith(":"):
+        text = "0.0.0.0" + text
+    return host_port(text, allow_zero=True)
+
+
+def _netem_spec(text: str) -> NetemSpec:
+    try:
+        return parse_netem(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def _integer(low: int, high: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be in {low}..{high}, got {value}")
+        return value
+
+    return parse
+
+
+def _rate(text: str) -> float:
+    value = _number(text)
+    if not (0.0 < value <= MAX_RATE):  # also refuses nan and inf
+        raise argparse.ArgumentTypeError(
+            f"must be a number of samples per second above 0 and at most {MAX_RATE:g}, got {text}"
+        )
+    return value
+
+
+def _duration(text: str) -> float:
+    value = _number(text)
+    if not value > 0.0:  # also refuses nan; inf means "until Ctrl-C"
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = CommandParser(add_help=False)
+    common.add_argument(
+        "--rate", type=_rate, default=1000.0, help=f"samples/s, up to {MAX_RATE:g} (1000)"
+    )
+    common.add_argument(
+        "--size",
+        type=_integer(SAMPLE_SIZE, MAX_SIZE),
+        default=100,
+        help=f"payload bytes, {SAMPLE_SIZE}..{MAX_SIZE} (100)",
+    )
+    common.add_argument(
+        "--duration", type=_duration, help="seconds to run (demo: 5; master, slave: until Ctrl-C)"
+    )
+    common.add_argument(
+        "--controller",
+        default=DEFAULT_CONTROLLER,
+        choices=available_controllers(),
+        help=f"rate control ({DEFAULT_CONTROLLER})",
+    )
+    common.add_argument(
+        "--separate-acks",
+        action="store_true",
+        help="Trinomial mode: one ACK packet per data packet instead of piggybacked ACKs",
+    )
+    common.add_argument(
+        "--ack-size",
+        type=_integer(HEADER_SIZE, HEADER_SIZE + MAX_SIZE),
+        default=HEADER_SIZE,
+        help=f"bytes of a stand-alone ACK datagram, {HEADER_SIZE} or more (5)",
+    )
+    common.add_argument(
+        "--silence-timeout",
+        type=_duration,
+        default=ConnectionConfig().silence_timeout,
+        help="seconds without a datagram before the peer is reported silent (0.1)",
+    )
+    common.add_argument(
+        "--idle-timeout",
+        type=_duration,
+        default=ConnectionConfig().idle_timeout,
+        help="seconds of silence after which the session is given up (30)",
+    )
+    common.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    common.add_argument(
+        "--pcap",
+        metavar="FILE",
+        help="write what the socket sends and receives to FILE, a pcap for Wireshark "
+        "(the demo captures the master's socket; tools/wireshark/tdtp.lua decodes it)",
+    )
+    common.add_argument(
+        "--loop",
+        choices=("auto", "uvloop", "asyncio"),
+        default="auto",
+        help="event loop (auto: uvloop when installed)",
+    )
+    common.add_argument(
+        "--timer",
+        choices=("auto", "timerfd", "call_at"),
+        default="auto",
+        help="pacing timer (auto: timerfd on Linux)",
+    )
+    netem = common.add_argument_group(
+        "impairment", 'emulated in-process with tc-netem\'s syntax, e.g. "delay 20ms 5ms loss 2%"'
+    )
+    netem.add_argument("--netem", type=_netem_spec, help="both directions")
+    netem.add_argument("--netem-ms", type=_netem_spec, help="master -> slave (overrides --netem)")
+    netem.add_argument("--netem-sm", type=_netem_spec, help="slave -> master (overrides --netem)")
+    netem.add_argument(
+        "--netem-seed", type=_integer(0, MAX_SEED - 1), help="seed for reproducible impairment"
+    )
+
+    parser = CommandParser(
+        prog="tdtp",
+        description="TDTP teleoperation transport: master, slave and demo.",
+        epilog="Exit status: 0 done, 1 session failed, 2 usage error, 130 interrupted.",
+    )
+    parser.add_argument("--version", action="version", version=f"tdtp {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True)
+    demo = commands.add_parser(
+        "demo", parents=[common], help="master and slave on localhost, live statistics"
+    )
+    demo.set_defaults(duration=None)
+    add_key_arguments(demo, demo=True)
+    slave = commands.add_parser("slave", parents=[common], help="serve masters on a UDP port")
+    slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
+    slave.add_argument(
+        "--port", type=_integer(0, 65535), required=True, help="UDP port (0: any free port)"
+    )
+    slave.add_argument(
+        "--max-peers", type=_integer(1, 1 << 20), default=256, help="masters served at once (256)"
+    )
+    add_key_arguments(slave)
+    master = commands.add_parser("master", parents=[common], help="connect to a slave")
+    master.add_argument("address", type=host_port, help="the slave, HOST:PORT")
+    add_key_arguments(master)
+    relay = commands.add_parser(
+        "netem-relay",
+        help="an impairing UDP relay for any application",
+        description="Relay UDP datagrams from --listen to --forward through emulated links.",
+    )
+    relay.add_argument("spec", type=_netem_spec, help='netem syntax, e.g. "delay 30ms loss 1%%"')
+    relay.add_argument(
+        "--listen", type=_host_port_or_port, required=True, help="[HOST]:PORT to listen on"
+    )
+    relay.add_argument("--forward", type=host_port, required=True, help="HOST:PORT to relay to")
+    relay.add_argument("--return-spec", type=_netem_spec, help="the way back (default: spec)")
+    relay.add_argument(
+        "--seed", type=_integer(0, MAX_SEED - 1), help="seed for reproducible impairment"
+    )
+    relay.add_argument("--duration", type=_duration, help="seconds to run")
+    relay.add_argument("--max-clients", type=_integer(1, 1 << 20), default=256)
+    relay.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    relay.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
+    commands.add_parser(
+        "keygen",
+        add_help=False,
+        help="write new pre-shared keys to a file (tdtp keygen --help)",
+    ).add_argument("arguments", nargs=argparse.REMAINDER)
+    simulate = commands.add_parser(
+        "simulate",
+        add_help=False,
+        help="reproduce the paper's experiments in virtual time (tdtp simulate --help)",
+    )
+    simulate.add_argument("arguments", nargs=argparse.REMAINDER)
+    bandwidth = commands.add_parser(
+        "bandwidth",
+        add_help=False,
+        help="the paper's figure-5 bandwidth model: table, CSV, PNG (tdtp bandwidth --help)",
+    )
+    bandwidth.add_argument("arguments", nargs=argparse.REMAINDER)
+    return parser
+
+
+def session_config(args: argparse.Namespace) -> ConnectionConfig:
+    controller_config: object | None = None
+    if args.controller == "fixed":
+        controller_config = FixedConfig(rate=args.rate)
+    try:
+        return ConnectionConfig(
+            max_payload=max(DEFAULT_MAX_PAYLOAD, args.size),
+            ack_mode=AckMode.SEPARATE if args.separate_acks else AckMode.BIDIRECTIONAL,
+            ack_size=args.ack_size,
+            controller=args.controller,
+            controller_config=controller_config,
+            silence_timeout=args.silence_timeout,
+            idle_timeout=args.idle_timeout,
+            # A peer that cannot take our samples is refused at the open, not on the first send.
+            min_peer_payload=args.size,
+            encrypt=not getattr(args, "no_encrypt", False),
+        )
+    except InvalidArgumentError as exc:
+        field = str(exc).split(" ", 1)[0]
+        option = _OPTION_OF_FIELD.get(field, "--" + field.replace("_", "-"))
+        raise UsageError(f"{option}: {exc}") from None
+
+
+_OPTION_OF_FIELD = {"max_payload": "--size", "min_peer_payload": "--size"}
+"""Configuration fields set from an option of another name."""
+
+
+def netem_directions(args: argparse.Namespace) -> tuple[NetemSpec | None, NetemSpec | None]:
+    """The impairment master -> slave and slave -> master."""
+    both: NetemSpec | None = getattr(args, "netem", None)
+    ms = getattr(args, "netem_ms", None) or both
+    sm = getattr(args, "netem_sm", None) or both
+    return ms, sm
+
+
+def netem_seed(args: argparse.Namespace, offset: int) -> int | None:
+    seed: int | None = getattr(args, "netem_seed", None)
+    return None if seed is None else seed + offset

@@ -1,0 +1,102 @@
+"""What a run of ``tdtp demo``, ``master`` or ``slave`` records and reports: each side's counters, the
+outcome with its exit status, the header line and the settings in the ``--json`` summary."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+from dataclasses import dataclass, field
+from typing import Any
+
+from tdtp._build import build_info
+from tdtp.aio.endpoint import Endpoint
+from tdtp.cli.live_stats import (
+    LatencyRecorder,
+)
+from tdtp.cli.options import netem_directions
+from tdtp.cli.summary import LatencyCounts
+from tdtp.session.events import DataReceived
+from tdtp.teleop.haptic_sample import HapticSample
+
+MAX_LATENCY = 10.0
+"""Latencies above this are not recorded (the clocks of two hosts are not comparable)."""
+EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
+
+
+@dataclass
+class Side:
+    """One end's application: what it sends, what it received, how late it arrived."""
+
+    name: str
+    latency: LatencyRecorder = field(default_factory=LatencyRecorder)
+    received: int = 0
+    last_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    not_haptic: int = 0
+    clock_mismatch: int = 0
+    started: float = 0.0
+    task_error: str | None = None
+    """Why this side's task stopped early, if it failed (a bug; shown in ``--json``)."""
+
+    def on_data(self, event: DataReceived) -> None:
+        self.received += 1
+        sample = HapticSample.decode(event.payload)
+        if sample is None:
+            self.not_haptic += 1
+            return
+        self.last_position = sample.position
+        latency = event.received_at - sample.sent_at
+        if 0.0 <= latency < MAX_LATENCY:
+            self.latency.add(latency)
+        else:
+            self.clock_mismatch += 1
+
+    def latency_counts(self) -> LatencyCounts:
+        return LatencyCounts(self.latency, self.not_haptic, self.clock_mismatch)
+
+
+@dataclass
+class Outcome:
+    """What a run leaves behind, even when Ctrl-C cuts it short."""
+
+    summary: dict[str, Any] | None = None
+    status: int = EXIT_OK
+    failure: str | None = None
+
+
+def header_line(args: argparse.Namespace, ep: Endpoint) -> str:
+    mode = "separate ACKs" if args.separate_acks else "piggybacked ACKs"
+    loop = type(asyncio.get_running_loop()).__module__.split(".")[0]
+    conn = ep.connection
+    security = "unkeyed"
+    if conn.keyed:
+        key = conn.key
+        security = f"keyed ({key.label if key else '?'}, {conn.config.cipher_suite.name}, " + (
+            "encrypted)" if conn.encrypted else "authenticated only)"
+        )
+    return (
+        f"tdtp {args.command}: {args.rate:g} samples/s of {args.size} B each way, "
+        f"{args.controller}, {mode}, {security}, loop {loop}, timer {ep.timer_kind}, "
+        f"core {build_info().describe()}"
+    )
+
+
+def close_info(ep: Endpoint) -> dict[str, str] | None:
+    event = ep.close_event
+    return None if event is None else {"cause": event.cause.value, "detail": event.detail}
+
+
+def settings_report(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
+    ms, sm = netem_directions(args)
+    return {
+        "rate": args.rate,
+        "size": args.size,
+        "controller": args.controller,
+        "ack_mode": "separate" if args.separate_acks else "bidirectional",
+        "loop": type(asyncio.get_running_loop()).__module__.split(".")[0],
+        "timer": ep.timer_kind,
+        "core": build_info().as_dict(),
+        "keyed": ep.connection.keyed,
+        "encrypted": ep.connection.encrypted,
+        "netem_ms": None if ms is None else str(ms),
+        "netem_sm": None if sm is None else str(sm),
+    }

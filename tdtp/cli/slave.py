@@ -1,0 +1,187 @@
+"""``tdtp slave --port N``: a slave serving every master that connects, answering each with feedback."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import sys
+from collections import deque
+from dataclasses import asdict
+from typing import Any
+
+from tdtp.aio.api import Server, listen
+from tdtp.aio.endpoint import Endpoint, format_address
+from tdtp.aio.timer import monotonic
+from tdtp.capture.pcap import PcapWriter
+from tdtp.cli.keys import (
+    SessionKeys,
+    warn_if_exposed,
+)
+from tdtp.cli.live_stats import (
+    LiveDisplay,
+)
+from tdtp.cli.options import netem_directions, netem_seed, session_config
+from tdtp.cli.outcome import Outcome, Side, close_info
+from tdtp.cli.session_tasks import (
+    every_second,
+    open_capture,
+    send_loop,
+    silence_note,
+    watchdog_logger,
+)
+from tdtp.cli.summary import direction_report
+
+SESSIONS_KEPT = 256
+"""Finished sessions a long-running slave remembers for its summary."""
+
+
+async def run_slave(args: argparse.Namespace, outcome: Outcome) -> None:
+    keys: SessionKeys = args.session_keys
+    with open_capture(args, outcome) as capture:
+        await _slave(args, outcome, keys, capture)
+
+
+async def _slave(
+    args: argparse.Namespace, outcome: Outcome, keys: SessionKeys, capture: PcapWriter | None
+) -> None:
+    until = math.inf if args.duration is None else monotonic() + args.duration
+    sides: dict[int, tuple[Endpoint, Side]] = {}  # every session not yet in ``finished``
+    finished: deque[dict[str, Any]] = deque(maxlen=SESSIONS_KEPT)
+    _, sm_spec = netem_directions(args)
+    async with listen(
+        args.host,
+        args.port,
+        config=session_config(args),
+        max_peers=args.max_peers,
+        timer=args.timer,
+        netem=sm_spec,
+        netem_seed=netem_seed(args, 1),
+        keys=keys.slave,
+        pcap=capture,
+    ) as server:
+        warn_if_exposed(args.host, keys)  # once bound: a slave that failed to start exposes nothing
+        display = None if args.json else LiveDisplay()
+        if display is not None:
+            keyed = f", keyed ({len(keys.slave)} key(s))" if keys.slave is not None else ", unkeyed"
+            display.message(f"tdtp slave listening on {format_address(server.sockname)}{keyed}")
+        tasks: set[asyncio.Task[None]] = set()
+        acceptor = asyncio.create_task(
+            _accept_loop(server, sides, args, until, tasks, finished, display)
+        )
+        try:
+            await every_second(until, lambda interval: _show_slave(display, server, sides))
+        finally:
+            acceptor.cancel()
+            for task in tasks:
+                task.cancel()
+            # Sessions still open, and those that closed just now (their task has not recorded
+            # them yet): every master served is in the summary exactly once.
+            sessions = list(finished) + [_session(ep, side) for ep, side in sides.values()]
+            outcome.summary = {
+                "command": "slave",
+                "masters_served": server.stats.peers_accepted,
+                "masters_refused": server.stats.peers_refused,
+                "datagrams_unattached": server.stats.datagrams_unattached,
+                "admission": asdict(server.stats.admission),
+                "sessions": sessions,
+            }
+
+
+def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
+    """One master's session as the slave saw it: both directions from this end."""
+    duration = monotonic() - side.started if side is not None else 0.0
+    key = ep.connection.key
+    return {
+        "master": format_address(ep.peer),
+        "key": None if key is None else key.label,
+        "duration_s": round(duration, 3),
+        "closed": ep.is_closed,
+        "samples_received": side.received if side else ep.stats.samples_delivered,
+        "samples_sent": ep.stats.sent.data_packets,
+        "peer_silences": ep.stats.peer_silences,
+        "longest_silence_s": round(ep.stats.longest_silence, 3),
+        "close": close_info(ep),
+        "task_error": side.task_error if side is not None else None,
+        "master_to_slave": direction_report(
+            sender=None,
+            receiver=ep.stats,
+            observed_at=["slave"],
+            duration=duration,
+            latency=side.latency_counts() if side is not None else None,
+        ),
+        "slave_to_master": direction_report(
+            sender=ep.stats, receiver=None, observed_at=["slave"], duration=duration, latency=None
+        ),
+    }
+
+
+async def _accept_loop(
+    server: Server,
+    sides: dict[int, tuple[Endpoint, Side]],
+    args: argparse.Namespace,
+    until: float,
+    tasks: set[asyncio.Task[None]],
+    finished: deque[dict[str, Any]],
+    display: LiveDisplay | None,
+) -> None:
+    start = monotonic()
+    async for ep in server:
+        side = Side(f"master {format_address(ep.peer)}", started=monotonic())
+        sides[id(ep)] = (ep, side)
+        ep.set_data_callback(side.on_data)
+        ep.set_watchdog_callback(
+            watchdog_logger(display, start, "slave", f"master {format_address(ep.peer)}")
+        )
+        task = asyncio.create_task(_serve_one(ep, side, args, until, sides, finished, display))
+        tasks.add(task)
+        task.add_done_callback(tasks.discard)
+
+
+async def _serve_one(
+    ep: Endpoint,
+    side: Side,
+    args: argparse.Namespace,
+    until: float,
+    sides: dict[int, tuple[Endpoint, Side]],
+    finished: deque[dict[str, Any]],
+    display: LiveDisplay | None,
+) -> None:
+    """Answer one master until the run ends or the session does. A failure of this task (a bug:
+    payloads are opaque unless they are the demo's samples) is reported once, on the display or
+    stderr and in ``--json``, and ends this session only: the slave goes on serving the others."""
+    try:
+        await send_loop(ep, side, args.rate, args.size, until, master=False)
+    except Exception as exc:
+        side.task_error = f"{type(exc).__name__}: {exc}"
+        message = f"session with {format_address(ep.peer)} failed: {side.task_error}"
+        if display is not None:
+            display.message(message)
+        else:
+            print(f"tdtp slave: {message}", file=sys.stderr)
+        await ep.close()
+    if ep.is_closed:
+        finished.append(_session(ep, side))
+        sides.pop(id(ep), None)
+
+
+def _show_slave(
+    display: LiveDisplay | None, server: Server, sides: dict[int, tuple[Endpoint, Side]]
+) -> None:
+    if display is None:
+        return
+    lines = [f"{len(server.endpoints)} master(s) connected"]
+    for ep in server.endpoints:
+        entry = sides.get(id(ep))
+        side = entry[1] if entry is not None else None
+        stats = ep.stats
+        line = (
+            f"  {format_address(ep.peer)}:  received {side.received if side else 0} samples"
+            f"  sent {stats.sent.data_packets}  srtt {stats.srtt * 1e3:.3f} ms"
+            f"  lost {stats.packets_lost}  allowed {stats.rate:.0f}/s"
+        )
+        note = silence_note(ep, "slave")
+        if note is not None:
+            line += "  " + note
+        lines.append(line)
+    display.update(lines)

@@ -1,0 +1,19 @@
+"""The sans-IO session core: one TDTP session between a master and a slave, with no sockets and no clock.
+
+* :mod:`tdtp.session.connection`: :class:`~tdtp.session.connection.Connection`, the state machine the
+  asyncio endpoints, the impairment emulator and the simulator all drive;
+* :mod:`tdtp.session.events`: what a connection reports (:class:`DataReceived`, :class:`PeerSilent`, ...);
+* :mod:`tdtp.session.stats`: its counters (:class:`ConnectionStats`, drops by reason);
+* :mod:`tdtp.session.sent_log`, :mod:`tdtp.session.receive_window`: the sender's record of what left and
+  the receiver's record of what arrived, from which the piggybacked acknowledgements are built and read;
+* :mod:`tdtp.session.rtt`, :mod:`tdtp.session.loss_rate`: the RTT estimator and the loss-event rate;
+* the pieces of a connection that own state, each in its module: :mod:`~tdtp.session.handshake` (the
+  opening), :mod:`~tdtp.session.liveness` (keep-alive, watchdog and idle clocks),
+  :mod:`~tdtp.session.recovery` (loss recovery), :mod:`~tdtp.session.ack_scheduler` (the ACKs owed),
+  :mod:`~tdtp.session.sender` (the sample waiting to leave), :mod:`~tdtp.session.outbox` (what leaves),
+  :mod:`~tdtp.session.event_queue` (the bounded event queue), :mod:`~tdtp.session.timer_hint`.
+
+Nothing here imports asyncio, the command line, the emulator or the simulator, or reads a clock
+(docs/ARCHITECTURE.md; ``tests/test_layering.py`` enforces it). This package's ``__init__`` imports
+nothing, so that importing one piece never drags in the rest.
+"""

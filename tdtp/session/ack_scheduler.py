@@ -1,0 +1,136 @@
+"""What we owe the peer in acknowledgements, and when (docs/PROTOCOL.md section 3).
+
+Every datagram we send piggybacks an acknowledgement of the peer's newest data (bidirectional mode):
+the highest sequence number, the SACK bits below it and how long we held it. When no datagram of ours
+is due within ``ack_delay`` of an unreported arrival, a separate ACK goes out; when a newer packet jumps
+so far ahead that the SACK bits can no longer cover an unreported one, that report goes out first, at
+once (the jump rule). In separate-ACK mode (Trinomial's) every arrival is acknowledged by its own ACK.
+
+:class:`AckScheduler` owns the :class:`~tdtp.session.receive_window.ReceiveWindow` of the peer's data,
+the ACK mode the session runs and the queue of separate ACKs; it classifies arrivals, builds the ACK
+fields and says when the next ACK is due. The connection decides what an arrival means for the
+application (delivered or dropped).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Final
+
+from tdtp.config import AckMode, ConnectionConfig
+from tdtp.session.events import Address
+from tdtp.session.outbox import Datagrams, Outbox
+from tdtp.session.receive_window import Arrival, ReceiveWindow
+from tdtp.session.stats import ConnectionStats
+from tdtp.session.timer_hint import TimerHint
+from tdtp.wire.hold import HOLD_NO_ACK, encode_hold
+
+NO_ACK: Final = (0, 0, HOLD_NO_ACK)
+
+
+class AckScheduler:
+    """The receive window, the ACK mode, and the ACKs owed to the peer."""
+
+    def __init__(
+        self, config: ConnectionConfig, *, stats: ConnectionStats, hint: TimerHint
+    ) -> None:
+        self.mode = config.ack_mode
+        """The mode in force: the master's choice, adopted by the slave at the open."""
+        self.window: ReceiveWindow | None = None
+        """The peer's data as it arrived, from the open on."""
+        self.separate: deque[tuple[int, float]] = deque()
+        """Separate-ACK mode: (sequence number, arrival time) of every arrival still to acknowledge."""
+        self._ack_delay = config.ack_delay
+        self._plain = config.plain_acks
+        self._silence_guard = config.silence_timeout
+        self._stats = stats
+        self._hint = hint
+
+    def open(self, initial_seq: int) -> None:
+        """The peer's data starts at ``initial_seq`` (its OPEN's or OPEN_ACK's header)."""
+        self.window = ReceiveWindow(
+            initial_seq,
+            coverage=self.mode is AckMode.BIDIRECTIONAL,
+            silence_guard=self._silence_guard,
+        )
+
+    def on_arrival(self, window: ReceiveWindow, seq: int, now: float) -> Arrival:
+        """A data packet arrived: classify it and schedule its acknowledgement."""
+        quiet = window.unreported_since is None
+        arrival = window.classify(seq, now)
+        hint = self._hint
+        if window.held:
+            hint.value = -math.inf  # an ACK is due at once
+        elif quiet and window.unreported_since is not None:
+            due = now + self._ack_delay  # an ACK is due by then
+            if due < hint.value:
+                hint.value = due
+        if arrival is Arrival.NEW:
+            self._stats.peer_gaps += window.last_gap
+        if (
+            self.mode is AckMode.SEPARATE
+            and arrival is not Arrival.STALE
+            and arrival is not Arrival.DUPLICATE
+        ):
+            # Trinomial acknowledges every arrival, whether or not the sample is delivered.
+            self.separate.append((window.last_seq, now))
+            hint.value = -math.inf
+        return arrival
+
+    def piggyback(self, window: ReceiveWindow, now: float) -> tuple[int, int, int]:
+        """ACK fields reporting the newest peer data (or none before any arrived, or in
+        separate-ACK mode)."""
+        if self.mode is not AckMode.BIDIRECTIONAL or not window.has_data:
+            return NO_ACK
+        window.mark_reported()
+        return (
+            window.highest,
+            window.sack_below(window.highest),
+            encode_hold(now - window.highest_arrival),
+        )
+
+    def deadline(self, deadline: float) -> float:
+        """The earlier of ``deadline`` and when the next ACK is due."""
+        window = self.window
+        if window is None:
+            return deadline
+        if self.mode is AckMode.BIDIRECTIONAL:
+            since = window.unreported_since
+            if since is not None and since + self._ack_delay < deadline:
+                deadline = since + self._ack_delay
+            if window.held and window.highest_arrival < deadline:
+                deadline = window.highest_arrival  # due since the jump
+        elif self.separate:
+            candidate = self.separate[0][1]
+            if candidate < deadline:
+                deadline = candidate
+        return deadline
+
+    def emit_held(
+        self, out: Datagrams, outbox: Outbox, seq: int, peer: Address, now: float
+    ) -> None:
+        """The jump rule (section 3.2): report what a newer packet put out of reach, first."""
+        window = self.window
+        if window is not None and self.mode is AckMode.BIDIRECTIONAL and window.held:
+            for held in window.take_held():
+                hold = encode_hold(now - held.arrival)
+                outbox.emit_ack(out, seq, held.ack, held.sack, hold, peer, now)
+
+    def emit_due(self, out: Datagrams, outbox: Outbox, seq: int, peer: Address, now: float) -> None:
+        """The ACK the delay rule owes (bidirectional), or every separate ACK."""
+        window = self.window
+        assert window is not None
+        if self.mode is AckMode.BIDIRECTIONAL:
+            if window.unreported_since is not None and (
+                now >= window.unreported_since + self._ack_delay or window.coverage_exhausted()
+            ):
+                ack, sack, hold = self.piggyback(window, now)
+                outbox.emit_ack(out, seq, ack, sack, hold, peer, now)
+        else:
+            acks = self.separate
+            plain = self._plain
+            while acks:
+                acked, arrival = acks.popleft()
+                sack = 0 if plain else window.sack_below(acked)  # plain: this packet only
+                outbox.emit_ack(out, seq, acked, sack, encode_hold(now - arrival), peer, now)

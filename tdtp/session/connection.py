@@ -1,0 +1,845 @@
+"""The sans-IO TDTP connection: a state machine that never touches a socket or reads a clock.
+
+The caller owns I/O and time. It feeds datagrams in with :meth:`Connection.receive_datagram`, timer expiries
+with :meth:`Connection.handle_timer` and samples with :meth:`Connection.send`, always passing ``now``
+(seconds on one monotonic clock). After every input it collects :meth:`Connection.datagrams_to_send` and
+re-arms a single timer at :meth:`Connection.get_timer`. What happened comes out of
+:meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and the virtual-time simulator
+all drive this one class.
+
+The watchdog's reactions live here too: nothing heard from the peer for ``silence_timeout`` gives a
+:class:`~tdtp.session.events.PeerSilent` event, the next datagram a :class:`~tdtp.session.events.PeerResumed`, and the
+connection survives the outage until ``idle_timeout`` (docs/PROTOCOL.md section 5.2).
+
+:class:`Connection` holds the session's state machine: it checks the caller's input against the state,
+takes every datagram in (address, size, packet protection, type) and dispatches it, and carries out
+what the opening and the watchdog decide. The pieces with state of their own live beside it, each
+owning that state and importing nothing of the connection:
+
+* :mod:`tdtp.session.handshake`: the opening (nonces, the keyed / cipher choice, cookie, OPEN retries),
+  the OPEN and OPEN_ACK messages, the derivation of the session's keys;
+* :mod:`tdtp.session.liveness`: last receive and send, the watchdog's silence and outage, keep-alive
+  and idle deadlines;
+* :mod:`tdtp.session.recovery`: the sent log, RTT and loss-rate estimators, loss detection, and the
+  feedback that turns an acknowledgement into the controller's ``on_ack`` and ``on_loss_event``;
+* :mod:`tdtp.session.ack_scheduler`: the receive window and the acknowledgements owed to the peer;
+* :mod:`tdtp.session.sender`: the newest sample waiting for the pacer or the socket, and its departure;
+* :mod:`tdtp.session.outbox`: the framing, sealing and counting of what leaves, the control queue;
+* :mod:`tdtp.session.event_queue`: the bounded queue of events for the application;
+* :mod:`tdtp.session.timer_hint`: the bound on moved deadlines they all lower (:attr:`Connection.timer_hint`).
+
+Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
+``stats.drops`` by reason. Misuse by the caller raises a :class:`~tdtp.errors.TdtpError` subclass.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import random
+from collections.abc import Callable
+from typing import Final
+
+from tdtp.admission.admission import Admission, AdmittedOpen
+from tdtp.config import AckMode, ConnectionConfig, Role
+from tdtp.control.base import RateController
+from tdtp.control.registry import create_controller
+from tdtp.errors import ArgumentTypeError, ConnectionClosedError, ConnectionStateError
+from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey
+from tdtp.protection.packet_protection import PacketOpener
+from tdtp.session.ack_scheduler import AckScheduler
+from tdtp.session.event_queue import EventQueue
+from tdtp.session.events import (
+    Address,
+    CloseCause,
+    ConnectionClosed,
+    ConnectionEstablished,
+    Event,
+    PeerResumed,
+    PeerSilent,
+    new_data_received,
+)
+from tdtp.session.handshake import Handshake, Reaction, close_reason_text
+from tdtp.session.liveness import Liveness
+from tdtp.session.outbox import Outbox
+from tdtp.session.receive_window import Arrival
+from tdtp.session.recovery import LossRecovery
+from tdtp.session.sender import SampleSender
+from tdtp.session.stats import ConnectionStats, DropReason
+from tdtp.session.timer_hint import TimerHint
+from tdtp.wire.control import (
+    HANDSHAKE_CODES,
+    OPEN_BODY_SIZE,
+    CloseBody,
+    CloseReason,
+    OpenFlags,
+    decode_control,
+)
+from tdtp.wire.errors import MalformedPacketError
+from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header
+from tdtp.wire.hold import HOLD_NO_ACK
+from tdtp.wire.protected import PROTECTION_OVERHEAD, TAG_SIZE
+from tdtp.wire.seqnum import SEQ_MODULUS
+
+_DATA: Final = int(PacketType.DATA)
+_ACK: Final = int(PacketType.ACK)
+_CONTROL: Final = int(PacketType.CONTROL)
+_LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
+"""The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
+``max_payload`` is."""
+
+
+class State(enum.Enum):
+    """Where a :class:`Connection` is in its life: opening, established or closed."""
+
+    IDLE = "idle"
+    """A master that has not called :meth:`Connection.connect` yet."""
+    LISTENING = "listening"
+    """A slave waiting for its master's OPEN."""
+    OPENING = "opening"
+    """A master whose OPEN is not answered yet."""
+    ESTABLISHED = "established"
+    CLOSED = "closed"
+
+
+class Connection:
+    """One TDTP association between a master and a slave.
+
+    Unkeyed by default. A master given ``key=`` (a :class:`~tdtp.protection.PresharedKey` or its
+    secret bytes) opens a keyed session; a slave given ``keys=`` (one key, several, or a
+    :class:`~tdtp.protection.KeyRing`) accepts keyed sessions only, from masters holding one of them.
+    A slave validates every master's address with a cookie before it keeps any state
+    (:mod:`tdtp.admission`); a server sharing one socket among many slave connections passes them one
+    shared ``admission``.
+
+    ``rng`` supplies the nonces and the initial sequence number; pass a seeded
+    :class:`random.Random` for reproducible runs (the default draws from the operating system's
+    CSPRNG, which a keyed session needs: its nonces must be unpredictable).
+    """
+
+    def __init__(
+        self,
+        config: ConnectionConfig | None = None,
+        *,
+        role: Role,
+        rng: random.Random | None = None,
+        key: KeyInput | None = None,
+        keys: KeysInput | None = None,
+        admission: Admission | None = None,
+    ) -> None:
+        if not isinstance(role, Role):
+            raise ArgumentTypeError(f"role must be Role.MASTER or Role.SLAVE, got {role!r}")
+        self.config = config = config if config is not None else ConnectionConfig()
+        self.role = role
+        rng = rng if rng is not None else random.SystemRandom()
+        self._stats = stats = ConnectionStats()
+        self._liveness = liveness = Liveness(config)
+        self._outbox = outbox = Outbox(config, stats, liveness)
+        # Draws the nonces (and a slave's admission secret) from rng before the first sequence number.
+        self._handshake = Handshake(
+            config,
+            role,
+            rng,
+            key=key,
+            keys=keys,
+            admission=admission,
+            stats=stats,
+            outbox=outbox,
+            liveness=liveness,
+        )
+        self._state = State.IDLE if role is Role.MASTER else State.LISTENING
+        self._peer: Address | None = None
+        # The peer's packet protection, once keyed (Handshake.keys; ours is the outbox's sealer).
+        self._opener: PacketOpener | None = None
+        self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
+        # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
+        self._size_limit = (
+            HEADER_SIZE + max(config.max_payload, _LARGEST_CONTROL) + PROTECTION_OVERHEAD
+        )
+        self._controller = controller = create_controller(
+            config.controller, config.controller_config
+        )
+        # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
+        controller.feedback_delay = config.ack_delay
+        controller.sample_waiting = False  # kept up to date by the sender
+        self._hint = hint = TimerHint(controller)
+        self._recovery = recovery = LossRecovery(
+            rng.randrange(SEQ_MODULUS),
+            config,
+            controller=controller,
+            stats=stats,
+            liveness=liveness,
+            hint=hint,
+        )
+        self._acks = acks = AckScheduler(config, stats=stats, hint=hint)
+        self._sender = SampleSender(
+            config,
+            controller=controller,
+            stats=stats,
+            recovery=recovery,
+            outbox=outbox,
+            acks=acks,
+            liveness=liveness,
+            hint=hint,
+        )
+        self._events = EventQueue(config.max_pending_events, stats)
+        # The settings the per-packet paths read, copied out of the (plain Python) config once.
+        self._max_payload = config.max_payload
+        self._deliver_late = config.deliver_late
+        self._deliver_duplicates = config.deliver_duplicates
+        self._close_event: ConnectionClosed | None = None
+
+    # ------------------------------------------------------------------ introspection
+
+    @property
+    def state(self) -> State:
+        return self._state
+
+    @property
+    def peer(self) -> Address | None:
+        """The peer's address once known (the master's at ``connect``, the slave's at the OPEN)."""
+        return self._peer
+
+    @property
+    def ack_mode(self) -> AckMode:
+        """The mode in force: the master's choice, adopted by the slave at the open."""
+        return self._acks.mode
+
+    @property
+    def max_send_payload(self) -> int:
+        """The largest payload :meth:`send` accepts: the smaller of ours and the peer's maximum."""
+        return self._sender.limit
+
+    @property
+    def controller(self) -> RateController:
+        return self._controller
+
+    @property
+    def keyed(self) -> bool:
+        """Whether the session is keyed (every datagram authenticated, and encrypted if
+        :attr:`encrypted`). A listening slave with keys answers keyed OPENs only."""
+        return self._handshake.keyed
+
+    @property
+    def encrypted(self) -> bool:
+        """Whether a keyed session encrypts its payloads (the master's choice)."""
+        return self._handshake.keyed and self._handshake.encrypt
+
+    @property
+    def key(self) -> PresharedKey | None:
+        """The session's pre-shared key: the master's own, or the one a slave found in its ring for
+        this master (its :attr:`~tdtp.protection.PresharedKey.name` says which master it is)."""
+        return self._handshake.key
+
+    @property
+    def admission(self) -> Admission | None:
+        """A slave's front door (cookie, rate limits, keys); ``None`` for a master."""
+        return self._handshake.admission
+
+    @property
+    def peer_silent(self) -> bool:
+        """True while the watchdog finds the peer silent (between :class:`~tdtp.session.events.PeerSilent`
+        and :class:`~tdtp.session.events.PeerResumed`)."""
+        return self._liveness.silent_since is not None
+
+    @property
+    def silent_since(self) -> float | None:
+        """The ``now`` of the peer's last datagram while it is silent, else ``None``."""
+        return self._liveness.silent_since
+
+    @property
+    def close_event(self) -> ConnectionClosed | None:
+        """Why the connection ended, once it has (the same event :meth:`next_event` reports)."""
+        return self._close_event
+
+    @property
+    def timer_hint(self) -> float:
+        """A bound on what has moved since :meth:`get_timer` was last called (which resets it to
+        ``math.inf``): no deadline of this connection moved earlier than ``timer_hint``.
+
+        A caller that keeps one timer armed at the connection's deadline, and re-arms it only for an
+        earlier one (a later deadline just wakes it early, which is harmless: :meth:`handle_timer`
+        does nothing and the timer is re-armed), needs :meth:`get_timer` only when ``timer_hint``
+        is earlier than the armed deadline, instead of after every input. ``-math.inf`` means
+        anything may have changed."""
+        return self._hint.value
+
+    @property
+    def pending_events(self) -> int:
+        """Events waiting for :meth:`next_event`."""
+        return self._events.count()
+
+    @property
+    def transmit_errors(self) -> int:
+        """Datagrams whose ``transmit`` in :meth:`send_direct` raised :class:`OSError` (lost like
+        any other)."""
+        return self._sender.transmit_errors
+
+    @property
+    def sending_paused(self) -> bool:
+        """True between :meth:`pause_sending` and :meth:`resume_sending`."""
+        return self._sender.paused
+
+    @property
+    def stats(self) -> ConnectionStats:
+        """Live counters; the derived figures (srtt, p, rate) are refreshed on each access."""
+        stats = self._stats
+        recovery = self._recovery
+        rtt = recovery.rtt
+        stats.srtt = rtt.srtt if rtt.has_sample else 0.0
+        stats.rttvar = rtt.rttvar if rtt.has_sample else 0.0
+        stats.min_rtt = rtt.min_rtt if rtt.has_sample else 0.0
+        stats.loss_event_rate = recovery.loss.loss_event_rate
+        stats.packets_unreported = recovery.sent.unknown
+        stats.rate = self._controller.rate
+        return stats
+
+    # ------------------------------------------------------------------ caller API
+
+    def connect(self, addr: Address, *, now: float) -> None:
+        """Master only: start opening towards the slave at ``addr``."""
+        if self.role is not Role.MASTER:
+            raise ConnectionStateError(
+                "connect() is for the master; a slave connection opens when its master's OPEN "
+                "arrives through receive_datagram()"
+            )
+        if self._state is not State.IDLE:
+            raise ConnectionStateError(
+                f"connect() was already called (state {self._state.value}); "
+                "create a new Connection for another association"
+            )
+        self._peer = addr
+        self._state = State.OPENING
+        self._hint.value = -math.inf
+        self._handshake.start(now)
+        self._liveness.last_receive = now
+
+    def send(self, payload: bytes | bytearray | memoryview, *, now: float) -> None:
+        """Offer the newest sample (bytes, bytearray or memoryview). It replaces any sample still
+        waiting for the pacer or for the socket (which is counted as superseded): stale supermedia
+        data is never queued or retransmitted."""
+        state = self._state
+        if state is not State.ESTABLISHED:
+            if state is State.CLOSED:
+                event = self._close_event
+                why = "" if event is None else f" ({event.cause.value}: {event.detail})"
+                raise ConnectionClosedError(
+                    f"the connection is closed{why}; open a new one to send again", event
+                )
+            raise ConnectionStateError(
+                f"cannot send while {state.value}: wait for the ConnectionEstablished event"
+            )
+        self._sender.offer(payload, now)
+
+    def send_direct(
+        self,
+        payload: bytes | bytearray | memoryview,
+        transmit: Callable[[bytes, Address | None], object],
+        *,
+        connected: bool,
+        now: float,
+    ) -> bool:
+        """:meth:`send` for the common case, with the datagram handed straight to ``transmit``.
+
+        When the sample may leave at once as the only datagram due (established, the pacer and the
+        socket allow it, no control packet, held ACK or separate ACK waiting), it is encoded and
+        passed to ``transmit(datagram, addr)`` (``addr`` ``None`` when ``connected``, else the
+        peer's address: ``transport.sendto`` fits) *before* any bookkeeping, which follows. An
+        :class:`OSError` from ``transmit`` counts in :attr:`transmit_errors` and the datagram is
+        lost like any other. Returns False when it did not send: the sample is then offered as by
+        :meth:`send`, and :meth:`datagrams_to_send` must run. Raises what :meth:`send` raises.
+        """
+        peer = self._peer
+        if self._state is not State.ESTABLISHED or peer is None:
+            self.send(payload, now=now)
+            return False
+        if not self._sender.send_direct(payload, transmit, peer, connected, now):
+            return False
+        sealer = self._outbox.sealer
+        if sealer is not None and sealer.exhausted:
+            self._exhausted()
+        return True
+
+    def _exhausted(self) -> None:
+        self._terminate(
+            CloseCause.KEY_EXHAUSTED,
+            "the session protected as many packets as its keys may; open a new connection",
+        )
+
+    def pause_sending(self) -> None:
+        """The layer below cannot take datagrams now (the socket's send buffer is full).
+
+        Data is held: the pending sample waits and newer samples supersede it (counted in
+        ``samples_superseded`` and ``samples_blocked``) instead of queueing in a buffer out of sight.
+        Acknowledgements and control packets still go out. Call :meth:`resume_sending` when the
+        buffer has drained, then :meth:`datagrams_to_send`.
+        """
+        self._sender.pause()
+
+    def resume_sending(self) -> None:
+        """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
+        self._sender.resume()
+
+    def close(self, *, now: float) -> None:
+        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`."""
+        if self._state is State.CLOSED:
+            return
+        if self._state in (State.OPENING, State.ESTABLISHED) and self._peer is not None:
+            self._queue_close(CloseReason.NORMAL, self._peer)
+        self._terminate(CloseCause.LOCAL_CLOSE, "closed by the application")
+
+    def accept_open(self, admitted: AdmittedOpen, addr: Address, *, now: float) -> None:
+        """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already
+        admitted for ``addr`` (a server demultiplexing many masters on one socket does this; a
+        stand-alone slave gets its OPENs through :meth:`receive_datagram`)."""
+        if self.role is not Role.SLAVE or self._state is not State.LISTENING:
+            raise ConnectionStateError(
+                f"accept_open() is for a listening slave (this is a {self.role.value} in state "
+                f"{self._state.value}); create a new Connection for each master"
+            )
+        self._stats.datagrams_in += 1
+        self._hint.value = -math.inf
+        self._open_session(admitted, addr, now)
+
+    def next_event(self) -> Event | None:
+        """The oldest event not yet taken, or ``None``."""
+        return self._events.pop()
+
+    # ------------------------------------------------------------------ input
+
+    def receive_datagram(self, data: bytes, addr: Address, *, now: float) -> None:
+        """Take one datagram from the network. Never raises on its content."""
+        stats = self._stats
+        stats.datagrams_in += 1
+        if self._state is State.CLOSED:
+            stats.count_drop(DropReason.CLOSED)
+            return
+        peer = self._peer
+        if peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
+            stats.count_drop(DropReason.WRONG_ADDRESS)
+            return
+        size = len(data)
+        if size < HEADER_SIZE:
+            stats.count_drop(DropReason.TRUNCATED)
+            return
+        if size > self._size_limit:
+            stats.count_drop(DropReason.OVERSIZED)
+            return
+        ptype = data[0] >> 6
+        if ptype == _CONTROL and size > HEADER_SIZE and data[HEADER_SIZE] in HANDSHAKE_CODES:
+            self._on_handshake(data, addr, now)
+            return
+        if ptype > _CONTROL:
+            stats.count_drop(DropReason.UNKNOWN_TYPE)
+            return
+        handshake = self._handshake
+        if handshake.keyed:
+            opener = self._opener
+            if opener is None:
+                # A keyed master before the OPEN_ACK has no keys to read session packets with.
+                stats.count_drop(DropReason.NOT_ESTABLISHED)
+                return
+            prefix = HEADER_SIZE + 1 if ptype == _CONTROL else HEADER_SIZE
+            if size < prefix + PROTECTION_OVERHEAD:
+                stats.count_drop(DropReason.TRUNCATED)
+                return
+            body = opener.open(data, prefix, now)
+            if body is None:
+                self._on_unopened(opener, now)
+                return
+            data = data[:prefix] + body
+            size = len(data)  # from here on, sizes are without the protection (_accept adds it)
+        if handshake.confirming:
+            # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
+            self._establish(now)
+        # The header, decoded in place (wire/header.py's layout) rather than into a Header tuple.
+        b1 = data[1]
+        b3 = data[3]
+        seq = ((data[0] & 0x3F) << 6) | (b1 >> 2)
+        ack = ((b1 & 0x03) << 10) | (data[2] << 2) | (b3 >> 6)
+        sack = b3 & 0x3F
+        hold = data[4]
+        if ptype == _DATA:
+            self._on_data(data, seq, ack, sack, hold, now)
+        elif ptype == _ACK:
+            self._on_ack_packet(size, ack, sack, hold, now)
+        else:
+            self._on_session_control(data, size, ack, sack, hold, now)
+
+    def _on_unopened(self, opener: PacketOpener, now: float) -> None:
+        """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
+        key that has seen too many forgeries is retired with its connection (RFC 9001, 6.6)."""
+        self._stats.count_drop(DropReason(opener.failure))
+        if opener.exhausted:
+            self._terminate(
+                CloseCause.KEY_EXHAUSTED,
+                "too many datagrams failed authentication under this session's key; open a new "
+                "connection",
+            )
+
+    def _accept(self, size: int, payload_size: int, now: float) -> None:
+        """Count a datagram taken in; ``size`` is its length without packet protection."""
+        received = self._stats.received
+        received.datagrams += 1
+        received.bytes += size + self._overhead
+        received.header_bytes += HEADER_SIZE
+        received.payload_bytes += payload_size
+        received.protection_bytes += self._overhead
+        self._heard(now)
+
+    def _heard(self, now: float) -> None:
+        """A datagram from the peer, whether or not it is taken in (late, duplicate, stale): it
+        shows the peer is alive."""
+        liveness = self._liveness
+        liveness.last_receive = now
+        if liveness.silent_since is not None:
+            self._on_peer_resumed(now)
+
+    def _on_peer_resumed(self, now: float) -> None:
+        silent_for = self._liveness.resume(now)
+        stats = self._stats
+        stats.longest_silence = max(stats.longest_silence, silent_for)
+        self._push_watchdog_event(PeerResumed(silent_for, now))
+        self._controller.on_peer_resumed(now=now, silent_for=silent_for)
+        self._hint.value = -math.inf  # the watchdog's deadline is silence_timeout again, not idle
+
+    def _on_data(self, data: bytes, seq: int, ack: int, sack: int, hold: int, now: float) -> None:
+        stats = self._stats
+        window = self._acks.window
+        if self._state is not State.ESTABLISHED or window is None:
+            stats.count_drop(DropReason.NOT_ESTABLISHED)
+            return
+        size = len(data)
+        payload_size = size - HEADER_SIZE
+        if payload_size > self._max_payload:
+            stats.count_drop(DropReason.OVERSIZED)
+            return
+        if not payload_size:
+            stats.count_drop(DropReason.EMPTY_DATA)  # senders MUST NOT send one (section 4.1)
+            return
+        if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
+            stats.count_drop(DropReason.OPTIMISTIC_ACK)
+            return
+        arrival = self._acks.on_arrival(window, seq, now)
+        if arrival is not Arrival.NEW:
+            if arrival is Arrival.STALE:
+                self._heard(now)
+                stats.count_drop(DropReason.STALE)
+                return
+            if arrival is Arrival.LATE:
+                stats.reordered += 1
+                if not self._deliver_late:
+                    self._heard(now)
+                    stats.count_drop(DropReason.LATE)
+                    return
+            elif not self._deliver_duplicates:
+                self._heard(now)
+                stats.count_drop(DropReason.DUPLICATE)
+                return
+        received = stats.received
+        received.datagrams += 1
+        received.bytes += size + self._overhead
+        received.header_bytes += HEADER_SIZE
+        received.payload_bytes += payload_size
+        received.protection_bytes += self._overhead
+        received.data_packets += 1
+        liveness = self._liveness
+        liveness.last_receive = now
+        if liveness.silent_since is not None:
+            self._on_peer_resumed(now)
+        stats.samples_delivered += 1
+        rtt = self._recovery.rtt
+        self._events.push_data(
+            new_data_received(
+                data[HEADER_SIZE:], window.last_seq, rtt.srtt / 2 if rtt.has_sample else None, now
+            )
+        )
+
+    def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:
+        stats = self._stats
+        if self._state is not State.ESTABLISHED:
+            stats.count_drop(DropReason.NOT_ESTABLISHED)
+            return
+        if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
+            stats.count_drop(DropReason.OPTIMISTIC_ACK)
+            return
+        self._accept(size, 0, now)
+        stats.received.ack_packets += 1
+
+    def _on_feedback(self, ack: int, sack: int, hold: int, now: float) -> bool:
+        """Hand the acknowledgement in a header to loss recovery; False if it acknowledges a packet
+        never sent."""
+        newly = self._recovery.on_feedback(ack, sack, hold, now)
+        if newly > 0:
+            hint = self._hint
+            if self._sender.pending is not None:
+                hint.value = -math.inf  # a new rate may let the held sample go earlier
+            hint.check_controller()
+        return newly >= 0
+
+    def _on_session_control(
+        self, data: bytes, size: int, ack: int, sack: int, hold: int, now: float
+    ) -> None:
+        """KEEPALIVE and CLOSE (already opened in a keyed session)."""
+        stats = self._stats
+        try:
+            body = decode_control(data[HEADER_SIZE:])
+        except MalformedPacketError:
+            stats.count_drop(DropReason.BAD_CONTROL)
+            return
+        if isinstance(body, CloseBody):
+            if body.nonce != self._handshake.master_nonce or self._state not in (
+                State.OPENING,
+                State.ESTABLISHED,
+            ):
+                stats.count_drop(DropReason.NONCE_MISMATCH)
+                return
+            self._accept(size, size - HEADER_SIZE, now)
+            stats.received.control_packets += 1
+            self._terminate(CloseCause.PEER_CLOSE, close_reason_text(body.reason))
+            return
+        # KEEPALIVE
+        if self._state is not State.ESTABLISHED:
+            stats.count_drop(DropReason.NOT_ESTABLISHED)
+            return
+        if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
+            stats.count_drop(DropReason.OPTIMISTIC_ACK)
+            return
+        self._accept(size, size - HEADER_SIZE, now)
+        stats.received.control_packets += 1
+
+    # ------------------------------------------------------------------ opening
+
+    def _on_handshake(self, data: bytes, addr: Address, now: float) -> None:
+        """OPEN, OPEN_ACK, COOKIE or REJECT: the messages whose fields travel in the clear, read by
+        the handshake; what they change in the session happens here."""
+        self._hint.value = -math.inf  # the opening's timers may move
+        handshake = self._handshake
+        state = self._state
+        if self.role is Role.SLAVE:
+            verdict = handshake.on_open(
+                data, addr, now, listening=state is State.LISTENING, srtt=self._recovery.rtt.srtt
+            )
+            if isinstance(verdict, AdmittedOpen):
+                self._open_session(verdict, addr, now)
+            elif verdict is Reaction.ANSWER_AGAIN:
+                self._queue_open_ack()
+            elif verdict is Reaction.REPLACED:
+                self._terminate(
+                    CloseCause.REPLACED, "the master opened a new connection from the same address"
+                )
+            return
+        reaction = handshake.on_reply(
+            data,
+            now,
+            opening=state is State.OPENING,
+            established=state is State.ESTABLISHED,
+            ack_mode=self._acks.mode,
+            opener=self._opener,
+        )
+        if reaction is Reaction.IGNORED:
+            return
+        self._heard(now)
+        if reaction is Reaction.REJECTED:
+            self._terminate(CloseCause.REJECTED, handshake.detail)
+        elif reaction is Reaction.OPENED:
+            self._on_opened(decode_header(data).seq, now)
+
+    def _open_session(self, admitted: AdmittedOpen, addr: Address, now: float) -> None:
+        """A listening slave takes the admitted OPEN: adopt its settings, answer OPEN_ACK, and wait
+        for the master's first packet of the session (it confirms the master has the OPEN_ACK)."""
+        body = admitted.body
+        handshake = self._handshake
+        self._peer = addr
+        handshake.adopt(admitted)
+        acks = self._acks
+        acks.mode = (
+            AckMode.SEPARATE if body.flags & OpenFlags.SEPARATE_ACKS else AckMode.BIDIRECTIONAL
+        )
+        self._sender.limit = min(self.config.max_payload, body.max_payload)
+        acks.open(admitted.initial_seq)
+        self._install_protection()
+        self._stats.count_handshake(admitted.size, handshake.tag_size)
+        self._heard(now)
+        self._state = State.OPENING
+        handshake.confirming = True
+        handshake.open_deadline = now + self.config.open_timeout
+        self._liveness.last_send = now
+        self._queue_open_ack()
+
+    def _on_opened(self, initial_seq: int, now: float) -> None:
+        """A master's OPEN_ACK (already counted): the session opens, unless the slave's payloads
+        are too small for us."""
+        self._install_protection()
+        peer_max_payload = self._handshake.peer_max_payload
+        if peer_max_payload < self.config.min_peer_payload:
+            self._queue_close(CloseReason.PAYLOAD_TOO_SMALL, self._peer_address())
+            self._terminate(
+                CloseCause.REJECTED,
+                f"the slave accepts payloads of at most {peer_max_payload} bytes, smaller than "
+                f"min_peer_payload ({self.config.min_peer_payload})",
+            )
+            return
+        self._sender.limit = min(self.config.max_payload, peer_max_payload)
+        self._acks.open(initial_seq)
+        self._establish(now)
+        # Confirm at once (the slave waits for our first packet of the session): the next
+        # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
+        # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
+        liveness = self._liveness
+        liveness.last_send = now - 2.0 * liveness.keepalive
+
+    def _install_protection(self) -> None:
+        """A keyed session's keys, derived at the open, protect every datagram from now on."""
+        keys = self._handshake.keys
+        if keys is None:
+            return
+        outbox = self._outbox
+        outbox.sealer, self._opener = keys
+        outbox.overhead = self._overhead = PROTECTION_OVERHEAD
+
+    def _peer_address(self) -> Address:
+        peer = self._peer
+        assert peer is not None  # set by connect() or at the OPEN
+        return peer
+
+    def _establish(self, now: float) -> None:
+        self._state = State.ESTABLISHED
+        self._hint.value = -math.inf
+        self._handshake.confirming = False
+        liveness = self._liveness
+        liveness.last_receive = now
+        liveness.last_send = now
+        self._push_other_event(ConnectionEstablished(self._peer_address()))
+
+    # ------------------------------------------------------------------ timers
+
+    def get_timer(self) -> float | None:
+        """The next absolute time :meth:`handle_timer` (then :meth:`datagrams_to_send`) is due."""
+        hint = self._hint
+        hint.value = math.inf
+        state = self._state
+        if state is State.OPENING:
+            handshake = self._handshake
+            if self.role is Role.SLAVE:
+                return handshake.open_deadline
+            return min(handshake.open_next, handshake.open_deadline)
+        if state is not State.ESTABLISHED:
+            return None
+        # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
+        # for a waiting sample; the next ACK; the next loss; the controller's own.
+        deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
+        loss_deadline = self._recovery.loss_deadline()
+        if loss_deadline is not None and loss_deadline < deadline:
+            deadline = loss_deadline
+        controller_deadline = self._controller.get_timer()
+        hint.controller_seen = controller_deadline
+        if controller_deadline is not None and controller_deadline < deadline:
+            deadline = controller_deadline
+        return deadline
+
+    def handle_timer(self, *, now: float) -> None:
+        """Act on whatever is due at ``now``. Calling it early or late is harmless."""
+        self._hint.value = -math.inf
+        state = self._state
+        if state is State.OPENING:
+            if now >= self._handshake.open_deadline:
+                if self.role is Role.MASTER:
+                    detail = f"no answer to OPEN within {self.config.open_timeout} s"
+                else:
+                    detail = (
+                        "the master never confirmed the session within "
+                        f"{self.config.open_timeout} s after our OPEN_ACK"
+                    )
+                self._terminate(CloseCause.OPEN_TIMEOUT, detail)
+            return
+        if state is not State.ESTABLISHED:
+            return
+        liveness = self._liveness
+        if liveness.idle_expired(now):
+            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer_address())
+            self._terminate(
+                CloseCause.IDLE_TIMEOUT,
+                f"nothing received from the peer for {self.config.idle_timeout:g} s",
+            )
+            return
+        if liveness.check_silence(now):
+            self._stats.peer_silences += 1
+            self._push_watchdog_event(PeerSilent(liveness.last_receive, now))
+            self._controller.on_peer_silent(now=now)
+        self._recovery.detect_losses(now)
+        controller_deadline = self._controller.get_timer()
+        if controller_deadline is not None and now >= controller_deadline:
+            self._controller.on_timer(now=now)
+
+    # ------------------------------------------------------------------ output
+
+    def datagrams_to_send(self, *, now: float) -> list[tuple[bytes, Address]]:
+        """Everything that should leave at ``now``, with its destination."""
+        out: list[tuple[bytes, Address]] = []
+        outbox = self._outbox
+        state = self._state
+        if state is State.OPENING and self.role is Role.MASTER and self._handshake.open_due(now):
+            self._emit_open(out, now)
+        if outbox.control:
+            outbox.flush(out, now)
+        if state is not State.ESTABLISHED or self._state is not State.ESTABLISHED:
+            return out
+        peer = self._peer
+        assert peer is not None  # ESTABLISHED implies it
+        sent = self._recovery.sent
+        acks = self._acks
+        acks.emit_held(out, outbox, sent.next_seq, peer, now)  # before the sample: the jump rule
+        self._sender.take_due(out, peer, now)
+        acks.emit_due(out, outbox, sent.next_seq, peer, now)
+        if self._liveness.keepalive_due(now):
+            window = acks.window
+            assert window is not None
+            ack, sack, hold = acks.piggyback(window, now)
+            outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, peer, now)
+        sealer = outbox.sealer
+        if sealer is not None and sealer.exhausted:
+            self._exhausted()
+        return out
+
+    def _emit_open(self, out: list[tuple[bytes, Address]], now: float) -> None:
+        handshake = self._handshake
+        datagram = handshake.next_open(self._recovery.sent.next_seq, self._acks.mode)
+        if datagram is None:
+            self._terminate(CloseCause.OPEN_TIMEOUT, "no answer to 65536 OPENs")
+            return
+        self._outbox.emit_control(
+            out, datagram, self._peer_address(), now, handshake.tag_size, True
+        )
+
+    # ------------------------------------------------------------------ helpers
+
+    def _queue_open_ack(self) -> None:
+        handshake = self._handshake
+        outbox = self._outbox
+        seq = self._recovery.sent.next_seq
+        datagram = handshake.open_ack(seq, self._acks.mode, outbox.sealer)
+        outbox.queue(datagram, self._peer_address(), handshake.tag_size, True)
+
+    def _queue_close(self, reason: CloseReason, addr: Address) -> None:
+        self._outbox.queue_close(
+            self._recovery.sent.next_seq, self._handshake.master_nonce, reason, addr
+        )
+
+    def _terminate(self, cause: CloseCause, detail: str) -> None:
+        self._state = State.CLOSED
+        self._hint.value = -math.inf
+        self._handshake.confirming = False
+        self._sender.drop()
+        self._acks.separate.clear()
+        self._close_event = event = ConnectionClosed(cause, detail)
+        self._push_other_event(event)
+
+    def _push_other_event(self, event: Event) -> None:
+        self._events.push(event)
+        self._hint.value = -math.inf
+
+    def _push_watchdog_event(self, event: PeerSilent | PeerResumed) -> None:
+        """Watchdog events share the ``max_pending_events`` bound (EventQueue.push_watchdog)."""
+        self._events.push_watchdog(event)
+        self._hint.value = -math.inf

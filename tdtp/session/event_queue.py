@@ -1,0 +1,74 @@
+"""The connection's bounded queue of events waiting for the application.
+
+A peer can fill it (every data packet is an event), so it is bounded by ``max_pending_events``. When the
+application does not keep up, stale supermedia data is worth least: the oldest :class:`DataReceived`
+goes first. Watchdog events (:class:`PeerSilent`, :class:`PeerResumed`) share the bound: with no data
+event left to drop, the oldest watchdog event goes. Lifecycle events (established, closed) are never
+dropped; there is at most one of each.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from tdtp.session.events import DataReceived, Event, PeerResumed, PeerSilent
+from tdtp.session.stats import ConnectionStats
+
+
+class EventQueue:
+    """Events in the order they happened; drops count in ``stats.events_discarded``."""
+
+    def __init__(self, max_events: int, stats: ConnectionStats) -> None:
+        self._events: deque[Event] = deque()
+        self._max_events = max_events
+        self._data_pending = 0  # DataReceived events among them
+        self._stats = stats
+
+    def count(self) -> int:
+        return len(self._events)
+
+    def pop(self) -> Event | None:
+        """The oldest event, or ``None``."""
+        events = self._events
+        if not events:
+            return None
+        event = events.popleft()
+        if type(event) is DataReceived:
+            self._data_pending -= 1
+        return event
+
+    def push_data(self, event: DataReceived) -> None:
+        """A sample delivered: when the queue is full, the oldest data event makes room."""
+        events = self._events
+        if len(events) >= self._max_events and self._data_pending:
+            self._discard_oldest_data()
+        events.append(event)
+        self._data_pending += 1
+
+    def push(self, event: Event) -> None:
+        """A lifecycle event: always kept."""
+        self._events.append(event)
+
+    def push_watchdog(self, event: PeerSilent | PeerResumed) -> None:
+        """A watchdog event: within the bound, making room by dropping the oldest data event, or
+        failing that the oldest watchdog event."""
+        events = self._events
+        if len(events) >= self._max_events:
+            if self._data_pending:
+                self._discard_oldest_data()
+            else:
+                for index, pending in enumerate(events):
+                    if isinstance(pending, PeerSilent | PeerResumed):
+                        del events[index]
+                        self._stats.events_discarded += 1
+                        break
+        events.append(event)
+
+    def _discard_oldest_data(self) -> None:
+        events = self._events
+        for index, pending in enumerate(events):
+            if type(pending) is DataReceived:
+                del events[index]
+                self._data_pending -= 1
+                self._stats.events_discarded += 1
+                return

@@ -1,0 +1,167 @@
+"""Loss recovery: what our data packets became, read from the peer's piggybacked acknowledgements.
+
+TDTP never retransmits (stale supermedia data is worth nothing), so "recovery" here is what RFC 9002
+calls loss detection plus the congestion signals it feeds: every data packet we send is recorded in the
+:class:`~tdtp.session.sent_log.SentPacketLog`; each acknowledgement that arrives in the peer's header is
+expanded, marks packets acknowledged, yields an RTT sample for the :class:`~tdtp.session.rtt.RttEstimator`
+and reports absences; a packet absent for longer than the loss delay is declared lost, and losses close
+loss intervals in the :class:`~tdtp.session.loss_rate.LossIntervalEstimator`. The rate controller hears
+about it through ``on_ack`` and ``on_loss_event``.
+
+:class:`LossRecovery` owns all of that state. It reads the watchdog's outage from
+:class:`~tdtp.session.liveness.Liveness` (packets sent into a silent path are lost together, one loss
+event per outage) and lowers the session's :class:`~tdtp.session.timer_hint.TimerHint` when a loss
+deadline moves earlier.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+from tdtp.config import ConnectionConfig
+from tdtp.control.base import RateController
+from tdtp.session.liveness import Liveness
+from tdtp.session.loss_rate import LossIntervalEstimator
+from tdtp.session.rtt import RttEstimator
+from tdtp.session.sent_log import LostPacket, SentPacketLog
+from tdtp.session.stats import ConnectionStats
+from tdtp.session.timer_hint import TimerHint
+from tdtp.wire.hold import decode_hold
+
+LOSS_DELAY_SRTT: Final = 1.2
+LOSS_DELAY_RTTVAR: Final = 4.0
+TIMER_GRANULARITY: Final = 0.001
+"""Slack for timers firing late (RFC 9002's kGranularity)."""
+
+
+class LossRecovery:
+    """The sent log, the RTT and loss-rate estimators, and the loss delay derived from them."""
+
+    def __init__(
+        self,
+        first_seq: int,
+        config: ConnectionConfig,
+        *,
+        controller: RateController,
+        stats: ConnectionStats,
+        liveness: Liveness,
+        hint: TimerHint,
+    ) -> None:
+        self.sent = SentPacketLog(
+            first_seq,
+            reorder_threshold=config.reorder_threshold,
+            max_tracked=config.max_tracked_packets,
+        )
+        self.rtt = RttEstimator(config.initial_rtt)
+        self.loss = LossIntervalEstimator(first_seq)
+        self._ack_delay = config.ack_delay
+        self.loss_delay = self._compute_loss_delay()
+        """How long a packet reported absent may still turn up, as of the last RTT sample."""
+        self._hint = hint
+        self._lost: list[LostPacket] = []  # reused: filled by the sent log, emptied by _on_losses
+        self._controller = controller
+        self._stats = stats
+        self._liveness = liveness
+
+    def on_sent(self, now: float, size: int) -> None:
+        """A data packet of ``size`` bytes left at ``now`` (it takes the log's next sequence number)."""
+        lost = self._lost
+        self.sent.on_sent(now, size, lost)
+        if lost:
+            self._on_losses(now)
+
+    def on_feedback(self, ack: int, sack: int, hold_code: int, now: float) -> int:
+        """Process the acknowledgement in a header: how many packets it newly acknowledged, or -1
+        if it acknowledges a packet never sent (an optimistic ACK: the caller drops the datagram)."""
+        sent = self.sent
+        rtt = self.rtt
+        hold = decode_hold(hold_code)
+        full = sent.expand_ack(ack, hold, now, rtt.srtt)
+        if full is None:
+            return -1
+        newly = sent.acknowledge(full, sack, hold, now)
+        stats = self._stats
+        if sent.spurious:
+            stats.spurious_losses += sent.spurious
+        sample = sent.rtt_sample
+        if sample is not None:
+            rtt.on_sample(sample)
+            stats.rtt_samples += 1
+            delay = self._compute_loss_delay()
+            if delay < self.loss_delay:
+                # A shorter loss delay brings a pending loss deadline forward.
+                due = sent.loss_deadline(delay)
+                hint = self._hint
+                if due is not None and due < hint.value:
+                    hint.value = due
+            self.loss_delay = delay
+        if sent.marked_missing:
+            sent.marked_missing = False
+            self._hint.value = -math.inf  # a loss deadline may be due earlier
+        lost = self._lost
+        sent.detect_losses(now, self.loss_delay, lost)
+        if lost:
+            self._on_losses(now)
+        if newly:
+            stats.packets_acked += newly
+            self._controller.on_ack(
+                now=now,
+                acked=newly,
+                rtt_sample=sample,
+                srtt=rtt.srtt,
+                rttvar=rtt.rttvar,
+                loss_event_rate=self.loss.update(sent.largest_acked),
+            )
+        return newly
+
+    def detect_losses(self, now: float) -> None:
+        """Declare lost what has been absent longer than the loss delay (the timer's check)."""
+        lost = self._lost
+        self.sent.detect_losses(now, self.loss_delay, lost)
+        if lost:
+            self._on_losses(now)
+
+    def loss_deadline(self) -> float | None:
+        """When the next packet reported absent is declared lost, if any is."""
+        return self.sent.loss_deadline(self.loss_delay)
+
+    def _on_losses(self, now: float) -> None:
+        lost = self._lost
+        estimator = self.loss
+        srtt = self.rtt.srtt
+        largest = self.sent.largest_acked
+        stats = self._stats
+        stats.packets_lost += len(lost)
+        outage = self._liveness.outage(now)
+        for packet in lost:
+            window = srtt
+            during_outage = outage is not None and outage[0] <= packet.send_time <= outage[1]
+            if during_outage:
+                # Packets sent into a silent path are lost together: one loss event per outage,
+                # however far apart the controller's back-off spaced them (docs/PROTOCOL.md 5.4).
+                assert outage is not None
+                window = srtt + outage[1] - outage[0]
+            if estimator.on_packet_lost(packet.seq, packet.send_time, window, largest):
+                stats.loss_events += 1
+                if not during_outage:
+                    # An outage's loss event counts in p; the controller answers the outage itself
+                    # through on_peer_silent / on_peer_resumed, not a second time here.
+                    self._controller.on_loss_event(
+                        now=now, srtt=srtt, loss_event_rate=estimator.loss_event_rate
+                    )
+        lost.clear()
+        self._hint.value = -math.inf
+
+    def _compute_loss_delay(self) -> float:
+        """How long a packet reported absent may still turn up (RAP's timeout, mu 1.2 and phi 4).
+
+        The peer's ACK delay is added because RTT samples exclude it: a late arrival is reported only
+        with the peer's next reverse packet, up to ``ack_delay`` later.
+        """
+        rtt = self.rtt
+        return (
+            LOSS_DELAY_SRTT * rtt.srtt
+            + max(LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
+            + self._ack_delay
+        )
