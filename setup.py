@@ -43,6 +43,7 @@ COMPILED = [
     "tdtp/control/base.py",
     "tdtp/control/equations.py",
     "tdtp/control/fixed.py",
+    "tdtp/control/teleop.py",
     "tdtp/control/tfrc.py",
     "tdtp/control/trinomial.py",
     "tdtp/control/registry.py",

@@ -59,6 +59,7 @@ COMPILED_MODULES: Final = (
     "tdtp.control.base",
     "tdtp.control.equations",
     "tdtp.control.fixed",
+    "tdtp.control.teleop",
     "tdtp.control.tfrc",
     "tdtp.control.trinomial",
     "tdtp.control.registry",

@@ -20,7 +20,7 @@ MAX_PAYLOAD = MAX_UDP_PAYLOAD - HEADER_SIZE - PROTECTION_OVERHEAD
 """The largest TDTP payload: what fits in one UDP/IPv4 datagram with the header and, in a keyed
 session, the packet protection (65484 bytes)."""
 
-ControllerName = Literal["trinomial", "tfrc", "fixed"]
+ControllerName = Literal["teleop", "trinomial", "tfrc", "fixed"]
 """The built-in rate controllers. A controller added with
 :func:`tdtp.control.register_controller` is accepted too (type checkers then need a ``cast``)."""
 
@@ -128,7 +128,9 @@ class ConnectionConfig:
     initial_rtt: float = 0.1
     """RTT assumed until the first sample (loss timeout, controllers)."""
     reorder_threshold: int = 3
-    """A packet is lost once a packet this many sequence numbers later is acknowledged."""
+    """A packet is lost once a packet this many sequence numbers later is acknowledged, until the
+    connection has seen reordering; from then on only the time-based reorder window declares losses
+    (RFC 8985, docs/PROTOCOL.md section 5.4)."""
     deliver_late: bool = False
     """Deliver packets that arrive after a newer one (reordered). Stale samples are dropped by default."""
     deliver_duplicates: bool = False
@@ -137,9 +139,10 @@ class ConnectionConfig:
     """Events held for the application; when full the oldest data event is discarded and counted."""
     max_tracked_packets: int = 16384
     """Sent packets remembered while awaiting acknowledgement; the oldest is declared lost past this."""
-    controller: ControllerName = "trinomial"
-    """Rate controller by registry name: ``trinomial``, ``tfrc`` or ``fixed`` (or one registered
-    with :func:`tdtp.control.register_controller`)."""
+    controller: ControllerName = "teleop"
+    """Rate controller by registry name: ``teleop`` (the default: queue delay and loss, docs/CONTROL.md
+    section 9), ``trinomial`` (the paper's), ``tfrc`` or ``fixed`` (or one registered with
+    :func:`tdtp.control.register_controller`)."""
     controller_config: object | None = None
     """The chosen controller's own config dataclass (``None`` = its defaults), e.g.
     ``tdtp.control.FixedConfig(rate=500.0)`` for ``controller="fixed"``."""

@@ -83,27 +83,51 @@ def test_late_samples_are_delivered_when_configured() -> None:
     assert slave.samples_delivered == pair.master.conn.stats.sent.data_packets
 
 
-def test_reordering_past_the_threshold_counts_as_loss_then_as_spurious() -> None:
-    # Held back 5 ms: declared lost when 3 newer ones are acknowledged, then reported by SACK.
+def test_reordering_past_the_threshold_is_not_loss_once_seen() -> None:
+    # Held back 5 ms: the first one is declared lost when 3 newer ones are acknowledged, then
+    # reported by SACK (a spurious loss). From then on reordering has been seen and only the time
+    # threshold (RACK's reorder window) declares losses: every later one counts as reordered.
     shuffled = Direction(extra_delay=lambda i: 0.005 if i % 100 == 50 else 0.0)
     pair = Pair(UNLIMITED, UNLIMITED, ms=shuffled)
     pair.open()
     pair.start_samples(1000, 1000)
     pair.run_for(3.0)
     master = pair.master.conn.stats
-    assert master.packets_lost == master.spurious_losses > 20
+    assert master.packets_lost == master.spurious_losses == 1
+    assert master.packets_reordered >= 29
+    assert master.loss_events <= 1
 
 
-def test_reordering_deeper_than_the_sack_span_stays_a_loss() -> None:
-    # Held back 9 ms: it arrives 9 packets late, beyond the 6 packets a SACK field can report.
+def test_reordering_deeper_than_the_sack_span_is_reported_in_its_own_ack() -> None:
+    # Held back 9 ms: it arrives 9 packets late, beyond the 6 packets a SACK field can report; the
+    # receiver reports it in an ACK of its own, so the sender counts it reordered, not lost.
     shuffled = Direction(extra_delay=lambda i: 0.009 if i % 100 == 50 else 0.0)
     pair = Pair(UNLIMITED, UNLIMITED, ms=shuffled)
     pair.open()
     pair.start_samples(1000, 1000)
     pair.run_for(3.0)
     master = pair.master.conn.stats
-    assert master.packets_lost == 30 and master.spurious_losses == 0
+    assert master.packets_lost == master.spurious_losses <= 1
+    assert master.packets_reordered >= 29
     assert pair.slave.conn.stats.reordered == 30
+    assert pair.slave.conn.stats.sent.ack_packets >= 30
+
+
+def test_jitter_that_reorders_most_packets_declares_no_loss() -> None:
+    # Every packet delayed 0..10 ms at random (netem's "delay 20ms 5ms" reorders most of a 1 kHz
+    # stream): nothing is lost, so nothing may be declared lost or reach the controller.
+    rng = random.Random(7)
+    jitter = [rng.uniform(0.0, 0.010) for _ in range(20000)]
+    pair = Pair(UNLIMITED, UNLIMITED, ms=Direction(extra_delay=lambda i: jitter[i % 20000]))
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(3.0)
+    master = pair.master.conn.stats
+    assert master.packets_lost == master.spurious_losses <= 1
+    assert master.loss_events <= 1
+    assert master.packets_reordered > 300
+    slave = pair.slave.conn.stats
+    assert slave.reordered > 300 and slave.drops.get("late", 0) == slave.reordered
 
 
 def test_rtt_follows_the_path_and_excludes_the_hold_time() -> None:
@@ -121,6 +145,9 @@ def test_rtt_follows_the_path_and_excludes_the_hold_time() -> None:
     assert pair.slave.received[0].estimated_age is None  # before any RTT sample: unknown
 
 
+# 400,000 packets through the pure-Python build take ~40 s on an idle core and over two minutes on a
+# machine four times oversubscribed: the suite's 120 s hang guard is not a speed goal for this one.
+@pytest.mark.timeout(600)
 def test_two_hundred_thousand_packets_each_way_across_sequence_wraps() -> None:
     """4096-value sequence space wraps ~49 times; loss and RTT accounting stay exact."""
     lossy_ms = Direction(drop=lambda i: i % 997 == 500)

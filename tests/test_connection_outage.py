@@ -243,7 +243,7 @@ def test_the_outage_limit_ends_the_session_with_the_true_cause() -> None:
 @pytest.mark.parametrize("delay", [0.010, 0.050])
 def test_trinomial_resumes_at_half_the_rate_from_before_the_outage(delay: float) -> None:
     """Once, not twice: the outage's loss event, reported an RTT later, does not halve again."""
-    pair, link = _outage_pair(ConnectionConfig(), delay=delay)
+    pair, link = _outage_pair(ConnectionConfig(controller="trinomial"), delay=delay)
     controller = pair.master.conn.controller
     assert isinstance(controller, TrinomialController)
     before = controller.rate

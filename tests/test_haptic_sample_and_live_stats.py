@@ -29,9 +29,12 @@ def test_the_wall_pushes_back_only_when_penetrated() -> None:
     inside = slave_feedback((0.06, 0.0, 0.0), 2, 0.0)
     assert outside.force == (0.0, 0.0, 0.0)
     assert inside.force[0] == pytest.approx(-5.0)
-    start = master_trajectory(0.0, 0, 0.0).position
-    quarter = master_trajectory(0.5, 1, 0.0).position  # a quarter turn of the 0.5 Hz circle
-    assert start[0] == pytest.approx(0.1) and quarter[1] == pytest.approx(0.1)
+    # The operator reaches into the wall, presses and slides, and retreats, every 4 s.
+    rest = master_trajectory(0.2, 0, 0.0).position
+    pressing = master_trajectory(2.0, 1, 0.0).position
+    assert rest[0] == pytest.approx(0.0, abs=2e-4) and pressing[0] == pytest.approx(0.06, abs=2e-4)
+    assert slave_feedback(pressing, 2, 0.0).force[0] == pytest.approx(-5.0, abs=0.1)
+    assert master_trajectory(6.0, 3, 0.0).position == pytest.approx(pressing, abs=1e-9)
 
 
 def test_percentiles_and_latency_summary() -> None:

@@ -172,7 +172,7 @@ def test_lazy_interval_ends_give_the_session_eager_ones_give(
     # 667 to 2000 samples/s offered against an allowance near 2000/s. A sample that arrives after
     # an interval end nobody timed must find it settled and leave when the eager timer would have
     # let it, not a timer expiry later and counted as paced (the last case tells the two apart).
-    lazy = _run(True, ConnectionConfig(), keyed=False, seed=seed, tick=tick)
+    lazy = _run(True, ConnectionConfig(controller="trinomial"), keyed=False, seed=seed, tick=tick)
     eager = _run(
         True, ConnectionConfig(controller="trinomial-eager"), keyed=False, seed=seed, tick=tick
     )

@@ -17,7 +17,7 @@ from tdtp.cli.live_stats import (
     DirectionMeter,
     LiveDisplay,
 )
-from tdtp.cli.options import netem_directions, netem_seed, session_config
+from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
 from tdtp.cli.outcome import Outcome, Side, header_line, settings_report
 from tdtp.cli.session_tasks import (
     _settle,
@@ -35,7 +35,8 @@ from tdtp.config import ConnectionConfig
 async def run_demo(args: argparse.Namespace, outcome: Outcome) -> None:
     config = session_config(args)
     keys: SessionKeys = args.session_keys
-    master_side, slave_side = Side("master"), Side("slave")
+    master_side = Side("master", deadband=side_deadband(args, master=True))
+    slave_side = Side("slave", deadband=side_deadband(args, master=False))
     with open_capture(args, outcome) as capture:
         await _demo(args, outcome, config, keys, master_side, slave_side, capture)
 
@@ -106,6 +107,20 @@ async def _demo(
                     silence_note(master, "master"),
                 )
             )
+            bands = [
+                (label, side.deadband)
+                for label, side in (("M->S", master_side), ("S->M", slave_side))
+                if side.deadband is not None
+            ]
+            if bands:
+                lines.append(
+                    "deadband  "
+                    + "  ".join(
+                        f"{label} sends {band.stats.sent / max(band.stats.offered, 1) * 100:5.1f} % "
+                        f"of {band.stats.offered} offered"
+                        for label, band in bands
+                    )
+                )
             display.update(lines)
 
         def summarize() -> None:
@@ -130,6 +145,9 @@ async def _demo(
                     latency=master_side.latency_counts(),
                 ),
             }
+            if args.deadband is not None:
+                outcome.summary["master_to_slave"]["deadband"] = master_side.deadband_report("m")
+                outcome.summary["slave_to_master"]["deadband"] = slave_side.deadband_report("N")
 
         try:
             sending = asyncio.gather(

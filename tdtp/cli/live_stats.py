@@ -61,6 +61,7 @@ class DirectionMeter:
     last_received: int = 0
     last_lost: int = 0
     last_sent: int = 0
+    last_reordered: int = 0
 
     def line(
         self,
@@ -74,9 +75,11 @@ class DirectionMeter:
         received = received_total - self.last_received
         lost = sender.packets_lost - self.last_lost
         sent = sender.sent.data_packets - self.last_sent
+        reordered = sender.packets_reordered - self.last_reordered
         self.last_received = received_total
         self.last_lost = sender.packets_lost
         self.last_sent = sender.sent.data_packets
+        self.last_reordered = sender.packets_reordered
         allowed = "unlimited" if math.isinf(sender.rate) else f"{sender.rate:8.0f}/s"
         parts = [
             f"{self.label}",
@@ -87,6 +90,10 @@ class DirectionMeter:
             f"allowed {allowed}",
             f"superseded {sender.samples_superseded:6d}",
         ]
+        if reordered:
+            parts.insert(3, f"reordered {reordered:4d}")  # late, not lost: apart from the losses
+        if sender.rate_limit:
+            parts.append(f"limit: {sender.rate_limit}")
         if latency:
             parts.append(
                 f"latency p50 {percentile(latency, 0.5) * 1e3:6.3f} ms"

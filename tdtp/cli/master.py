@@ -14,7 +14,7 @@ from tdtp.cli.live_stats import (
     LiveDisplay,
     receive_line,
 )
-from tdtp.cli.options import netem_directions, netem_seed, session_config
+from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
 from tdtp.cli.outcome import EXIT_FAILED, Outcome, Side, close_info, header_line, settings_report
 from tdtp.cli.session_tasks import (
     _with_display,
@@ -35,7 +35,7 @@ async def run_master(args: argparse.Namespace, outcome: Outcome) -> None:
 
 async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWriter | None) -> None:
     host, port = args.address
-    side = Side("master")
+    side = Side("master", deadband=side_deadband(args, master=True))
     ms_spec, _ = netem_directions(args)
     async with connect(
         host,
@@ -99,6 +99,8 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
                 "longest_silence_s": round(ep.stats.longest_silence, 3),
                 "close": close_info(ep),
             }
+            if side.deadband is not None:
+                outcome.summary["master_to_slave"]["deadband"] = side.deadband_report("m")
             event = ep.close_event
             if event is not None and event.cause is not CloseCause.PEER_CLOSE:
                 outcome.status = EXIT_FAILED

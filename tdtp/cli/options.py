@@ -19,6 +19,7 @@ from tdtp.errors import (
 )
 from tdtp.netem import NetemSpec, parse_netem
 from tdtp.netem.spec import MAX_SEED
+from tdtp.teleop.deadband import DeadbandConfig, DeadbandSender
 from tdtp.teleop.haptic_sample import SAMPLE_SIZE
 from tdtp.wire.header import HEADER_SIZE
 
@@ -97,6 +98,26 @@ def _duration(text: str) -> float:
     return value
 
 
+def _weber_fraction(text: str) -> float:
+    value = _number(text)
+    if not 0.0 < value < 10.0:
+        raise argparse.ArgumentTypeError(f"must be a fraction above 0 and below 10, got {text}")
+    return value
+
+
+DEADBAND_FLOORS = {"position": 0.0005, "force": 0.05}
+"""The deadband's absolute thresholds near zero: half a millimetre, 0.05 N."""
+
+
+def side_deadband(args: argparse.Namespace, *, master: bool) -> DeadbandSender | None:
+    """The deadband ``--deadband K`` asks for on one side (its position or its force), or ``None``."""
+    k: float | None = getattr(args, "deadband", None)
+    if k is None:
+        return None
+    floor = DEADBAND_FLOORS["position" if master else "force"]
+    return DeadbandSender(groups=[(0, 1, 2)], config=DeadbandConfig(k=k, min_threshold=floor))
+
+
 def build_parser() -> argparse.ArgumentParser:
     common = CommandParser(add_help=False)
     common.add_argument(
@@ -116,6 +137,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=DEFAULT_CONTROLLER,
         choices=available_controllers(),
         help=f"rate control ({DEFAULT_CONTROLLER})",
+    )
+    common.add_argument(
+        "--deadband",
+        type=_weber_fraction,
+        metavar="K",
+        help="perceptual deadband: send a sample only when it changed by more than K times its "
+        "magnitude (e.g. 0.1; the master's position, the slave's force; a heartbeat every 0.1 s)",
     )
     common.add_argument(
         "--separate-acks",

@@ -16,6 +16,7 @@ from tdtp.cli.live_stats import (
 from tdtp.cli.options import netem_directions
 from tdtp.cli.summary import LatencyCounts
 from tdtp.session.events import DataReceived
+from tdtp.teleop.deadband import DeadbandSender
 from tdtp.teleop.haptic_sample import HapticSample
 
 MAX_LATENCY = 10.0
@@ -30,12 +31,31 @@ class Side:
     name: str
     latency: LatencyRecorder = field(default_factory=LatencyRecorder)
     received: int = 0
-    last_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    last_position: tuple[float, ...] = (0.0, 0.0, 0.0)
     not_haptic: int = 0
     clock_mismatch: int = 0
     started: float = 0.0
     task_error: str | None = None
     """Why this side's task stopped early, if it failed (a bug; shown in ``--json``)."""
+    deadband: DeadbandSender | None = None
+    """``--deadband K``: which of this side's samples are worth sending (master: the position,
+    slave: the force)."""
+
+    def deadband_report(self, unit: str) -> dict[str, Any] | None:
+        """The ``deadband`` entry of the direction this side sends, ``None`` without a deadband."""
+        band = self.deadband
+        if band is None:
+            return None
+        stats = band.stats
+        return {
+            "k": band.config.k,
+            "offered": stats.offered,
+            "sent": stats.sent,
+            "heartbeats": stats.heartbeats,
+            "sent_fraction": round(stats.sent / stats.offered, 4) if stats.offered else None,
+            "reconstruction_rmse": round(stats.reconstruction_rmse, 6),
+            "unit": unit,
+        }
 
     def on_data(self, event: DataReceived) -> None:
         self.received += 1

@@ -54,8 +54,13 @@ async def send_loop(
                     return
                 if master:
                     sample = master_trajectory(now - start, index, now)
+                    values = sample.position
                 else:
                     sample = slave_feedback(side.last_position, index, now)
+                    values = sample.force
+                band = side.deadband
+                if band is not None and not band.offer(values, now=now):
+                    continue  # not worth a packet: the peer holds the last value
                 ep.send(sample.encode(size))
 
 

@@ -7,7 +7,8 @@ NAME is ``paper``, ``lockout``, ``friendliness``, ``fairness``, ``best-effort`` 
   ``literal``; ``all`` for every named one), each over ``--seeds`` seeds (10) starting at ``--seed``,
   and reports per reading the goodput ratio TDTP/Trinomial with its 95 % interval. ``--tcp-directions``,
   ``--tcp-variant``, ``--ack-form``, ``--queue`` and ``--send-jitter`` override a reading's parameters.
-* ``lockout`` runs the literal reading for TDTP and TDTP with TFRC over ``--seeds`` seeds (20) with the
+* ``lockout`` runs the literal reading (``--queue`` may change its queues) for TDTP, TDTP with TFRC and
+  TDTP with the default teleop controller over ``--seeds`` seeds (20) with the
   current controllers, and over the first 10 of them with the controllers before the lock-out fix.
 * ``friendliness``, ``fairness`` and ``best-effort`` run once, at ``--seed``.
 * ``all`` runs every one of them, ``paper`` with every reading (TDTP with TFRC under the literal one
@@ -107,7 +108,7 @@ def build_parser(prog: str = "tdtp simulate") -> argparse.ArgumentParser:
         "--schemes",
         default=None,
         help=f"comma-separated schemes among {', '.join(SCHEMES)} "
-        "(default: all three; lockout: tdtp,tfrc)",
+        "(default: tdtp,trinomial,tfrc; lockout: tdtp,tfrc,teleop)",
     )
     parser.add_argument(
         "--earlier-seeds",
@@ -173,6 +174,14 @@ def _readings(args: argparse.Namespace) -> list[Reading]:
         except ValueError as exc:
             raise _UsageError(str(exc)) from None
     return readings
+
+
+def _lockout_reading(args: argparse.Namespace) -> Reading:
+    """The literal reading, with the overrides given (``--queue bytes`` for byte-counted queues)."""
+    if args.readings not in ("literal", None):
+        raise _UsageError("lockout runs the literal reading; change it with --queue and the like")
+    probe = argparse.Namespace(**{**vars(args), "readings": "literal"})
+    return _readings(probe)[0]
 
 
 def _seeds(args: argparse.Namespace, default: int) -> list[int]:
@@ -264,7 +273,8 @@ def _execute(names: list[str], args: argparse.Namespace) -> tuple[dict[str, Any]
             r.name: ("tdtp", "trinomial", "tfrc") if r.name == "literal" else ("tdtp", "trinomial")
             for r in readings
         }
-    lockout_schemes = _schemes(args, ("tdtp", "tfrc"))
+    lockout_schemes = _schemes(args, ("tdtp", "tfrc", "teleop"))
+    lockout_reading = _lockout_reading(args) if "lockout" in names else None
     if "paper" in names:
         tasks += paper_tasks(readings, seeds=paper_seeds, schemes=paper_schemes, duration=duration)
     earlier_seeds = None
@@ -277,6 +287,7 @@ def _execute(names: list[str], args: argparse.Namespace) -> tuple[dict[str, Any]
             seeds=lockout_seeds,
             earlier_seeds=earlier_seeds,
             schemes=lockout_schemes,
+            reading=lockout_reading,
             duration=duration,
         )
     unique = {t.key(): t for t in tasks}
@@ -321,6 +332,7 @@ def _execute(names: list[str], args: argparse.Namespace) -> tuple[dict[str, Any]
             seeds=lockout_seeds,
             earlier_seeds=earlier_seeds,
             schemes=lockout_schemes,
+            reading=lockout_reading,
             duration=duration,
             records=records,
         )
@@ -419,7 +431,7 @@ def _paper_text(study: PaperStudy) -> list[str]:
 
 def _lockout_text(study: LockoutStudy) -> list[str]:
     lines = [
-        "lockout: literal reading; TCP's share after the pause over its share before "
+        f"lockout: {study.params['reading'].get('name', 'literal')} reading; TCP's share after the pause over its share before "
         "(median [95 % interval])"
     ]
     for o in study.outcomes:
@@ -427,6 +439,7 @@ def _lockout_text(study: LockoutStudy) -> list[str]:
             f"  {o.scheme:5s} {o.controllers:8s} controller: TCP starved in "
             f"{len(o.starved_seeds)} of {len(o.seeds)} seeds {o.starved_seeds or ''}; share ratio "
             f"{o.share_ratio.format()}; outside a factor of 2: {o.outside_factor_two or 'none'}"
+            + ("" if o.share_after is None else f"; TCP's share after {o.share_after.format()}")
         )
     return lines
 
@@ -527,6 +540,8 @@ def simulate_main(argv: Sequence[str]) -> int:
             "figures": [str(p) for p in figures[name]],
             "headline": result.headline(),
         }
+        if isinstance(result, LockoutStudy):
+            summaries[name]["controllers"] = result.by_controller()
         if not args.json:
             print(summary_text(result))
             print(f"  wrote {json_path}" + "".join(f", {p}" for p in figures[name]))

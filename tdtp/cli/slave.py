@@ -21,7 +21,7 @@ from tdtp.cli.keys import (
 from tdtp.cli.live_stats import (
     LiveDisplay,
 )
-from tdtp.cli.options import netem_directions, netem_seed, session_config
+from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
 from tdtp.cli.outcome import Outcome, Side, close_info
 from tdtp.cli.session_tasks import (
     every_second,
@@ -92,7 +92,7 @@ def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
     """One master's session as the slave saw it: both directions from this end."""
     duration = monotonic() - side.started if side is not None else 0.0
     key = ep.connection.key
-    return {
+    session: dict[str, Any] = {
         "master": format_address(ep.peer),
         "key": None if key is None else key.label,
         "duration_s": round(duration, 3),
@@ -114,6 +114,9 @@ def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
             sender=ep.stats, receiver=None, observed_at=["slave"], duration=duration, latency=None
         ),
     }
+    if side is not None and side.deadband is not None:
+        session["slave_to_master"]["deadband"] = side.deadband_report("N")
+    return session
 
 
 async def _accept_loop(
@@ -127,7 +130,11 @@ async def _accept_loop(
 ) -> None:
     start = monotonic()
     async for ep in server:
-        side = Side(f"master {format_address(ep.peer)}", started=monotonic())
+        side = Side(
+            f"master {format_address(ep.peer)}",
+            started=monotonic(),
+            deadband=side_deadband(args, master=False),
+        )
         sides[id(ep)] = (ep, side)
         ep.set_data_callback(side.on_data)
         ep.set_watchdog_callback(

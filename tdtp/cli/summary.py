@@ -83,6 +83,8 @@ def sender_view(stats: ConnectionStats) -> dict[str, Any]:
         "loss_events": stats.loss_events,
         "loss_event_rate": round(stats.loss_event_rate, 6),
         "spurious_losses": stats.spurious_losses,
+        "packets_reordered": stats.packets_reordered,
+        "rate_limit": stats.rate_limit or None,
         "srtt_ms": _ms(stats.srtt),
         "rttvar_ms": _ms(stats.rttvar),
         "min_rtt_ms": _ms(stats.min_rtt),

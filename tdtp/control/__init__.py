@@ -1,6 +1,7 @@
 """Rate control: the controller interface, the paper's equations, and the controllers by name.
 
-``trinomial`` (the default) is the paper's IPG controller (eqs. 9 and 10) capped by eq. 2; ``tfrc``
+``teleop`` (the default) judges congestion by queueing delay together with loss and caps the flow at
+a TCP's byte rate; ``trinomial`` is the paper's IPG controller (eqs. 9 and 10) capped by eq. 2; ``tfrc``
 is RFC 5348 fed by the piggybacked acknowledgements; ``fixed`` is the constant-rate, UDP-like
 baseline. docs/CONTROL.md describes the design and its defaults.
 """
@@ -14,6 +15,7 @@ from tdtp.control.registry import (
     create_controller,
     register_controller,
 )
+from tdtp.control.teleop import TeleopConfig, TeleopController
 from tdtp.control.tfrc import TfrcConfig, TfrcController
 from tdtp.control.trinomial import (
     RECOVERY_RTTS,
@@ -30,6 +32,8 @@ __all__ = [
     "FixedRateController",
     "PacingSchedule",
     "RateController",
+    "TeleopConfig",
+    "TeleopController",
     "TfrcConfig",
     "TfrcController",
     "TrinomialConfig",

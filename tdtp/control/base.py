@@ -97,6 +97,13 @@ class RateController(abc.ABC):
     def rate(self) -> float:
         """The allowed sending rate in data packets per second (``math.inf`` when unlimited)."""
 
+    @property
+    def rate_limit(self) -> str:
+        """What limits the rate now, in a few words for statistics and the command line
+        (``"application"``, ``"queue delay 7.2 ms"``, ``"loss"``, ``"tcp-friendly ceiling"``,
+        ``"floor"``, ...); empty when the controller does not say."""
+        return ""
+
     @abc.abstractmethod
     def next_send_time(self) -> float:
         """Earliest absolute time the next data packet may leave; :data:`NO_LIMIT` if any time."""

@@ -7,6 +7,7 @@ from typing import Any, Final
 
 from tdtp.control.base import RateController
 from tdtp.control.fixed import FixedConfig, FixedRateController
+from tdtp.control.teleop import TeleopConfig, TeleopController
 from tdtp.control.tfrc import TfrcConfig, TfrcController
 from tdtp.control.trinomial import TrinomialConfig, TrinomialController
 
@@ -18,7 +19,7 @@ __all__ = [
     "register_controller",
 ]
 
-DEFAULT_CONTROLLER: Final[str] = "trinomial"
+DEFAULT_CONTROLLER: Final[str] = "teleop"
 
 _registry: dict[str, tuple[Callable[[Any], RateController], type[Any]]] = {}
 
@@ -77,5 +78,6 @@ def create_controller(name: str, config: object | None = None) -> RateController
 
 
 register_controller(FixedRateController.name, FixedRateController, FixedConfig)
+register_controller(TeleopController.name, TeleopController, TeleopConfig)
 register_controller(TfrcController.name, TfrcController, TfrcConfig)
 register_controller(TrinomialController.name, TrinomialController, TrinomialConfig)

@@ -291,7 +291,9 @@ class Connection:
         stats.min_rtt = rtt.min_rtt if rtt.has_sample else 0.0
         stats.loss_event_rate = recovery.loss.loss_event_rate
         stats.packets_unreported = recovery.sent.unknown
+        stats.packets_reordered = recovery.sent.reordered
         stats.rate = self._controller.rate
+        stats.rate_limit = self._controller.rate_limit
         return stats
 
     # ------------------------------------------------------------------ caller API

@@ -170,12 +170,16 @@ class ReceiveWindow:
         if self._mask & bit:
             return Arrival.DUPLICATE
         self._mask |= bit
-        if self._coverage and behind <= SACK_SPAN:
-            # Within reach of an ACK of the highest: the next one must report it. (A packet
-            # reordered further than that can no longer be reported: the sender decided already.)
-            low = self.pending_low
-            if low is None or seq < low:
-                self.pending_low = seq
+        if self._coverage:
+            if behind <= SACK_SPAN:
+                # Within reach of an ACK of the highest: the next one must report it.
+                low = self.pending_low
+                if low is None or seq < low:
+                    self.pending_low = seq
+            else:
+                # Reordered further than an ACK of the highest reaches: report it in an ACK of its
+                # own, so that the sender counts it received, not lost (docs/PROTOCOL.md 3.2).
+                self.held.append(HeldAck(seq, self.sack_below(seq), now))
         if self.unreported_since is None:
             self.unreported_since = now
         return Arrival.LATE

@@ -29,8 +29,9 @@ from tdtp.session.stats import ConnectionStats
 from tdtp.session.timer_hint import TimerHint
 from tdtp.wire.hold import decode_hold
 
-LOSS_DELAY_SRTT: Final = 1.2
 LOSS_DELAY_RTTVAR: Final = 4.0
+REORDER_WINDOW_MIN_RTT: Final = 0.25
+"""RACK's initial reorder window, a quarter of the minimum RTT (RFC 8985 section 6.2)."""
 TIMER_GRANULARITY: Final = 0.001
 """Slack for timers firing late (RFC 9002's kGranularity)."""
 
@@ -154,14 +155,18 @@ class LossRecovery:
         self._hint.value = -math.inf
 
     def _compute_loss_delay(self) -> float:
-        """How long a packet reported absent may still turn up (RAP's timeout, mu 1.2 and phi 4).
-
-        The peer's ACK delay is added because RTT samples exclude it: a late arrival is reported only
-        with the peer's next reverse packet, up to ``ack_delay`` later.
+        """How long a packet reported absent may still turn up: srtt plus a reorder window (RFC 8985:
+        ``min_rtt / 4`` at first, scaled up by each spurious loss, at most srtt; never less than
+        RAP's ``4 rttvar`` nor the timer granularity), plus the peer's ACK delay, because RTT samples
+        exclude it: a late arrival is reported only with the peer's next reverse packet.
         """
         rtt = self.rtt
+        srtt = rtt.srtt
+        reorder = 0.0
+        if rtt.has_sample:
+            reorder = min(
+                REORDER_WINDOW_MIN_RTT * rtt.min_rtt * self.sent.reorder_window_scale, srtt
+            )
         return (
-            LOSS_DELAY_SRTT * rtt.srtt
-            + max(LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY)
-            + self._ack_delay
+            srtt + max(reorder, LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY) + self._ack_delay
         )

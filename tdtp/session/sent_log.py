@@ -16,6 +16,8 @@ from tdtp.wire.seqnum import SEQ_MODULUS
 ACK_WINDOW_BEHIND: Final = 1024
 """An ACK may be this far below the largest acknowledged value (reordered feedback) and still decode."""
 SACK_SPAN: Final = SACK_BITS
+MAX_REORDER_SCALE: Final = 4
+"""The reorder window grows to at most this many times its start (it is also capped at srtt)."""
 RECENTLY_LOST: Final = 256
 """How many declared losses are remembered to recognise a spurious one (the packet arrived after all)."""
 
@@ -57,6 +59,9 @@ class SentPacketLog:
         "largest_acked",
         "marked_missing",
         "next_seq",
+        "reorder_window_scale",
+        "reordered",
+        "reordering_seen",
         "rtt_sample",
         "spurious",
         "unknown",
@@ -82,6 +87,15 @@ class SentPacketLog:
         self.marked_missing = False
         """Set when an ACK reports a packet absent for the first time (a loss deadline may now be
         due); the connection clears it."""
+        self.reordered = 0
+        """Packets an ACK reported absent that a later ACK reported received: reordered on the way
+        (or their report was), not lost."""
+        self.reordering_seen = False
+        """Once reordering has been seen, only the time threshold declares losses (RFC 8985): the
+        packet-count threshold would take every reordered packet for a lost one."""
+        self.reorder_window_scale = 1
+        """RFC 8985's reorder window multiplier: grows by one for each declared loss found received
+        after all (a spurious loss: the window was too short), up to ``MAX_REORDER_SCALE``."""
 
     @property
     def in_flight(self) -> int:
@@ -164,6 +178,8 @@ class SentPacketLog:
             if not record.acked:
                 record.acked = True
                 newly = 1
+                if record.missing:
+                    self._on_reordered()
                 if ack > self.largest_acked:
                     if hold is not None:
                         rtt_sample = now - record.send_time - hold
@@ -187,20 +203,32 @@ class SentPacketLog:
                     if not record.acked:
                         record.acked = True
                         newly += 1
+                        if record.missing:
+                            self._on_reordered()
                 elif not record.missing:
                     record.missing = True
                     self.marked_missing = True
             bit <<= 1
         self.rtt_sample = rtt_sample
         self.spurious = spurious
+        if spurious:
+            self.reordering_seen = True
+            self.reordered += spurious
+            if self.reorder_window_scale < MAX_REORDER_SCALE:
+                self.reorder_window_scale += 1
         return newly
+
+    def _on_reordered(self) -> None:
+        self.reordered += 1
+        self.reordering_seen = True
 
     def detect_losses(self, now: float, loss_delay: float, lost: list[LostPacket]) -> None:
         """Retire resolved records from the front of the log.
 
-        Only a packet that a received ACK reported absent can be declared lost: once a packet
-        ``reorder_threshold`` or more later is acknowledged, or once it has waited ``loss_delay`` while
-        a later packet was acknowledged (RFC 9002's time threshold). A packet that no received ACK ever
+        Only a packet that a received ACK reported absent can be declared lost: once it has waited
+        ``loss_delay`` while a later packet was acknowledged (RACK's time threshold, RFC 8985: the
+        caller's ``loss_delay`` holds the reorder window), or, until reordering has been seen, once a
+        packet ``reorder_threshold`` or more later is acknowledged. A packet that no received ACK ever
         covered is not evidence of loss (the reverse path lost its reports); once no future ACK can
         cover it, it is retired as *unknown*. A gap in feedback alone declares nothing: that is a
         blackout, which the rate controller's no-feedback timer handles.
@@ -208,6 +236,8 @@ class SentPacketLog:
         records = self._records
         largest = self.largest_acked
         threshold_seq = largest - self._reorder_threshold
+        if self.reordering_seen:
+            threshold_seq = -1  # no sequence number is that low: the time threshold alone decides
         uncoverable_seq = largest - SACK_SPAN
         while records:
             record = records[0]

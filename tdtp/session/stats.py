@@ -109,14 +109,18 @@ class ConnectionStats:
     packets_acked: int = 0
     """Own data packets the peer reported received."""
     packets_lost: int = 0
-    """Own data packets declared lost: an ACK reported them absent and the largest ACK field is 3 or
-    more above them, or ``1.2 srtt + max(4 rttvar, 1 ms) + ack_delay`` has passed since they were sent
-    while a later one is acknowledged (docs/PROTOCOL.md section 5.4)."""
+    """Own data packets declared lost: an ACK reported them absent and ``srtt + max(reorder window,
+    4 rttvar, 1 ms) + ack_delay`` has passed since they were sent while a later one is acknowledged,
+    or, until reordering has been seen, the largest ACK field is 3 or more above them
+    (docs/PROTOCOL.md section 5.4)."""
     packets_unreported: int = 0
     """Own data packets whose fate is unknown: every ACK that could have reported them was lost on the
     way back. Counted neither as acknowledged nor as lost (they are no evidence of congestion)."""
     spurious_losses: int = 0
     """Packets declared lost and later reported received after all (deep reordering)."""
+    packets_reordered: int = 0
+    """Own data packets an ACK reported absent that a later ACK reported received: reordered on the
+    way, not lost (counted apart from ``packets_lost``; the rate controller never sees them)."""
     loss_events: int = 0
     reordered: int = 0
     """Peer data packets that arrived after a newer one."""
@@ -129,6 +133,9 @@ class ConnectionStats:
     loss_event_rate: float = 0.0
     rate: float = 0.0
     """The rate controller's allowed rate, packets per second."""
+    rate_limit: str = ""
+    """What limits the rate now, as the controller says (``"application"``, ``"queue delay 7.2
+    ms"``, ``"loss"``, ``"tcp-friendly ceiling"``, ``"floor"``; empty if it does not say)."""
 
     @property
     def dropped(self) -> int:

@@ -263,9 +263,13 @@ def plot_lockout(study: LockoutStudy, path: str | Path) -> Path:
     for row, scheme in enumerate(schemes):
         for col, controllers in enumerate(("earlier", "current")):
             ax = axes[row, col]
-            outcome = next(
+            found = [
                 o for o in study.outcomes if o.scheme == scheme and o.controllers == controllers
-            )
+            ]
+            if not found:  # a controller with no earlier variant (teleop)
+                ax.set_axis_off()
+                continue
+            outcome = found[0]
             _band(
                 ax, times, outcome.bands[MS], 1.0, _COLORS.get(scheme, "tab:blue"), f"{scheme} M->S"
             )
@@ -308,6 +312,11 @@ def plot_lockout_trace(study: LockoutStudy, path: str | Path) -> Path:
     schemes = [
         k for k in study.traces if "earlier" in study.traces[k] and "current" in study.traces[k]
     ]
+    if not schemes:  # only controllers without an earlier variant: nothing to compare
+        fig, ax = plt.subplots(figsize=(6.0, 1.0))
+        ax.set_axis_off()
+        ax.text(0.5, 0.5, "no earlier controller to compare with", ha="center", va="center")
+        return _save(fig, Path(path))
     fig, axes = plt.subplots(
         len(schemes), 1, figsize=(10.0, 3.3 * max(1, len(schemes))), sharex=True, squeeze=False
     )

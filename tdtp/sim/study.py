@@ -568,7 +568,7 @@ def lockout_tasks(
     *,
     seeds: Sequence[int] = tuple(range(1, LOCKOUT_SEEDS + 1)),
     earlier_seeds: Sequence[int] | None = None,
-    schemes: Sequence[str] = ("tdtp", "tfrc"),
+    schemes: Sequence[str] = ("tdtp", "tfrc", "teleop"),
     reading: Reading | None = None,
     duration: float = 100.0,
     bin_width: float = 1.0,
@@ -581,8 +581,17 @@ def lockout_tasks(
         PaperTask(how, scheme, seed, duration, controllers, bin_width)
         for controllers, chosen in (("current", seeds), ("earlier", before))
         for scheme in schemes
+        if _has_variant(scheme, controllers)
         for seed in chosen
     ]
+
+
+def _has_variant(scheme: str, controllers: str) -> bool:
+    """Whether ``scheme`` has a controller of the ``controllers`` kind: every scheme has current
+    ones; only the paper's controllers had earlier ones (before the lock-out fix)."""
+    return (
+        controllers == "current" or SCHEMES[scheme].controller in CONTROLLER_VARIANTS[controllers]
+    )
 
 
 @dataclass
@@ -600,6 +609,8 @@ class LockoutOutcome:
     tcp_goodput_kbps: MedianInterval
     bands: dict[str, dict[str, list[float | None]]]
     """``M->S`` and ``tcp M->S`` goodput bands."""
+    share_after: MedianInterval | None = None
+    """TCP's share of the bottleneck over the starvation window (after its return)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -636,10 +647,35 @@ class LockoutStudy(ScenarioResult):
             }
         return json_safe(out)  # type: ignore[no-any-return]
 
+    def by_controller(self) -> dict[str, Any]:
+        """The current controllers by controller name: ``{NAME: {starved_seeds, tcp_share_after_pause,
+        ...}}``, where ``tcp_share_after_pause`` is the median over the seeds of TCP's share of the
+        bottleneck after the pause over its share before (1 = all of it back)."""
+        out: dict[str, Any] = {}
+        for o in self.outcomes:
+            if o.controllers != "current":
+                continue
+            name = SCHEMES[o.scheme].controller
+            out[name] = {
+                "scheme": o.scheme,
+                "seeds": o.seeds,
+                "starved_seeds": o.starved_seeds,
+                "tcp_share_after_pause": None
+                if o.share_after is None
+                else o.share_after.to_dict(3)["median"],
+                "tcp_share_after_pause_interval": None
+                if o.share_after is None
+                else o.share_after.to_dict(3),
+                "tcp_share_after_over_before": o.share_ratio.to_dict(3),
+                "note": "the paper's controller" if name in ("trinomial", "tfrc") else "default",
+            }
+        return json_safe(out)  # type: ignore[no-any-return]
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "scenario": "lockout",
             "params": self.params,
+            "controllers": self.by_controller(),
             "headline": self.headline(),
             "outcomes": [o.to_dict() for o in self.outcomes],
             "traces": self.traces,
@@ -650,18 +686,22 @@ def lockout_study(
     *,
     seeds: Sequence[int] = tuple(range(1, LOCKOUT_SEEDS + 1)),
     earlier_seeds: Sequence[int] | None = None,
-    schemes: Sequence[str] = ("tdtp", "tfrc"),
+    schemes: Sequence[str] = ("tdtp", "tfrc", "teleop"),
+    reading: Reading | None = None,
     duration: float = 100.0,
     bin_width: float = 1.0,
     jobs: int = 1,
     records: Mapping[tuple[Any, ...], RunRecord] | None = None,
 ) -> LockoutStudy:
-    """Does a TCP flow get its share back after the pause? Current against earlier controllers."""
+    """Does a TCP flow get its share back after the pause? Current against earlier controllers.
+    ``reading`` is the literal one unless given (``--queue bytes`` changes its queues)."""
     started = time.perf_counter()
+    how = reading if reading is not None else READINGS["literal"]
     tasks = lockout_tasks(
         seeds=seeds,
         earlier_seeds=earlier_seeds,
         schemes=schemes,
+        reading=how,
         duration=duration,
         bin_width=bin_width,
     )
@@ -669,6 +709,8 @@ def lockout_study(
     outcomes = []
     for controllers in ("current", "earlier"):
         for scheme in schemes:
+            if not _has_variant(scheme, controllers):
+                continue
             recs = [
                 done[t.key()] for t in tasks if t.controllers == controllers and t.scheme == scheme
             ]
@@ -688,6 +730,7 @@ def lockout_study(
                     ],
                     tdtp_goodput_kbps=_mi(r.goodput_kbps[MS]["all"] for r in recs),
                     tcp_goodput_kbps=_mi(r.tcp[MS]["goodput_kbps"] for r in recs),
+                    share_after=_mi(r.tcp[MS].get("share_after", math.nan) for r in recs),
                     bands={
                         MS: _band([r.series[MS]["goodput_kbps"] for r in recs]),
                         f"tcp {MS}": _band([r.series[f"tcp {MS}"]["goodput_kbps"] for r in recs]),
@@ -696,7 +739,11 @@ def lockout_study(
             )
     traces: dict[str, dict[str, Any]] = {}
     for scheme in schemes:
-        earlier = next(o for o in outcomes if o.scheme == scheme and o.controllers == "earlier")
+        earlier = next(
+            (o for o in outcomes if o.scheme == scheme and o.controllers == "earlier"), None
+        )
+        if earlier is None:
+            continue
         both = [seed for seed in earlier.seeds if seed in seeds]
         if not both:
             continue
@@ -712,7 +759,7 @@ def lockout_study(
                 }
         traces[scheme] = trace
     params = {
-        "reading": READINGS["literal"].to_dict(),
+        "reading": how.to_dict(),
         "duration": duration,
         "bin_width": bin_width,
         "tcp_ms_paused": list(tcp_pause(duration)),

@@ -17,13 +17,11 @@ feedback loop.
 from __future__ import annotations
 
 import math
-import struct
 from dataclasses import dataclass
 
 from tdtp.errors import InvalidArgumentError
+from tdtp.teleop.schema import SampleCodec, SampleFormatError
 
-_LAYOUT = struct.Struct(">dI3f3f")
-SAMPLE_SIZE = _LAYOUT.size
 POSITION_LIMIT = 10.0
 """Metres: the largest coordinate a haptic sample may carry (a workspace, not a float32's range)."""
 FORCE_LIMIT = 1e4
@@ -32,18 +30,22 @@ FORCE_LIMIT = 1e4
 
 @dataclass(frozen=True, slots=True)
 class HapticSample:
+    """One demo sample: when it was sent, its number, a position and a force."""
+
     sent_at: float
     index: int
-    position: tuple[float, float, float]
-    force: tuple[float, float, float]
+    position: tuple[float, ...]
+    force: tuple[float, ...]
 
-    def encode(self, size: int = SAMPLE_SIZE) -> bytes:
-        """The sample padded with zeros to ``size`` bytes (at least :data:`SAMPLE_SIZE`)."""
+    def encode(self, size: int | None = None) -> bytes:
+        """The sample padded with zeros to ``size`` bytes (at least :data:`SAMPLE_SIZE`, the default)."""
+        if size is None:
+            size = SAMPLE_SIZE
         if size < SAMPLE_SIZE:
             raise InvalidArgumentError(
                 f"a haptic sample needs at least {SAMPLE_SIZE} bytes, got size={size}"
             )
-        body = _LAYOUT.pack(self.sent_at, self.index & 0xFFFFFFFF, *self.position, *self.force)
+        body = CODEC.encode_values(self.sent_at, self.index & 0xFFFFFFFF, self.position, self.force)
         return body + bytes(size - SAMPLE_SIZE)
 
     @classmethod
@@ -52,35 +54,78 @@ class HapticSample:
         that is not finite or lies outside the workspace limits, or padding that is not zero."""
         if len(payload) < SAMPLE_SIZE or any(payload[SAMPLE_SIZE:]):
             return None
-        sent_at, index, x, y, z, fx, fy, fz = _LAYOUT.unpack_from(payload)
-        if not math.isfinite(sent_at) or sent_at < 0.0:
+        try:
+            sample = CODEC.decode(payload[:SAMPLE_SIZE])
+        except SampleFormatError:  # a NaN or an infinity: not the demo's sample
             return None
-        for value in (x, y, z):
-            if not -POSITION_LIMIT <= value <= POSITION_LIMIT:  # False for NaN too
+        if sample.sent_at < 0.0:
+            return None
+        for value in sample.position:
+            if not -POSITION_LIMIT <= value <= POSITION_LIMIT:
                 return None
-        for value in (fx, fy, fz):
+        for value in sample.force:
             if not -FORCE_LIMIT <= value <= FORCE_LIMIT:
                 return None
-        return cls(sent_at, index, (x, y, z), (fx, fy, fz))
+        return sample
+
+
+CODEC = SampleCodec(
+    HapticSample, byte_order=">", sent_at="f64", index="u32", position="f32[3]", force="f32[3]"
+)
+"""The layout above, as a :class:`~tdtp.teleop.schema.SampleCodec`."""
+SAMPLE_SIZE = CODEC.size
+
+
+WALL_X = 0.05
+"""Metres: where the demo's virtual wall stands (the slave pushes back beyond it)."""
+MOTION_PERIOD = 4.0
+"""Seconds: one reach-press-slide-retreat cycle of the demo operator."""
+
+
+def _minimum_jerk(s: float) -> float:
+    """0 -> 1 over s in [0, 1] with zero velocity and acceleration at both ends (Flash and Hogan's
+    model of a point-to-point hand movement)."""
+    s = min(max(s, 0.0), 1.0)
+    return s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+def operator_motion(t: float) -> tuple[float, ...]:
+    """Where a person's hand is at ``t`` seconds: a repeating teleoperation task with contact.
+
+    Each 4-second cycle: rest at the start (0.4 s), a minimum-jerk reach of 6 cm towards the wall at
+    x = 5 cm that ends 1 cm inside it (1.0 s), pressing while sliding 4 cm along it (1.4 s), a
+    minimum-jerk retreat (0.8 s), rest (0.4 s). A physiological tremor of 0.1 mm at 9 Hz rides on
+    top, as on a real hand (so a deadband has something below its threshold to hold back).
+    """
+    phase = t % MOTION_PERIOD
+    x = y = 0.0
+    if phase < 0.4:
+        x = 0.0
+    elif phase < 1.4:
+        x = 0.06 * _minimum_jerk((phase - 0.4) / 1.0)
+    elif phase < 2.8:
+        x = 0.06
+        y = 0.04 * _minimum_jerk((phase - 1.4) / 1.4)
+    elif phase < 3.6:
+        back = _minimum_jerk((phase - 2.8) / 0.8)
+        x = 0.06 * (1.0 - back)
+        y = 0.04 * (1.0 - back)
+    tremor = 0.0001 * math.sin(2 * math.pi * 9.0 * t)
+    return (x + tremor, y, 0.01 * math.sin(2 * math.pi * t / MOTION_PERIOD))
 
 
 def master_trajectory(t: float, index: int, sent_at: float) -> HapticSample:
-    """A 0.5 Hz circle of 10 cm radius: what an operator's hand might trace."""
-    phase = 2 * math.pi * 0.5 * t
-    return HapticSample(
-        sent_at, index, (0.1 * math.cos(phase), 0.1 * math.sin(phase), 0.0), (0, 0, 0)
-    )
+    """The demo master's sample at ``t`` seconds into the run: :func:`operator_motion`."""
+    return HapticSample(sent_at, index, operator_motion(t), (0.0, 0.0, 0.0))
 
 
-def slave_feedback(
-    position: tuple[float, float, float], index: int, sent_at: float
-) -> HapticSample:
-    """A spring wall at x = 0.05 m (stiffness 500 N/m) pushing back on the commanded position.
+def slave_feedback(position: tuple[float, ...], index: int, sent_at: float) -> HapticSample:
+    """A spring wall at x = :data:`WALL_X` (stiffness 500 N/m) pushing back on the commanded position.
 
     The position is clamped to the workspace first, so whatever a caller passes the force stays
     finite and within :data:`FORCE_LIMIT`."""
     x, y, z = (_clamp(value) for value in position)
-    penetration = max(0.0, x - 0.05)
+    penetration = max(0.0, x - WALL_X)
     return HapticSample(sent_at, index, (x, y, z), (-500.0 * penetration, 0.0, 0.0))
 
 

@@ -225,3 +225,17 @@ def test_master_and_slave_print_text_unless_json_is_asked_for() -> None:
     assert done.returncode == 0, done.stderr
     last = done.stdout.strip().splitlines()[-1]
     assert last == "served 0 master(s), refused 0" and "{" not in done.stdout
+
+
+def test_demo_deadband_reports_what_it_held_back() -> None:
+    """Issue 21: --deadband K sends only the samples worth sending, and says so per direction."""
+    summary = _demo("--deadband", "0.1")
+    for key, unit in (("master_to_slave", "m"), ("slave_to_master", "N")):
+        direction = summary[key]
+        assert isinstance(direction, dict)
+        band = direction["deadband"]
+        assert band["k"] == 0.1 and band["unit"] == unit
+        # What the deadband let through is exactly what the application handed to the transport.
+        assert band["sent"] == direction["samples_offered"] > 0
+        assert band["offered"] >= band["sent"] and band["reconstruction_rmse"] >= 0.0
+        assert band["sent_fraction"] == round(band["sent"] / band["offered"], 4)

@@ -10,6 +10,7 @@ from tdtp.control import (
     DEFAULT_CONTROLLER,
     FixedConfig,
     FixedRateController,
+    TeleopController,
     TfrcConfig,
     TfrcController,
     TrinomialConfig,
@@ -21,9 +22,10 @@ from tdtp.control import (
 )
 
 
-def test_the_three_built_in_controllers() -> None:
-    assert available_controllers() == ("fixed", "tfrc", "trinomial")
-    assert DEFAULT_CONTROLLER == "trinomial"
+def test_the_four_built_in_controllers() -> None:
+    assert available_controllers() == ("fixed", "teleop", "tfrc", "trinomial")
+    assert DEFAULT_CONTROLLER == "teleop"
+    assert isinstance(create_controller("teleop"), TeleopController)
     assert isinstance(create_controller("fixed"), FixedRateController)
     assert isinstance(create_controller("tfrc"), TfrcController)
     assert isinstance(create_controller("trinomial"), TrinomialController)
@@ -47,7 +49,10 @@ def test_a_config_is_passed_through() -> None:
 def test_unknown_name_lists_the_known_ones() -> None:
     with pytest.raises(ValueError) as info:
         create_controller("foo")
-    assert str(info.value) == "unknown controller 'foo'; known controllers: fixed, tfrc, trinomial"
+    assert (
+        str(info.value)
+        == "unknown controller 'foo'; known controllers: fixed, teleop, tfrc, trinomial"
+    )
 
 
 def test_wrong_config_type_names_the_expected_class() -> None:
@@ -65,7 +70,7 @@ def test_registering_a_new_controller(monkeypatch: pytest.MonkeyPatch) -> None:
 
     register_controller("slow", Slow, FixedConfig)
     register_controller("slow", Slow, FixedConfig)  # the same pair again: a no-op
-    assert available_controllers() == ("fixed", "slow", "tfrc", "trinomial")
+    assert available_controllers() == ("fixed", "slow", "teleop", "tfrc", "trinomial")
     assert isinstance(create_controller("slow", FixedConfig(rate=1.0)), Slow)
     with pytest.raises(ValueError, match="already taken by Slow"):
         register_controller("slow", FixedRateController, FixedConfig)

@@ -33,6 +33,12 @@ SCHEMES: Final[dict[str, Scheme]] = {
         "trinomial", "Trinomial (separate 40-byte ACKs)", AckMode.SEPARATE, "trinomial"
     ),
     "tfrc": Scheme("tfrc", "TDTP with TFRC (piggybacked ACKs)", AckMode.BIDIRECTIONAL, "tfrc"),
+    "teleop": Scheme(
+        "teleop",
+        "TDTP with teleop, the default (piggybacked ACKs)",
+        AckMode.BIDIRECTIONAL,
+        "teleop",
+    ),
 }
 DEFAULT_SCHEMES: Final = ("tdtp", "trinomial", "tfrc")
 

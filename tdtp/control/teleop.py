@@ -1,0 +1,643 @@
+"""The teleop controller: TDTP's default, judged by queueing delay and loss together (docs/CONTROL.md 9).
+
+A teleoperation loop wants its full rate while the path has room and short queues when it has not.
+Loss alone cannot say which: random loss and reordering look like congestion, and a deep buffer hides
+congestion until it holds seconds of data. So this controller watches the queue.
+
+* **Queue delay.** Time is cut into *control intervals* of ``max(srtt, interval)``. The smallest RTT
+  sample of an interval is its *standing* RTT (the queue every packet of it waited behind; jitter lifts
+  single samples, not the floor: Copa's ``RTT_standing``), and the smallest sample of the last
+  ``base_window`` seconds is the path's base RTT. Their difference is the queue delay.
+* **Decisions, once per interval.** Queue delay above ``target_queue_delay`` and not already falling
+  fast: the rate drops to ``delay_decrease`` times what the peer received in the interval (GCC's
+  ``0.85 x`` the receive rate), which drains the queue. Queue delay below half the target: the rate
+  grows, doubling per interval until the first sign of congestion, then by ``probe_gain`` per interval
+  (GCC's multiplicative and additive increase). In between, or while it is rising, the rate holds.
+* **Loss.** A loss event while the queue delay is above half the target, or rising, is congestion:
+  the rate in use is cut by ``loss_decrease`` (at most once per srtt). Any other loss is random loss
+  or reordering on a path with room and does not change the rate, up to a loss event rate of
+  ``heavy_loss`` (GCC holds its rate between 2 % and 10 % loss); above it each interval takes
+  ``p / 2`` off the rate.
+* **TCP-friendly ceiling, in bytes.** Once ``p > 0`` the flow's bytes on the wire (datagram plus
+  ``ip_overhead``) never exceed what a TCP with ``tcp_segment``-byte segments carries at the same ``p``
+  and srtt (RFC 5348's equation, ``t_RTO = 4 srtt``): TFRC-SP's argument (RFC 4828) without its
+  100 packets/s cap.
+* **Floor, opt-in.** ``min_rate`` (0 = off) is a rate the controller never goes below, whatever the
+  path says: for dedicated links only; it gives up fairness.
+
+The application-limited guard (an allowance of at most ``app_headroom`` times what the application
+sends), the blackout back-off and the outage resume are trinomial's (docs/CONTROL.md 3.4, 3.5), and
+the trinomial pacer spaces the packets. :attr:`TeleopController.rate_limit` says what limits the rate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar, Final
+
+from mypy_extensions import mypyc_attr
+
+from tdtp.control.base import PacingSchedule, RateController
+from tdtp.control.equations import padhye_rate
+
+__all__ = [
+    "LIMIT_APPLICATION",
+    "LIMIT_BLACKOUT",
+    "LIMIT_FLOOR",
+    "LIMIT_LOSS",
+    "LIMIT_PROBING",
+    "LIMIT_QUEUE_DELAY",
+    "LIMIT_TCP_FRIENDLY",
+    "TeleopConfig",
+    "TeleopController",
+]
+
+GAP_GAIN: Final = 0.125
+"""Gain of the moving averages of departure gaps and of the share of paced departures (as trinomial's)."""
+
+MIN_SAMPLES: Final = 16
+"""RTT samples a control interval needs before it judges the queue: the smallest of fewer would
+read jitter as queue. An interval without them is stretched, up to ``MAX_STRETCH`` times its length."""
+MAX_STRETCH: Final = 8.0
+NOISE_GAIN: Final = 0.125
+"""Gain of the moving average of the standing RTT's interval-to-interval change."""
+NOISE_CAP: Final = 0.005
+"""One interval's change counts at most this much (s) in it: a queue building up is not noise."""
+
+LIMIT_APPLICATION: Final = "application"
+"""The application sends less than it is allowed: nothing on the path holds it back."""
+LIMIT_QUEUE_DELAY: Final = "queue delay"
+"""The last decrease answered a queue above the target delay."""
+LIMIT_LOSS: Final = "loss"
+"""The last decrease answered loss with a growing queue, or loss above ``heavy_loss``."""
+LIMIT_TCP_FRIENDLY: Final = "tcp-friendly ceiling"
+"""The rate sits at the byte-based TCP-friendly ceiling."""
+LIMIT_FLOOR: Final = "floor"
+"""The rate sits at the opt-in ``min_rate`` floor, below what the path signals."""
+LIMIT_BLACKOUT: Final = "no feedback"
+"""No acknowledgement for several RTTs: the rate backs off until feedback returns."""
+LIMIT_PROBING: Final = "probing"
+"""The pacer holds the sender and the rate is still growing towards what the path carries."""
+
+
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise ValueError(f"TeleopConfig.{message}")
+
+
+def _positive_finite(value: float) -> bool:
+    return 0.0 < value < math.inf
+
+
+@mypyc_attr(native_class=False)  # a plain class: __post_init__ judges the types
+@dataclass(frozen=True, slots=True)
+class TeleopConfig:
+    """Configuration of :class:`TeleopController`; docs/CONTROL.md section 9 argues every default."""
+
+    target_queue_delay: float = 0.005
+    """Seconds of queueing the flow tolerates before it slows down (a few ms: haptics)."""
+    min_rate: float = 0.0
+    """Opt-in floor, packets/s, held whatever the path signals (0 = off). Gives up fairness."""
+    initial_rate: float = 1000.0
+    """Packets/s before any feedback: a 1 kHz loop is not throttled at start."""
+    max_rate: float = 100_000.0
+    """Ceiling, packets/s."""
+    lowest_rate: float = 4.0
+    """Liveness floor, packets/s: one packet per 250 ms keeps feedback flowing in a blackout."""
+    interval: float = 0.025
+    """Shortest control interval, seconds (an interval is ``max(srtt, interval)``): long enough that a
+    1 kHz stream's RTT samples in one interval show the queue's floor through jitter."""
+    base_window: float = 10.0
+    """Seconds over which the smallest standing RTT is the path's base RTT."""
+    drain_every: float = 4.0
+    """At most every this many seconds, and only after a loss event (losses with no queue in sight
+    are what a hidden standing queue looks like), one control interval runs at ``drain_fraction`` of
+    the rate, so that a queue this flow keeps standing drains and the base RTT is measured without it
+    (BBR's ProbeRTT). Keep it below half of ``base_window``; ``math.inf`` never drains."""
+    drain_fraction: float = 0.5
+    """The rate during a drain interval, as a fraction of the rate in use."""
+    delay_decrease: float = 0.85
+    """A queue above the target sets the rate to this fraction of the rate the peer received."""
+    loss_decrease: float = 0.5
+    """A loss event with a growing queue multiplies the rate in use by this."""
+    probe_gain: float = 0.05
+    """Growth per interval once congestion has been seen (the search near the path's capacity)."""
+    ramp_gain: float = 1.0
+    """Growth per interval before congestion has been seen (1 = doubling, as slow start)."""
+    ramp_reset: float = 5.0
+    """Seconds without a congestion signal after which the ramp gain applies again."""
+    heavy_loss: float = 0.1
+    """Loss event rate above which loss alone cuts the rate by ``p / 2`` per interval (GCC's 10 %)."""
+    tcp_segment: int = 1460
+    """Segment size, bytes, of the TCP the byte-based ceiling compares the flow with."""
+    ip_overhead: int = 28
+    """Bytes below each datagram on the wire (IPv4 + UDP), counted against the flow."""
+    app_headroom: float = 2.0
+    """While the application sets the pace, the allowance grows to at most this multiple of its rate."""
+    no_feedback_rtts: float = 4.0
+    """Blackout: halve the rate after ``max(this * srtt, 2 / rate)`` without feedback (RFC 5348)."""
+    initial_rtt: float = 0.5
+    """srtt assumed before the first feedback."""
+
+    def __post_init__(self) -> None:
+        need = _check
+        need(
+            _positive_finite(self.target_queue_delay),
+            f"target_queue_delay must be a positive, finite number of seconds, "
+            f"got {self.target_queue_delay!r} (0.005 is 5 ms)",
+        )
+        need(
+            _positive_finite(self.lowest_rate),
+            f"lowest_rate must be a positive, finite rate in packets/s, got {self.lowest_rate!r}",
+        )
+        need(
+            _positive_finite(self.max_rate) and self.max_rate >= self.lowest_rate,
+            f"max_rate must be finite and at least lowest_rate ({self.lowest_rate!r}), "
+            f"got {self.max_rate!r}; use FixedConfig(rate=math.inf) for an unpaced sender",
+        )
+        need(
+            0.0 <= self.min_rate <= self.max_rate,
+            f"min_rate must be 0 (no floor) or a rate in packets/s up to max_rate "
+            f"({self.max_rate!r}), got {self.min_rate!r}",
+        )
+        need(
+            self.lowest_rate <= self.initial_rate <= self.max_rate,
+            f"initial_rate must lie between lowest_rate ({self.lowest_rate!r}) and max_rate "
+            f"({self.max_rate!r}), got {self.initial_rate!r}",
+        )
+        need(
+            _positive_finite(self.interval),
+            f"interval must be a positive, finite number of seconds, got {self.interval!r}",
+        )
+        need(
+            _positive_finite(self.base_window) and self.base_window >= self.interval,
+            f"base_window must be a finite number of seconds, at least interval "
+            f"({self.interval!r}), got {self.base_window!r}",
+        )
+        need(
+            self.drain_every > 0.0 and not math.isnan(self.drain_every),
+            f"drain_every must be a positive number of seconds (math.inf: never), "
+            f"got {self.drain_every!r}",
+        )
+        need(
+            0.0 < self.drain_fraction < 1.0,
+            f"drain_fraction must be strictly between 0 and 1, got {self.drain_fraction!r}",
+        )
+        need(
+            0.0 < self.delay_decrease < 1.0,
+            f"delay_decrease must be strictly between 0 and 1, got {self.delay_decrease!r}",
+        )
+        need(
+            0.0 < self.loss_decrease < 1.0,
+            f"loss_decrease must be strictly between 0 and 1, got {self.loss_decrease!r}",
+        )
+        need(
+            _positive_finite(self.probe_gain) and self.probe_gain <= self.ramp_gain,
+            f"probe_gain must be positive and at most ramp_gain ({self.ramp_gain!r}), "
+            f"got {self.probe_gain!r}",
+        )
+        need(
+            0.0 < self.ramp_gain <= 1.0,
+            f"ramp_gain must be in (0, 1] (1 doubles the rate per interval), got {self.ramp_gain!r}",
+        )
+        need(
+            self.ramp_reset >= 0.0,
+            f"ramp_reset must be a non-negative number of seconds, got {self.ramp_reset!r}",
+        )
+        need(
+            0.0 < self.heavy_loss <= 1.0,
+            f"heavy_loss must be a loss event rate in (0, 1], got {self.heavy_loss!r}",
+        )
+        need(
+            isinstance(self.tcp_segment, int) and 1 <= self.tcp_segment <= 65535,
+            f"tcp_segment must be a segment size in bytes (1..65535), got {self.tcp_segment!r}",
+        )
+        need(
+            isinstance(self.ip_overhead, int) and 0 <= self.ip_overhead <= 1024,
+            f"ip_overhead must be a number of bytes in 0..1024 (28 for IPv4 + UDP), "
+            f"got {self.ip_overhead!r}",
+        )
+        need(
+            self.app_headroom >= 1.0,
+            f"app_headroom must be at least 1 (math.inf disables it), got {self.app_headroom!r}",
+        )
+        need(
+            1.0 <= self.no_feedback_rtts < math.inf,
+            f"no_feedback_rtts must be a finite number of RTTs, at least 1, "
+            f"got {self.no_feedback_rtts!r}",
+        )
+        need(
+            _positive_finite(self.initial_rtt),
+            f"initial_rtt must be a positive, finite number of seconds, got {self.initial_rtt!r}",
+        )
+
+
+@mypyc_attr(allow_interpreted_subclasses=True)
+class TeleopController(RateController):
+    """Delay- and loss-based rate control for teleoperation; see the module docstring."""
+
+    name: ClassVar[str] = "teleop"
+
+    def __init__(self, config: TeleopConfig | None = None) -> None:
+        cfg = config if config is not None else TeleopConfig()
+        self._cfg = cfg
+        self._floor = max(cfg.lowest_rate, cfg.min_rate)
+        self._rate = max(cfg.initial_rate, self._floor)
+        self._srtt = cfg.initial_rtt
+        self._schedule = PacingSchedule()
+        self._p = 0.0
+        self._mean_size = 0.0  # moving average of datagram sizes, bytes
+        # Base RTT: the minimum over two half-windows (the older one expires as a whole).
+        self._base_now = math.inf
+        self._base_old = math.inf
+        self._base_since = 0.0
+        # The control interval under way.
+        self._started = False
+        self._iv_start = 0.0
+        self._iv_end = 0.0
+        self._iv_min_rtt = math.inf
+        self._iv_samples = 0
+        self._iv_acked = 0
+        self._queue_delay = 0.0
+        self._prev_queue_delay = 0.0
+        self._prev2_queue_delay = 0.0
+        self._noise = 0.0
+        self._rate_before_decrease = 0.0
+        self._next_drain = cfg.drain_every
+        self._draining_from: float | None = None  # the rate to restore after a drain interval
+        self._loss_since_drain = False  # a loss event since the last drain interval
+        self._last_congestion = -math.inf
+        self._congested_once = False
+        self._last_decrease = -math.inf
+        self._reason = LIMIT_APPLICATION
+        # The application-limited guard.
+        self._last_send: float | None = None
+        self._gap_avg: float | None = None
+        self._paced_avg = 0.0
+        # Blackout and outage.
+        self._nf_deadline: float | None = None
+        self._blackout = False
+        self._rate_before_blackout = self._rate
+        self._resume_rate: float | None = None
+        # Counters, for tests and statistics.
+        self._delay_decreases = 0
+        self._loss_decreases = 0
+        self._losses_ignored = 0
+        self._increases = 0
+
+    # ------------------------------------------------------------------ read-only state
+
+    @property
+    def config(self) -> TeleopConfig:
+        return self._cfg
+
+    @property
+    def rate(self) -> float:
+        return self._rate
+
+    @property
+    def queue_delay(self) -> float:
+        """The queue delay the last control interval measured, seconds."""
+        return self._queue_delay
+
+    @property
+    def base_rtt(self) -> float:
+        """The smallest RTT sample of the last ``base_window`` (``inf`` before any)."""
+        return min(self._base_now, self._base_old)
+
+    @property
+    def ceiling(self) -> float:
+        """The byte-based TCP-friendly ceiling in packets/s (``inf`` before any loss)."""
+        return self._ceiling()
+
+    @property
+    def rate_limit(self) -> str:
+        """What limits the rate now: one of the ``LIMIT_*`` strings, ``queue delay`` with the delay
+        (``"queue delay 7.2 ms"``)."""
+        if self._cfg.min_rate > 0.0 and self._rate <= self._cfg.min_rate:
+            return LIMIT_FLOOR
+        if self._blackout:
+            return LIMIT_BLACKOUT
+        if self._rate >= self._ceiling() * (1.0 - 1e-9):
+            return LIMIT_TCP_FRIENDLY
+        if self._paced_avg < 0.5:
+            return LIMIT_APPLICATION
+        if self._reason == LIMIT_QUEUE_DELAY:
+            return f"{LIMIT_QUEUE_DELAY} {self._queue_delay * 1e3:.1f} ms"
+        return self._reason
+
+    @property
+    def delay_decrease_count(self) -> int:
+        return self._delay_decreases
+
+    @property
+    def loss_decrease_count(self) -> int:
+        """Decreases for loss: loss with a growing queue, or above ``heavy_loss``."""
+        return self._loss_decreases
+
+    @property
+    def losses_ignored(self) -> int:
+        """Loss events on a path whose queue was not growing: held, not answered."""
+        return self._losses_ignored
+
+    @property
+    def increase_count(self) -> int:
+        return self._increases
+
+    @property
+    def in_blackout(self) -> bool:
+        return self._blackout
+
+    # ------------------------------------------------------------------ RateController
+
+    def next_send_time(self) -> float:
+        return self._schedule.next_departure
+
+    def get_timer(self) -> float | None:
+        if not self._started:
+            return None
+        deadline = self._nf_deadline
+        if self.sample_waiting and (deadline is None or self._iv_end < deadline):
+            deadline = self._iv_end
+        return deadline
+
+    def on_timer(self, *, now: float) -> None:
+        self._advance(now)
+
+    def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
+        self._advance(now)
+        if self._last_send is not None:
+            gap = now - self._last_send
+            avg = self._gap_avg
+            self._gap_avg = gap if avg is None else avg + GAP_GAIN * (gap - avg)
+        self._paced_avg += GAP_GAIN * ((1.0 if paced else 0.0) - self._paced_avg)
+        self._last_send = now
+        mean = self._mean_size
+        self._mean_size = float(size) if mean == 0.0 else mean + GAP_GAIN * (size - mean)
+        if self._nf_deadline is None:
+            self._nf_deadline = now + self._no_feedback_timeout()
+        self._schedule.on_departure(now, self._rate)
+
+    def on_ack(
+        self,
+        *,
+        now: float,
+        acked: int,
+        rtt_sample: float | None,
+        srtt: float,
+        rttvar: float,
+        loss_event_rate: float,
+    ) -> None:
+        self._advance(now)
+        if _positive_finite(srtt):
+            self._srtt = srtt
+            # An interval lasts one current srtt: the first samples cut short the one begun under
+            # initial_rtt.
+            end = self._iv_start + self._nominal_interval()
+            if end < self._iv_end:
+                self._iv_end = end
+        if not math.isnan(loss_event_rate):
+            self._p = min(max(loss_event_rate, 0.0), 1.0)
+        if rtt_sample is not None and rtt_sample > 0.0:
+            self._on_rtt_sample(now, rtt_sample)
+        self._iv_acked += max(acked, 0)
+        self._nf_deadline = None  # re-armed by the next packet sent
+        if self._blackout:
+            self._blackout = False
+            self._start_interval(now)
+        self._apply_ceiling(now)
+
+    def on_loss_event(self, *, now: float, srtt: float, loss_event_rate: float) -> None:
+        self._advance(now)
+        if _positive_finite(srtt):
+            self._srtt = srtt
+        if not math.isnan(loss_event_rate):
+            self._p = min(max(loss_event_rate, 0.0), 1.0)
+        self._loss_since_drain = True
+        target = self._target()
+        # As the last complete interval measured the queue (a part of one has too few samples to
+        # see through jitter): standing above half the target, or grown by a quarter of it.
+        queue = self._queue_delay
+        previous = self._prev_queue_delay
+        earlier = self._prev2_queue_delay
+        growing = queue > target or (
+            queue > 0.5 * target and queue > previous > earlier and queue - earlier > 0.5 * target
+        )
+        if growing and now - self._last_decrease >= self._srtt:
+            self._decrease(now, self._rate_in_use() * self._cfg.loss_decrease)
+            self._loss_decreases += 1
+            self._last_decrease = self._last_congestion = now
+            self._congested_once = True
+            self._reason = LIMIT_LOSS
+            self._start_interval(now)
+        elif not growing:
+            self._losses_ignored += 1
+        self._apply_ceiling(now)
+
+    def on_peer_silent(self, *, now: float) -> None:
+        self._advance(now)
+        before = self._rate_before_blackout if self._blackout else self._rate
+        self._resume_rate = max(before, self._resume_rate or 0.0)
+
+    def on_peer_resumed(self, *, now: float, silent_for: float) -> None:
+        """After an outage, resume at half the rate from before it (as trinomial does)."""
+        resume, self._resume_rate = self._resume_rate, None
+        if resume is None:
+            return
+        self._advance(now)
+        target = min(0.5 * resume, self._cfg.max_rate, self._ceiling())
+        if target > self._rate:
+            self._set_rate(now, target)
+            self._blackout = False
+            self._nf_deadline = None
+            self._start_interval(now)
+
+    # ------------------------------------------------------------------ internals
+
+    def _on_standing_rtt(self, now: float, standing: float) -> None:
+        """The base RTT is the smallest standing RTT of the last ``base_window``: a statistic of the
+        same kind as the one it is compared with (the smallest of many raw samples would sit below
+        every interval's floor by the jitter's whole range)."""
+        if now - self._base_since >= 0.5 * self._cfg.base_window:
+            self._base_old = self._base_now
+            self._base_now = math.inf
+            self._base_since = now
+        if standing < self._base_now:
+            self._base_now = standing
+
+    def _on_rtt_sample(self, now: float, sample: float) -> None:
+        if sample < self._iv_min_rtt:
+            self._iv_min_rtt = sample
+        self._iv_samples += 1
+
+    def _advance(self, now: float) -> None:
+        if not self._started:
+            self._started = True
+            self._base_since = now
+            self._next_drain = now + self._cfg.drain_every
+            self._start_interval(now)
+            return
+        deadline = self._nf_deadline
+        if deadline is not None and now >= deadline:
+            timeout = self._no_feedback_timeout()
+            missed = min(1 + int((now - deadline) // timeout), 64)
+            if not self._blackout:
+                self._rate_before_blackout = self._rate
+            self._blackout = True
+            self._set_rate(now, self._rate * 0.5**missed)
+            self._nf_deadline = now + self._no_feedback_timeout()
+            self._start_interval(now)
+        if now >= self._iv_end:
+            self._end_interval(now)
+
+    def _target(self) -> float:
+        """The queue delay that counts as congestion: the configured target plus twice the
+        interval-to-interval noise of the standing RTT."""
+        return self._cfg.target_queue_delay + 2.0 * self._noise
+
+    def _nominal_interval(self) -> float:
+        return max(self._srtt, self._cfg.interval)
+
+    def _start_interval(self, now: float) -> None:
+        self._iv_start = now
+        self._iv_end = now + self._nominal_interval()
+        self._iv_min_rtt = math.inf
+        self._iv_samples = 0
+        self._iv_acked = 0
+
+    def _end_interval(self, now: float) -> None:
+        cfg = self._cfg
+        duration = now - self._iv_start
+        if self._iv_samples < MIN_SAMPLES:
+            if self._blackout or not self._iv_samples:
+                self._start_interval(now)  # nothing to judge (the blackout timer acts)
+                return
+            if duration < MAX_STRETCH * self._nominal_interval():
+                self._iv_end = now + self._nominal_interval() / 2.0  # wait for more samples
+                return
+            # Stretched as far as it goes (a slow sender): judge on what there is.
+        if duration <= 0.0:
+            self._start_interval(now)
+            return
+        restore = self._draining_from
+        if restore is not None:
+            # The drain interval's standing RTT is the best view of the empty path; it judges
+            # nothing else (the flow held itself back), and the rate returns to what it was.
+            self._draining_from = None
+            self._on_standing_rtt(now, self._iv_min_rtt)
+            self._set_rate(now, max(restore, self._rate))
+            self._start_interval(now)
+            return
+        self._on_standing_rtt(now, self._iv_min_rtt)
+        queue = max(self._iv_min_rtt - self.base_rtt, 0.0)
+        previous = self._queue_delay
+        self._prev2_queue_delay = self._prev_queue_delay
+        self._prev_queue_delay = previous
+        self._queue_delay = queue
+        # How much the standing RTT wanders from one interval to the next on its own (jitter the
+        # interval's minimum did not filter out): the threshold sits this much above the target.
+        self._noise += NOISE_GAIN * (min(abs(queue - previous), NOISE_CAP) - self._noise)
+        target = self._target()
+        delivered = self._iv_acked / duration
+        if queue > target:
+            self._last_congestion = now
+            self._congested_once = True
+            draining = queue < previous - 0.5 * target
+            sustained = previous > target  # two intervals in a row: not one jittery floor
+            if sustained and not draining and now - self._last_decrease >= self._srtt:
+                base = self._rate_in_use()
+                if delivered > 0.0:
+                    base = min(base, delivered)
+                self._decrease(now, base * cfg.delay_decrease)
+                self._delay_decreases += 1
+                self._last_decrease = now
+                self._reason = LIMIT_QUEUE_DELAY
+        elif queue <= 0.5 * target or queue <= previous:
+            if self._p > cfg.heavy_loss:
+                self._set_rate(now, self._rate * (1.0 - 0.5 * self._p))
+                self._last_decrease = now
+                self._reason = LIMIT_LOSS
+            else:
+                self._increase(now)
+        self._start_interval(now)
+        if (
+            self._loss_since_drain
+            and now >= self._next_drain
+            and now - self._last_decrease >= self._srtt
+        ):
+            # A drain interval, twice as long as the others: the queue it drains shows in the RTT
+            # samples one round trip later.
+            self._next_drain = now + cfg.drain_every
+            self._loss_since_drain = False
+            self._draining_from = self._rate
+            self._set_rate(now, self._rate_in_use() * cfg.drain_fraction)
+            self._iv_end = now + 2.0 * self._nominal_interval()
+
+    def _increase(self, now: float) -> None:
+        cfg = self._cfg
+        ramp = not self._congested_once or now - self._last_congestion >= cfg.ramp_reset
+        gain = cfg.ramp_gain if ramp else cfg.probe_gain
+        rate = self._rate
+        ceiling = min(cfg.max_rate, self._ceiling())
+        if self._paced_avg < 0.5:
+            ceiling = min(ceiling, max(rate, cfg.app_headroom * self._send_rate()))
+        if ceiling > rate * (1.0 + 1e-9):
+            # Below the rate a decrease started from, close half the distance per interval (the
+            # path carried it a moment ago); beyond it, probe.
+            # The probe is additive below initial_rate (a fixed step for every flow, so that flows
+            # sharing a queue converge to equal rates, as AIMD does) and proportional above it.
+            grow = gain * rate if ramp else gain * max(rate, cfg.initial_rate)
+            step = max(grow, 0.5 * (self._rate_before_decrease - rate))
+            self._set_rate(now, min(rate + step, ceiling))
+            self._increases += 1
+            if self._paced_avg >= 0.5:
+                self._reason = LIMIT_PROBING
+
+    def _rate_in_use(self) -> float:
+        """The allowed rate, or what the application sends when it sets the pace (trinomial's
+        ``decrease_in_use``: a decrease slows the sender down from what it sends)."""
+        rate = self._rate
+        if self._paced_avg < 0.5:
+            sending = self._send_rate()
+            if sending > 0.0:
+                rate = min(rate, sending)
+        return rate
+
+    def _send_rate(self) -> float:
+        gap = self._gap_avg
+        if gap is None:
+            return 0.0
+        return 1.0 / gap if gap > 0.0 else math.inf
+
+    def _ceiling(self) -> float:
+        """What a TCP with ``tcp_segment``-byte segments carries at this p and srtt, in bytes per
+        second, divided by this flow's bytes per packet on the wire."""
+        p = self._p
+        if p <= 0.0:
+            return math.inf
+        cfg = self._cfg
+        srtt = self._srtt
+        tcp_bytes = cfg.tcp_segment * padhye_rate(srtt, p, 4.0 * srtt)
+        size = self._mean_size if self._mean_size > 0.0 else float(cfg.tcp_segment)
+        return tcp_bytes / (size + cfg.ip_overhead)
+
+    def _apply_ceiling(self, now: float) -> None:
+        ceiling = min(self._cfg.max_rate, self._ceiling())
+        if self._rate > ceiling:
+            self._set_rate(now, ceiling)
+
+    def _decrease(self, now: float, rate: float) -> None:
+        """A decrease for congestion: remember where from, so that recovery aims back at it."""
+        self._rate_before_decrease = self._rate
+        self._set_rate(now, rate)
+
+    def _set_rate(self, now: float, rate: float) -> None:
+        rate = min(max(rate, self._floor), self._cfg.max_rate)
+        if rate == self._rate:
+            return
+        self._rate = rate
+        self._schedule.reschedule(now, rate)
+
+    def _no_feedback_timeout(self) -> float:
+        return max(self._cfg.no_feedback_rtts * self._srtt, 2.0 / self._rate) + self.feedback_delay
