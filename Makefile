@@ -15,12 +15,12 @@ MARK_BUILT := find tdtp -name '_core__mypyc.*' -exec touch {} +
 # compiled build, with the rest of the suite).
 # (The benchmark smoke tests run on the compiled build only: they start the pure build's variants
 # themselves.)
-PURE_TESTS := $(filter-out tests/test_benchmarks_smoke.py,$(wildcard tests/test_*.py)) tests/wire tests/control
+PURE_TESTS := $(filter-out tests/test_benchmarks_smoke.py tests/test_kernel_bottleneck.py,$(wildcard tests/test_*.py)) tests/wire tests/control
 PURE_REST := $(filter-out tests/wire/ tests/control/,$(wildcard tests/*/))
 
 CLOSED_LOOP_ARGS ?=
 
-.PHONY: demo bench closed-loop build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
+.PHONY: demo bench paths kernel-check closed-loop build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -57,6 +57,19 @@ $(BENCH_STAMP): pyproject.toml | $(STAMP)
 # The benchmark suite (~4 min on 2 cores): prints the table, writes benchmarks/results/latest.*
 bench: $(BENCH_STAMP) $(BUILD_STAMP)
 	$(BIN)/python benchmarks/run_all.py
+
+# Every registered controller, Zenoh and raw UDP on 16 impaired paths, 10 s a cell (~20 min):
+# benchmarks/paths.py; `make bench` runs it with 3 s cells.
+paths: $(BENCH_STAMP) $(BUILD_STAMP)
+	nice -n 5 $(BIN)/python benchmarks/paths.py
+
+# TCP cubic beside one tdtp pair through a real tbf bottleneck (1 Mbit/s) between network namespaces:
+# root, ip and tc; iperf3 is installed when missing (Debian). About 20 s per controller, + 20 s alone.
+kernel-check: $(BUILD_STAMP)
+	@command -v iperf3 >/dev/null 2>&1 || { export DEBIAN_FRONTEND=noninteractive; \
+		apt-get install -y -q iperf3 >/dev/null 2>&1 || \
+		{ apt-get update -q >/dev/null && apt-get install -y -q iperf3 >/dev/null; }; }
+	$(BIN)/python benchmarks/kernel_bottleneck.py
 
 # A bilateral haptic loop (operator model, MuJoCo arm against a wall) over tdtp, UDP, TCP and Zenoh
 # through the same netem profiles (~4-5 min on 2 cores): benchmarks/results/closed_loop/.

@@ -16,6 +16,8 @@ from typing import Any
 
 import pytest
 
+import tdtp.control
+
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 QUICK = ("--seconds", "0.1", "--repeat", "1", "--json")
 needs_uvloop = pytest.mark.skipif(
@@ -228,6 +230,83 @@ def test_run_all_combines_pacing_runs_into_rows() -> None:
     assert deviation.ratio.median == pytest.approx(0.1)
     assert deviation.meets is True
     assert "| pacing |" in run_all.common.markdown_table(rows)
+
+
+def _paths(*extra: str, timeout: float = 150) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, str(BENCHMARKS / "paths.py"), *extra],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+
+
+def test_paths_runs_each_row_and_accounts_for_every_sample() -> None:
+    """The plumbing, never the rates: every row ran on the path it was given, each direction's
+    receiver got no more than its sender offered, and the age sampler and wire counters ran."""
+    rows = ["fixed", "udp"]
+    if importlib.util.find_spec("zenoh") is not None:
+        rows.append("zenoh")
+    done = _paths(
+        "--duration", "0.3", "--profiles", "loss2", "--controllers", *rows, "--json"
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report["benchmark"] == "paths"
+    details = report["details"]
+    assert details["default_controller"] == tdtp.control.DEFAULT_CONTROLLER
+    assert details["profiles"] == {"loss2": "loss 2%"}
+    cells = details["cells"]
+    assert [c["row"] for c in cells] == rows
+    for cell in cells:
+        assert "error" not in cell, cell
+        for way in ("ms", "sm"):
+            d = cell[way]
+            assert 0 < d["received"] + d["received_after_deadline"] <= d["offered"]
+            assert d["age_ms"]["n"] > 0 and d["wire_bytes"] > 0
+            if cell["row"] == "fixed":
+                sender = d["sender"]
+                assert (
+                    sender["offered"]
+                    == sender["sent_data"] + sender["superseded"] + (sender["blocked"])
+                )
+                # What arrived is what the in-process netem let through: not more than was sent.
+                assert d["received"] <= d["receiver"]["samples_delivered"] <= sender["sent_data"]
+            else:  # through tdtp netem-relay, whose links count every datagram
+                counted = cell[way]["relay_link"]
+                assert (
+                    counted["sent"]
+                    == counted["delivered"] + counted["lost"] + (counted["queue_dropped"])
+                )
+                assert counted["sent"] >= d["offered"]  # the samples and the probes
+    # Progress went to stderr, one line per cell and one when it starts.
+    assert done.stderr.count("loss2 x") == 2 * len(rows)
+    assert len(report["rows"]) == len(rows)
+
+
+def test_paths_picks_up_every_registered_controller() -> None:
+    paths = _load("paths")
+    args = paths.parse_args(["--quick"])
+    assert args.controllers[: -len(paths.BASELINES)] == list(tdtp.control.available_controllers())
+    assert args.duration == paths.QUICK_DURATION
+    assert args.profiles == list(paths.QUICK_PROFILES)
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["--profiles", "moon"], "--profiles"),
+        (["--controllers", "carrier-pigeon"], "--controllers"),
+        (["--duration", "0"], "--duration"),
+        (["--duration", "soon"], "--duration"),
+    ],
+)
+def test_paths_misuse_is_one_line_and_status_2(argv: list[str], option: str) -> None:
+    done = _paths(*argv, timeout=60)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and option in lines[0], done.stderr
 
 
 @pytest.mark.skipif(
