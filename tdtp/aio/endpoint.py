@@ -366,6 +366,13 @@ class Endpoint:
             if not self.is_closed:
                 self._flush()
 
+    def evict(self, now: float) -> None:
+        """Slave side: end this silent session so that a new master can have its slot (the
+        server does this when it is full; the session closes as ``EVICTED``)."""
+        self._conn.evict(now=now)
+        self._flush(now)
+        self._release()
+
     def fail_open(self, exc: BaseException) -> None:
         """The transport reported an error that ends a connection still opening (e.g. ICMP port
         unreachable): :meth:`wait_established` raises ``exc``."""

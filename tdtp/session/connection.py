@@ -64,6 +64,7 @@ from tdtp.session.liveness import Liveness
 from tdtp.session.outbox import Outbox
 from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
+from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
@@ -72,8 +73,10 @@ from tdtp.wire.control import (
     OPEN_BODY_SIZE,
     CloseBody,
     CloseReason,
+    ControlCode,
     OpenFlags,
     decode_control,
+    decode_reset,
 )
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header
@@ -84,6 +87,7 @@ from tdtp.wire.seqnum import SEQ_MODULUS
 _DATA: Final = int(PacketType.DATA)
 _ACK: Final = int(PacketType.ACK)
 _CONTROL: Final = int(PacketType.CONTROL)
+_RESET: Final = int(ControlCode.RESET)
 _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 """The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
 ``max_payload`` is."""
@@ -311,7 +315,10 @@ class Connection:
         self._peer = addr
         self._state = State.OPENING
         self._hint.value = -math.inf
-        self._handshake.start(now)
+        handshake = self._handshake
+        key = handshake.key
+        self._outbox.reset_guard = ResetGuard(key.reset_key if key is not None else None)
+        handshake.start(now)
         self._liveness.last_receive = now
 
     def send(self, payload: bytes | bytearray | memoryview, *, now: float) -> None:
@@ -426,11 +433,19 @@ class Connection:
             stats.count_drop(DropReason.OVERSIZED)
             return
         ptype = data[0] >> 6
-        if ptype == _CONTROL and size > HEADER_SIZE and data[HEADER_SIZE] in HANDSHAKE_CODES:
-            self._on_handshake(data, addr, now)
-            return
+        if ptype == _CONTROL and size > HEADER_SIZE:
+            code = data[HEADER_SIZE]
+            if code in HANDSHAKE_CODES:
+                self._on_handshake(data, addr, now)
+                return
+            if code == _RESET:
+                self._on_reset(data, now)
+                return
         if ptype > _CONTROL:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
+            return
+        if peer is None:
+            self._on_stranger(data, addr, now)
             return
         handshake = self._handshake
         if handshake.keyed:
@@ -465,6 +480,54 @@ class Connection:
             self._on_ack_packet(size, ack, sack, hold, now)
         else:
             self._on_session_control(data, size, ack, sack, hold, now)
+
+    def _on_stranger(self, data: bytes, addr: Address, now: float) -> None:
+        """A session datagram while we hold no session: a listening slave answers it with a RESET
+        (its master's session died with our restart; PROTOCOL.md 5.7) within admission's budget."""
+        self._stats.count_drop(DropReason.NOT_ESTABLISHED)
+        admission = self._handshake.admission
+        if self.role is Role.SLAVE and admission is not None:
+            reset = admission.reset(data, now)
+            if reset is not None:
+                self._outbox.queue(reset, addr, 0, False)
+                self._hint.value = -math.inf
+
+    def _on_reset(self, data: bytes, now: float) -> None:
+        """A RESET: the slave holds no session for us. Taken only by an established master, and
+        only if it echoes one of our recent datagrams (and, keyed, proves the key)."""
+        stats = self._stats
+        guard = self._outbox.reset_guard
+        if self._state is not State.ESTABLISHED or guard is None:
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            return
+        try:
+            body = decode_reset(data[HEADER_SIZE:])
+        except MalformedPacketError:
+            stats.count_drop(DropReason.BAD_CONTROL)
+            return
+        if not guard.verify(body):
+            stats.count_drop(DropReason.UNMATCHED_RESET)
+            return
+        stats.received.control_packets += 1
+        self._terminate(
+            CloseCause.PEER_RESTARTED,
+            f"the slave at {self._peer_address()[0]}:{self._peer_address()[1]} holds no session "
+            "for us (it restarted); open a new connection",
+        )
+
+    def evict(self, *, now: float) -> None:
+        """Slave side: give this session's slot to a new master (the server is full and ours has
+        been silent longest); the master, if it ever hears again, gets a CLOSE."""
+        if self._state is State.CLOSED:
+            return
+        if self._peer is not None:
+            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer)
+        silent = now - self._liveness.last_receive
+        self._terminate(
+            CloseCause.EVICTED,
+            f"the server was full and this master had been silent for {silent:.1f} s, longer "
+            "than any other; its slot went to a new master",
+        )
 
     def _on_unopened(self, opener: PacketOpener, now: float) -> None:
         """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
