@@ -76,7 +76,6 @@ from tdtp.wire.control import (
     ControlCode,
     OpenFlags,
     decode_control,
-    decode_reset,
 )
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header
@@ -445,7 +444,9 @@ class Connection:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
             return
         if peer is None:
-            self._on_stranger(data, addr, now)
+            # A listening slave answers with a RESET (its master's session died with a restart).
+            self._handshake.on_stranger(data, addr, now)
+            self._hint.value = -math.inf
             return
         handshake = self._handshake
         if handshake.keyed:
@@ -481,38 +482,23 @@ class Connection:
         else:
             self._on_session_control(data, size, ack, sack, hold, now)
 
-    def _on_stranger(self, data: bytes, addr: Address, now: float) -> None:
-        """A session datagram while we hold no session: a listening slave answers it with a RESET
-        (its master's session died with our restart; PROTOCOL.md 5.7) within admission's budget."""
-        self._stats.count_drop(DropReason.NOT_ESTABLISHED)
-        admission = self._handshake.admission
-        if self.role is Role.SLAVE and admission is not None:
-            reset = admission.reset(data, now)
-            if reset is not None:
-                self._outbox.queue(reset, addr, 0, False)
-                self._hint.value = -math.inf
-
     def _on_reset(self, data: bytes, now: float) -> None:
-        """A RESET: the slave holds no session for us. Taken only by an established master, and
-        only if it echoes one of our recent datagrams (and, keyed, proves the key)."""
-        stats = self._stats
+        """A RESET: the slave holds no session for us (PROTOCOL.md 5.7). Taken only by an
+        established master, if it echoes a recent datagram of ours (keyed: and proves the key)."""
         guard = self._outbox.reset_guard
         if self._state is not State.ESTABLISHED or guard is None:
-            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            self._stats.count_drop(DropReason.UNEXPECTED_CONTROL)
             return
-        try:
-            body = decode_reset(data[HEADER_SIZE:])
-        except MalformedPacketError:
-            stats.count_drop(DropReason.BAD_CONTROL)
+        refused = guard.judge(data)
+        if refused is not None:
+            self._stats.count_drop(refused)
             return
-        if not guard.verify(body):
-            stats.count_drop(DropReason.UNMATCHED_RESET)
-            return
-        stats.received.control_packets += 1
+        self._stats.received.control_packets += 1
+        peer = self._peer_address()
         self._terminate(
             CloseCause.PEER_RESTARTED,
-            f"the slave at {self._peer_address()[0]}:{self._peer_address()[1]} holds no session "
-            "for us (it restarted); open a new connection",
+            f"the slave at {peer[0]}:{peer[1]} holds no session for us (it restarted); open a "
+            "new connection",
         )
 
     def evict(self, *, now: float) -> None:

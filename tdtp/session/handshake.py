@@ -338,6 +338,16 @@ class Handshake:
             return Reaction.REPLACED
         return Reaction.IGNORED
 
+    def on_stranger(self, data: bytes, addr: Address, now: float) -> None:
+        """A session datagram while we hold no session: a listening slave answers it with a RESET
+        within admission's budget (PROTOCOL.md 5.7); a master before connect() drops it."""
+        self._stats.count_drop(DropReason.NOT_ESTABLISHED)
+        admission = self.admission
+        if admission is not None:
+            reset = admission.reset(data, now)
+            if reset is not None:
+                self._outbox.queue(reset, addr, 0, False)
+
     def adopt(self, admitted: AdmittedOpen) -> None:
         """A listening slave takes the master's choices from its admitted OPEN (and, keyed, derives
         the session's :attr:`keys`)."""

@@ -19,7 +19,10 @@ from collections import deque
 from typing import Final
 
 from tdtp.protection.derivation import reset_tag
-from tdtp.wire.control import RESET_ECHO_SIZE, ResetBody
+from tdtp.session.stats import DropReason
+from tdtp.wire.control import RESET_ECHO_SIZE, ResetBody, decode_reset
+from tdtp.wire.errors import MalformedPacketError
+from tdtp.wire.header import HEADER_SIZE
 
 RESET_MEMORY: Final = 256
 """Datagrams whose first bytes a master remembers: a RESET answers one of them (at 1 kHz, the last
@@ -36,6 +39,14 @@ class ResetGuard:
 
     def record(self, datagram: bytes) -> None:
         self.recent.append(datagram[:RESET_ECHO_SIZE])
+
+    def judge(self, data: bytes) -> DropReason | None:
+        """``None`` for a RESET datagram that answers a datagram we sent, else why it is dropped."""
+        try:
+            body = decode_reset(data[HEADER_SIZE:])
+        except MalformedPacketError:
+            return DropReason.BAD_CONTROL
+        return None if self.verify(body) else DropReason.UNMATCHED_RESET
 
     def verify(self, body: ResetBody) -> bool:
         """Whether the RESET answers a datagram we sent (and, keyed, comes from a key holder)."""

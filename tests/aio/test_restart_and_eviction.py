@@ -81,7 +81,7 @@ async def test_a_full_server_evicts_its_longest_silent_session_for_a_new_master(
         second = await connect("127.0.0.1", server.port, config=config)
         await server.accept()
         assert server.stats.peers_evicted == 2
-        with pytest.raises(ConnectError, match="busy|BUSY|serves as many"):
+        with pytest.raises(ConnectError, match=r"busy|BUSY|serves as many"):
             await connect("127.0.0.1", server.port, config=config)
         assert server.stats.peers_refused == 1
         for master in (live, newcomer, second):
