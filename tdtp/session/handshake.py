@@ -136,6 +136,11 @@ class Handshake:
         self.open_deadline = 0.0
         self.open_next = 0.0
         """A master's next OPEN (re)transmission."""
+        self._max_opens = max(
+            1, math.floor(config.open_timeout / config.open_retry_interval + 1e-9)
+        )
+        """OPENs a master sends in all: one per retry interval of ``open_timeout`` (20). A COOKIE
+        pulls an OPEN forward but never adds one to the budget."""
         self.keys: tuple[PacketSealer, PacketOpener] | None = None
         """A keyed session's packet protection, ours and the peer's, once derived at the open."""
         self.peer_max_payload = 0
@@ -172,8 +177,13 @@ class Handshake:
             )
 
     def open_due(self, now: float) -> bool:
-        """Whether an OPEN should leave at ``now``; if so, the next one is due a retry later."""
+        """Whether an OPEN should leave at ``now``; if so, the next one is due a retry later. At most
+        ``open_timeout / open_retry_interval`` (20) OPENs leave in all, COOKIEs or not (PROTOCOL.md
+        5.1, rule 6 and 5.3); after the last one the master waits for the open timeout."""
         if now < self.open_next:
+            return False
+        if self.open_attempt >= self._max_opens:
+            self.open_next = self.open_deadline
             return False
         self.open_next = now + self._config.open_retry_interval
         return True
