@@ -33,6 +33,7 @@ from tdtp.aio.endpoint import (
     format_address,
 )
 from tdtp.aio.impairment import ImpairedTransport, as_spec
+from tdtp.aio.reconnect import ReconnectPolicy, as_policy
 from tdtp.aio.timer import TimerPreference, check_timer_preference, monotonic
 from tdtp.config import ConnectionConfig, Role
 from tdtp.errors import (
@@ -221,6 +222,7 @@ def connect(
     netem_seed: int | None = None,
     key: KeyInput | None = None,
     pcap: CaptureTarget | None = None,
+    reconnect: bool | ReconnectPolicy | None = False,
 ) -> Opener[Endpoint]:
     """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
 
@@ -242,7 +244,14 @@ def connect(
 
     ``pcap`` (a path, or a shared :class:`~tdtp.capture.pcap.PcapWriter`) records every datagram the socket
     sends and receives, with UDP/IP headers, for Wireshark (``tools/wireshark/tdtp.lua``).
+
+    ``reconnect=True`` (or a :class:`~tdtp.ReconnectPolicy`) keeps the endpoint alive across
+    sessions: when the slave restarts (a verified RESET), the session idles out, or the slave is
+    silent for ``after_silence``, a new session opens on the same socket and the application's
+    loops go on; ``ep.reconnects`` says how often and why (:mod:`tdtp.aio.reconnect`). The first
+    open still raises as above.
     """
+    policy = as_policy(reconnect)
     if not isinstance(host, str) or not host:
         raise InvalidArgumentError(f"host must be a host name or address, got {host!r}")
     _check_port(port, allow_zero=False)
@@ -267,6 +276,7 @@ def connect(
             netem_seed=netem_seed,
             key=key,
             pcap=pcap,
+            reconnect=policy,
         )
     )
 
@@ -285,6 +295,7 @@ async def _connect(
     netem_seed: int | None,
     key: KeyInput | None,
     pcap: CaptureTarget | None,
+    reconnect: ReconnectPolicy | None = None,
 ) -> Endpoint:
     loop = asyncio.get_running_loop()
     try:
@@ -336,6 +347,8 @@ async def _connect(
         on_watchdog=on_watchdog,
         on_closed=_close_transport,
         transport_closed=_wait_transport_closed,
+        reconnect=reconnect,
+        new_connection=lambda: Connection(config, role=Role.MASTER, rng=rng, key=key),
     )
     protocol.endpoint = endpoint
     _deliver_to(protocol, endpoint.datagram_received, recorder)

@@ -86,3 +86,92 @@ async def test_a_full_server_evicts_its_longest_silent_session_for_a_new_master(
         assert server.stats.peers_refused == 1
         for master in (live, newcomer, second):
             await master.close()
+
+
+async def _kill(server: object) -> None:
+    """The slave process dies: no CLOSE to anyone, the port is freed."""
+    for endpoint in server.endpoints:  # type: ignore[attr-defined]
+        endpoint._release()
+    server._closed = True  # type: ignore[attr-defined]
+    server._transport.close()  # type: ignore[attr-defined]
+    await asyncio.sleep(0.02)
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("keyed", [False, True], ids=["unkeyed", "keyed"])
+async def test_a_reconnecting_master_keeps_its_endpoint_across_a_slave_restart(
+    keyed: bool,
+) -> None:
+    """The application's loop, ep.send and ep.latest go on; ep.reconnects says what happened."""
+    key = KEY if keyed else None
+    server = await listen("127.0.0.1", 0, key=key)
+    port = server.port
+    master = await connect("127.0.0.1", port, key=key, reconnect=True)
+    slave = await server.accept()
+    slave.send(b"before")
+    first = await asyncio.wait_for(master.recv(), 5.0)
+    assert first.payload == b"before"
+    await _kill(server)
+    for _ in range(20):  # samples into the void: superseded or lost, never an exception
+        master.send(b"x" * 40)
+        await asyncio.sleep(0.005)
+    restarted = await listen("127.0.0.1", port, key=key)
+    try:
+        accepting = asyncio.ensure_future(restarted.accept())
+        for _ in range(1000):  # patience for a loaded machine, not a timing goal
+            if accepting.done():
+                break
+            master.send(b"y" * 40)
+            await asyncio.sleep(0.01)
+        new_slave = await asyncio.wait_for(accepting, 10.0)
+        await _until(lambda: master.connection.state.value == "established")
+        new_slave.send(b"after")
+        sample = await asyncio.wait_for(master.recv(), 5.0)
+        assert sample.payload == b"after"
+        assert master.latest() is not None and not master.is_closed
+        record = master.reconnects
+        assert record.count == 1 and not record.reopening
+        assert record.causes == {"peer_restarted": 1}
+        assert record.samples_received_before == 1
+        assert restarted.stats.admission.resets_sent >= 1
+    finally:
+        await master.close()
+        await restarted.close()
+    closed = master.close_event
+    assert closed is not None and closed.cause is CloseCause.LOCAL_CLOSE
+
+
+@pytest.mark.asyncio
+async def test_after_silence_reopens_when_no_reset_can_come_back() -> None:
+    """Keyed KEEPALIVEs (24 bytes) are too small to carry a RESET's tag: the master reopens after
+    ``after_silence`` of silence instead, probing with OPENs until the slave is back."""
+    from tdtp import ReconnectPolicy
+
+    policy = ReconnectPolicy(after_silence=0.3)
+    server = await listen("127.0.0.1", 0, key=KEY)
+    port = server.port
+    master = await connect("127.0.0.1", port, key=KEY, reconnect=policy)
+    await server.accept()
+    await _kill(server)
+    await asyncio.sleep(0.2)  # keep-alives only
+    restarted = await listen("127.0.0.1", port, key=KEY)
+    try:
+        await asyncio.wait_for(restarted.accept(), 10.0)
+        await _until(lambda: master.reconnects.count == 1)
+        assert master.reconnects.causes == {"silence": 1}
+        assert restarted.stats.admission.resets_sent == 0
+    finally:
+        await master.close()
+        await restarted.close()
+
+
+def test_reconnect_policies_are_checked() -> None:
+    from tdtp import InvalidArgumentError, ReconnectPolicy
+    from tdtp.errors import ArgumentTypeError
+
+    with pytest.raises(InvalidArgumentError, match="attempts"):
+        ReconnectPolicy(attempts=-1)
+    with pytest.raises(InvalidArgumentError, match="after_silence"):
+        ReconnectPolicy(after_silence=0)
+    with pytest.raises(ArgumentTypeError, match="reconnect"):
+        connect("127.0.0.1", 9, reconnect="yes")  # type: ignore[arg-type]
