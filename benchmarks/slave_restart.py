@@ -16,6 +16,8 @@ import subprocess
 import sys
 import time
 
+from tdtp.wire import PROTOCOL_VERSION, OpenBody, encode_header, encode_open
+
 
 def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
@@ -46,8 +48,6 @@ def _go(process: subprocess.Popen[str]) -> None:
 
 def _wait_listening(port: int) -> None:
     """Until the slave answers an OPEN (with its COOKIE)."""
-    from tdtp.wire import PROTOCOL_VERSION, OpenBody, encode_header, encode_open
-
     probe_open = encode_header(2, 0, 0, 0, 255) + encode_open(
         OpenBody(PROTOCOL_VERSION, 0, 0, 1200, 0, bytes(16), bytes(8), bytes(16))
     )

@@ -7,6 +7,7 @@ import math
 
 from tdtp.aio.api import connect
 from tdtp.aio.endpoint import format_address
+from tdtp.aio.reconnect import ReconnectPolicy
 from tdtp.aio.timer import monotonic
 from tdtp.capture.pcap import PcapWriter
 from tdtp.cli.live_stats import (
@@ -16,7 +17,6 @@ from tdtp.cli.live_stats import (
 )
 from tdtp.cli.options import netem_directions, netem_seed, session_config
 from tdtp.cli.outcome import EXIT_FAILED, Outcome, Side, close_info, header_line, settings_report
-from tdtp.aio.reconnect import ReconnectPolicy
 from tdtp.cli.session_tasks import (
     _with_display,
     every_second,

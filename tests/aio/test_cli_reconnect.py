@@ -42,7 +42,7 @@ def test_the_cli_master_reconnects_to_a_restarted_slave() -> None:
         second = _slave(port)
         master_out, master_err = master.communicate(timeout=60)
         second.send_signal(signal.SIGINT)  # Ctrl-C: the slave stops and prints its summary
-        slave_out, slave_err = second.communicate(timeout=60)
+        slave_out, _ = second.communicate(timeout=60)
     finally:
         for process in (first, second, master):
             if process is not None and process.poll() is None:

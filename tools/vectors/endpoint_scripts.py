@@ -19,9 +19,9 @@ from tdtp.wire import (
     encode_cookie,
     encode_header,
     encode_keepalive,
-    encode_reset,
     encode_open,
     encode_open_ack,
+    encode_reset,
 )
 
 from tdtp_adapter import COOKIE_PLACEHOLDER  # tests/vectors: generate.py puts it on the path

@@ -22,10 +22,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from tdtp.protection.derivation import (  # noqa: E402
+from tdtp.protection.derivation import (  # noqa: E402  # noqa: E402
     derive_key_id,
     derive_open_secret,
+    derive_reset_key,
     derive_session_secrets,
+    reset_tag,
 )
 from tdtp.protection.keys import PresharedKey  # noqa: E402
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
@@ -33,6 +35,7 @@ from tdtp.session.receive_window import ReceiveWindow  # noqa: E402
 from tdtp.session.rtt import RttEstimator  # noqa: E402
 from tdtp.session.sent_log import LostPacket, SentPacketLog  # noqa: E402
 from tdtp.session.stats import DropReason  # noqa: E402
+from tdtp.wire import PROTOCOL_VERSION as WIRE_VERSION  # noqa: E402
 from tdtp.wire import (  # noqa: E402
     CipherSuite,
     CloseReason,
@@ -52,8 +55,6 @@ from tdtp.wire import (  # noqa: E402
     encode_reset,
     expand_seq,
 )
-from tdtp.wire import PROTOCOL_VERSION as WIRE_VERSION  # noqa: E402
-from tdtp.protection.derivation import derive_reset_key, reset_tag  # noqa: E402
 from tdtp.wire.errors import MalformedPacketError  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "tests" / "vectors"))
