@@ -104,7 +104,8 @@ class AdmissionStats:
     bytes_out: int = 0
     """Bytes of every COOKIE and REJECT sent back: at most ``bytes_in`` by construction."""
     strangers: int = 0
-    """Session datagrams (DATA, ACK, KEEPALIVE) from addresses holding no session."""
+    """Session datagrams (DATA, ACK, KEEPALIVE) of at least 22 bytes (the size of a RESET) from
+    addresses holding no session: the ones a RESET may answer."""
     resets_sent: int = 0
     """RESETs answering them (the rest were too small to answer, or over the RESET budget)."""
     reset_bytes_in: int = 0
