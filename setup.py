@@ -38,6 +38,7 @@ COMPILED = [
     "tdtp/session/ack_scheduler.py",
     "tdtp/session/sender.py",
     "tdtp/session/timer_hint.py",
+    "tdtp/session/reset_guard.py",
     "tdtp/protection/replay_window.py",
     "tdtp/protection/packet_protection.py",
     "tdtp/control/base.py",

@@ -12,6 +12,7 @@ from tdtp._build import restore_class_docstrings as _restore_class_docstrings
 from tdtp._moved_modules import install as _install_moved_modules
 from tdtp.aio.api import Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint
+from tdtp.aio.reconnect import ReconnectPolicy, ReconnectRecord
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
 from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, ControllerName, Role
@@ -92,6 +93,8 @@ __all__ = [
     "PeerSilent",
     "PortUnreachableError",
     "PresharedKey",
+    "ReconnectPolicy",
+    "ReconnectRecord",
     "Role",
     "Server",
     "ServerClosedError",

@@ -76,10 +76,15 @@ class AdmissionConfig:
     replies_per_second: float = 20_000.0
     """COOKIE and version-REJECT replies per second to unvalidated sources, all together: bounds the
     CPU a flood of OPENs from forged addresses costs (each reply is never larger than its OPEN)."""
+    resets_per_second: float = 1000.0
+    """RESETs per second, all sources together, answering session datagrams from addresses without a
+    session (a restarted slave hearing its old masters): a budget of its own, so that a flood of them
+    cannot starve the COOKIEs a reconnecting master needs, and bounded so that it caps the CPU (one
+    HMAC per key that fits, keyed) and the bytes (never more than what arrived) a flood can cost."""
 
     def __post_init__(self) -> None:
         _positive_finite("cookie_lifetime", self.cookie_lifetime)
-        for name in ("opens_per_source", "replies_per_second"):
+        for name in ("opens_per_source", "replies_per_second", "resets_per_second"):
             _positive_finite(name, getattr(self, name), "per second")
         for name in ("open_burst", "max_sources"):
             value = getattr(self, name)

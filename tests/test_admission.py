@@ -22,6 +22,7 @@ from tdtp.protection import KeyRing, PresharedKey
 from tdtp.session.stats import DropReason
 from tdtp.wire import (
     HEADER_SIZE,
+    PROTOCOL_VERSION,
     CloseReason,
     ControlCode,
     OpenBody,
@@ -40,14 +41,14 @@ def _open(
     nonce: bytes = NONCE, cookie: bytes = bytes(16), max_payload: int = 1200, flags: int = 0
 ) -> bytes:
     return encode_header(2, 0x123, 0, 0, 255) + encode_open(
-        OpenBody(2, flags, 0, max_payload, 0, nonce, bytes(8), cookie)
+        OpenBody(PROTOCOL_VERSION, flags, 0, max_payload, 0, nonce, bytes(8), cookie)
     )
 
 
 def _forged_keyed_open(rng: random.Random) -> bytes:
     """A well-formed keyed OPEN naming the slave's key, with a tag nobody computed."""
     body = OpenBody(
-        2,
+        PROTOCOL_VERSION,
         OpenFlags.KEYED | OpenFlags.ENCRYPTED,
         1,
         1200,

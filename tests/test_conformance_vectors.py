@@ -1,4 +1,4 @@
-"""tdtp against its own conformance vectors (tests/vectors/tdtp-v2-*.json, tests/vectors/README.md).
+"""tdtp against its own conformance vectors (tests/vectors/tdtp-v3-*.json, tests/vectors/README.md).
 
 The files are data for any implementation; this is tdtp's runner. It reads the committed files (it
 never regenerates them) and checks every vector, so a change of behaviour that the vectors pin fails
@@ -49,7 +49,7 @@ SUITES = ("header", "hold", "seqnum", "control", "receiver", "sender", "keyed", 
 
 def _load(suite: str) -> dict[str, Any]:
     data: dict[str, Any] = json.loads(
-        (VECTORS / f"tdtp-v2-{suite}.json").read_text(encoding="utf-8")
+        (VECTORS / f"tdtp-v3-{suite}.json").read_text(encoding="utf-8")
     )
     return data
 
@@ -59,13 +59,13 @@ def _approx(value: float | None) -> object:
 
 
 def test_every_file_is_a_known_format_version_and_suite() -> None:
-    files = sorted(path.name for path in VECTORS.glob("tdtp-v2-*.json"))
-    assert files == sorted(f"tdtp-v2-{suite}.json" for suite in SUITES)
+    files = sorted(path.name for path in VECTORS.glob("tdtp-v3-*.json"))
+    assert files == sorted(f"tdtp-v3-{suite}.json" for suite in SUITES)
     for suite in SUITES:
         data = _load(suite)
         assert data["format"] == "tdtp-conformance-vectors"
         assert data["format_version"] == FORMAT_VERSION
-        assert data["protocol_version"] == 2
+        assert data["protocol_version"] == 3
         assert data["suite"] == suite
         assert data["description"]
 
@@ -123,7 +123,11 @@ def check_control(data: dict[str, Any]) -> int:
         decoded = decode_control(body)
         assert ControlCode(body[0]).name == vector["code"]
         fields = {
-            name: value.hex() if isinstance(value, bytes) else int(value)
+            name: [tag.hex() for tag in value]
+            if isinstance(value, tuple)
+            else value.hex()
+            if isinstance(value, bytes)
+            else int(value)
             for name, value in decoded._asdict().items()
             if name != "code"
         }
@@ -217,11 +221,21 @@ def check_sender(data: dict[str, Any]) -> int:
 
 
 def check_keyed(data: dict[str, Any]) -> int:
+    from tdtp.protection.derivation import derive_reset_key, reset_tag
+    from tdtp.wire import decode_reset
+
+    for vector in data["reset_tags"]:
+        key = derive_reset_key(bytes.fromhex(vector["psk"]))
+        echo = bytes.fromhex(vector["echo"])
+        assert reset_tag(key, echo).hex() == vector["tag"]
+        datagram = bytes.fromhex(vector["datagram"])
+        assert decode_reset(datagram[5:]).tags == (bytes.fromhex(vector["tag"]),)
     for vector in data["derivations"]:
         psk = bytes.fromhex(vector["psk"])
         suite = CipherSuite(vector["suite"])
         master, slave = bytes.fromhex(vector["master_nonce"]), bytes.fromhex(vector["slave_nonce"])
         assert derive_key_id(psk).hex() == vector["key_id"]
+        assert derive_reset_key(psk).hex() == vector["reset_key"]
         open_secret = derive_open_secret(psk, master, suite)
         assert (open_secret.key.hex(), open_secret.iv.hex()) == (
             vector["open_key"],

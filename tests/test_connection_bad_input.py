@@ -29,7 +29,7 @@ OTHER_NONCE = bytes(range(16))
 CONTROL_HEADER = encode_header(2, 0, 0, 0, 255)
 
 
-def _open(nonce: bytes = OTHER_NONCE, cookie: bytes = bytes(16), version: int = 2) -> bytes:
+def _open(nonce: bytes = OTHER_NONCE, cookie: bytes = bytes(16), version: int = 3) -> bytes:
     body = OpenBody(version, 0, 0, 1200, 0, nonce, bytes(8), cookie)
     return CONTROL_HEADER + encode_open(body)
 

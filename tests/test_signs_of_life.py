@@ -18,7 +18,7 @@ OTHER_NONCE = bytes(range(16))
 
 def _open(nonce: bytes, cookie: bytes = bytes(16), max_payload: int = 1200) -> bytes:
     return encode_header(PacketType.CONTROL, 0x123, 0, 0, 255) + encode_open(
-        OpenBody(2, 0, 0, max_payload, 1, nonce, bytes(8), cookie)
+        OpenBody(3, 0, 0, max_payload, 1, nonce, bytes(8), cookie)
     )
 
 

@@ -86,7 +86,7 @@ def expected_fields(datagram: bytes, keyed: bool) -> dict[str, str]:
         absent = [(ack - i) % 4096 for i in range(1, 7) if not sack >> (i - 1) & 1]
         out["tdtp.acked"] = ",".join(map(str, received))
         out["tdtp.absent"] = ",".join(map(str, absent))
-    handshake = ptype == 2 and len(datagram) > 5 and datagram[5] in (1, 2, 5, 6)
+    handshake = ptype == 2 and len(datagram) > 5 and datagram[5] in (1, 2, 5, 6, 7)
     if not handshake:
         out["tdtp.keyed"] = "1" if keyed else "0"
     if ptype == 2:
@@ -189,9 +189,10 @@ def _build(path: Path) -> tuple[dict[int, bool], dict[int, str]]:
         inject(encode_header(0, 1, 5, 1, 255) + b"x", "HOLD 255 (no acknowledgement) with ACK")
         inject(encode_header(2, 1, 0, 0, 255) + b"\x09", "Unknown control code")
         inject(encode_header(2, 1, 0, 0, 255) + b"\x03\x00", "Malformed control packet")
-        open_body = OpenBody(2, 0, 0, 0, 0, bytes(16), bytes(8), bytes(16))
+        inject(encode_header(2, 0, 0, 0, 255) + b"\x07" + bytes(20), "Malformed control packet")
+        open_body = OpenBody(3, 0, 0, 0, 0, bytes(16), bytes(8), bytes(16))
         inject(encode_header(2, 1, 0, 0, 255) + encode_open(open_body), "max_payload 0")
-        open_body = OpenBody(2, 4, 0, 100, 0, bytes(16), bytes(8), bytes(16))
+        open_body = OpenBody(3, 4, 0, 100, 0, bytes(16), bytes(8), bytes(16))
         inject(encode_header(2, 1, 0, 0, 255) + encode_open(open_body), "Inconsistent flags")
         separate = _session(
             writer, SEPARATE, config=ConnectionConfig(ack_mode=AckMode.SEPARATE, ack_size=12)

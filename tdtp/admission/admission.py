@@ -29,7 +29,7 @@ from typing import Final, NamedTuple
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
 from tdtp.config import ConnectionConfig
-from tdtp.protection.derivation import derive_open_secret
+from tdtp.protection.derivation import derive_open_secret, reset_tag
 from tdtp.protection.keys import KeyRing, PresharedKey
 from tdtp.protection.packet_protection import Direction
 from tdtp.session.events import Address
@@ -41,6 +41,9 @@ from tdtp.wire.control import (
     NONCE_SIZE,
     OPEN_NONCE_OFFSET,
     PROTOCOL_VERSION,
+    RESET_ECHO_SIZE,
+    RESET_SIZE,
+    RESET_TAG_SIZE,
     CipherSuite,
     CloseReason,
     ControlCode,
@@ -49,6 +52,7 @@ from tdtp.wire.control import (
     decode_control,
     encode_close,
     encode_cookie,
+    encode_reset,
     open_version,
 )
 from tdtp.wire.errors import MalformedPacketError
@@ -57,6 +61,7 @@ from tdtp.wire.hold import HOLD_NO_ACK
 from tdtp.wire.protected import TAG_SIZE
 
 _CONTROL: Final = int(PacketType.CONTROL)
+_KEEPALIVE: Final = int(ControlCode.KEEPALIVE)
 _REJECT_SIZE: Final = HEADER_SIZE + CLOSE_BODY_SIZE
 _REPLY_HEADER: Final = encode_header(_CONTROL, 0, 0, 0, HOLD_NO_ACK)
 """The base header of every reply to an unvalidated OPEN (no sequence, nothing acknowledged)."""
@@ -98,6 +103,15 @@ class AdmissionStats:
     """Bytes of every OPEN seen."""
     bytes_out: int = 0
     """Bytes of every COOKIE and REJECT sent back: at most ``bytes_in`` by construction."""
+    strangers: int = 0
+    """Session datagrams (DATA, ACK, KEEPALIVE) of at least 22 bytes (the size of a RESET) from
+    addresses holding no session: the ones a RESET may answer."""
+    resets_sent: int = 0
+    """RESETs answering them (the rest were too small to answer, or over the RESET budget)."""
+    reset_bytes_in: int = 0
+    """Bytes of the session datagrams answered with a RESET."""
+    reset_bytes_out: int = 0
+    """Bytes of those RESETs: at most ``reset_bytes_in`` by construction."""
 
     def count_drop(self, reason: DropReason) -> None:
         self.drops[reason.value] = self.drops.get(reason.value, 0) + 1
@@ -127,7 +141,42 @@ class Admission:
             policy.opens_per_source, policy.open_burst, policy.max_sources
         )
         self._replies = TokenBucket(policy.replies_per_second, policy.replies_per_second)
+        self._resets = TokenBucket(policy.resets_per_second, policy.resets_per_second)
+        self._reset_keys: tuple[bytes, ...] = (
+            tuple(key.reset_key for key in keys) if keys is not None else ()
+        )
         self.stats = AdmissionStats()
+
+    def reset(self, data: bytes, now: float) -> bytes | None:
+        """A RESET for a session datagram (DATA, ACK, KEEPALIVE) from an address holding no
+        session, or ``None``: not a session datagram, too small to answer without amplifying, or
+        over the RESET budget. Unkeyed it echoes the datagram's first 16 bytes; keyed it adds one
+        tag per key of the ring, as many as fit in the datagram's size (PROTOCOL.md 5.7)."""
+        size = len(data)
+        if size < RESET_SIZE:
+            return None
+        ptype = data[0] >> 6
+        if ptype > _CONTROL or (ptype == _CONTROL and data[HEADER_SIZE] != _KEEPALIVE):
+            return None
+        stats = self.stats
+        stats.strangers += 1
+        reset_keys = self._reset_keys
+        tags: tuple[bytes, ...] = ()
+        echo = data[:RESET_ECHO_SIZE]
+        if reset_keys:
+            fit = (size - RESET_SIZE) // RESET_TAG_SIZE
+            if fit == 0:
+                return None
+            if not self._resets.take(now):
+                return None
+            tags = tuple(reset_tag(key, echo) for key in reset_keys[:fit])
+        elif not self._resets.take(now):
+            return None
+        datagram = _REPLY_HEADER + encode_reset(echo, tags)
+        stats.resets_sent += 1
+        stats.reset_bytes_in += size
+        stats.reset_bytes_out += len(datagram)
+        return datagram
 
     def admit(self, data: bytes, addr: Address, now: float) -> AdmittedOpen | Reply | DropReason:
         """Judge one datagram that claims to be an OPEN (see the module docstring)."""
@@ -175,7 +224,7 @@ class Admission:
             if not self._per_source.allow(addr, now):
                 return DropReason.RATE_LIMITED
             if size_allows_reject(len(data)):
-                # The nonce where version 2 has it: a later version that keeps it there can tell.
+                # The nonce where versions 2 and 3 have it: a later version that keeps it there can tell.
                 nonce = bytes(body_bytes[OPEN_NONCE_OFFSET : OPEN_NONCE_OFFSET + NONCE_SIZE]).ljust(
                     NONCE_SIZE, b"\0"
                 )

@@ -33,6 +33,7 @@ from tdtp.aio.endpoint import (
     format_address,
 )
 from tdtp.aio.impairment import ImpairedTransport, as_spec
+from tdtp.aio.reconnect import ReconnectPolicy, as_policy
 from tdtp.aio.timer import TimerPreference, check_timer_preference, monotonic
 from tdtp.config import ConnectionConfig, Role
 from tdtp.errors import (
@@ -221,6 +222,7 @@ def connect(
     netem_seed: int | None = None,
     key: KeyInput | None = None,
     pcap: CaptureTarget | None = None,
+    reconnect: bool | ReconnectPolicy | None = False,
 ) -> Opener[Endpoint]:
     """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
 
@@ -242,7 +244,14 @@ def connect(
 
     ``pcap`` (a path, or a shared :class:`~tdtp.capture.pcap.PcapWriter`) records every datagram the socket
     sends and receives, with UDP/IP headers, for Wireshark (``tools/wireshark/tdtp.lua``).
+
+    ``reconnect=True`` (or a :class:`~tdtp.ReconnectPolicy`) keeps the endpoint alive across
+    sessions: when the slave restarts (a verified RESET), the session idles out, or the slave is
+    silent for ``after_silence``, a new session opens on the same socket and the application's
+    loops go on; ``ep.reconnects`` says how often and why (:mod:`tdtp.aio.reconnect`). The first
+    open still raises as above.
     """
+    policy = as_policy(reconnect)
     if not isinstance(host, str) or not host:
         raise InvalidArgumentError(f"host must be a host name or address, got {host!r}")
     _check_port(port, allow_zero=False)
@@ -267,6 +276,7 @@ def connect(
             netem_seed=netem_seed,
             key=key,
             pcap=pcap,
+            reconnect=policy,
         )
     )
 
@@ -285,6 +295,7 @@ async def _connect(
     netem_seed: int | None,
     key: KeyInput | None,
     pcap: CaptureTarget | None,
+    reconnect: ReconnectPolicy | None = None,
 ) -> Endpoint:
     loop = asyncio.get_running_loop()
     try:
@@ -336,6 +347,8 @@ async def _connect(
         on_watchdog=on_watchdog,
         on_closed=_close_transport,
         transport_closed=_wait_transport_closed,
+        reconnect=reconnect,
+        new_connection=lambda: Connection(config, role=Role.MASTER, rng=rng, key=key),
     )
     protocol.endpoint = endpoint
     _deliver_to(protocol, endpoint.datagram_received, recorder)
@@ -372,12 +385,16 @@ class ServerStats:
     """What the listening socket saw outside any connection."""
 
     datagrams_unattached: int = 0
-    """Datagrams from addresses without a connection that were not an OPEN."""
+    """Datagrams from addresses without a connection that were not an OPEN (the session datagrams
+    among them were answered with a RESET when big enough and within budget: ``admission``)."""
     peers_refused: int = 0
     """Admitted OPENs answered with REJECT ``BUSY``: ``max_peers`` connections were open, or the
     accept backlog was full."""
     peers_accepted: int = 0
     """Connections established (the master confirmed the session)."""
+    peers_evicted: int = 0
+    """Sessions closed (``EVICTED``) to make room for a new master while the server was full: each
+    one's master had been silent longest, beyond its silence timeout."""
     admission: AdmissionStats = field(default_factory=AdmissionStats)
     """The front door: OPENs seen, cookies and rejects sent, drops by reason, bytes in and out."""
 
@@ -557,11 +574,16 @@ class Server:
             # The connection ended on this OPEN: its master restarted and opens anew.
         if self._closed:
             return
-        # Only an OPEN may lead to state, and only once admitted: anything else costs nothing.
+        # Only an OPEN may lead to state, and only once admitted. A session datagram from an address
+        # without a session gets a RESET (its master's session died with a restart of ours), within
+        # the RESET budget and never larger than what arrived; anything else costs nothing.
+        assert self._sender is not None
         if not _is_open(data):
             self.stats.datagrams_unattached += 1
+            reset = self._admission.reset(data, monotonic())
+            if reset is not None:
+                self._sender.sendto(reset, addr)
             return
-        assert self._sender is not None
         now = monotonic()
         verdict = self._admission.admit(data, addr, now)
         if isinstance(verdict, Reply):
@@ -573,6 +595,8 @@ class Server:
         self, admitted: AdmittedOpen, key: tuple[object, object], addr: Address, now: float
     ) -> None:
         assert self._sender is not None
+        if len(self._peers) >= self._max_peers:
+            self._evict_silent(now)
         if len(self._peers) >= self._max_peers or (
             self._on_data is None and len(self._pending) >= self._backlog
         ):
@@ -605,6 +629,26 @@ class Server:
         pending.append(endpoint)
         conn.accept_open(admitted, addr, now=now)
         endpoint._flush(now)
+
+    def _evict_silent(self, now: float) -> None:
+        """The server is full and a validated master arrives: the session whose master has been
+        silent longest, beyond its silence timeout, gives up its slot (closed as ``EVICTED``).
+        Live sessions are never evicted, so a master that keeps talking keeps its slot."""
+        longest: Endpoint | None = None
+        longest_since = now
+        for endpoint in self._peers.values():
+            since = endpoint.connection.silent_since
+            if since is not None and since < longest_since:
+                longest, longest_since = endpoint, since
+        if longest is None:
+            return
+        self.stats.peers_evicted += 1
+        logger.info(
+            "tdtp slave: %s silent for %.1f s gives its slot to a new master",
+            format_address(longest.peer),
+            now - longest_since,
+        )
+        longest.evict(now)
 
     def _on_established(self, endpoint: Endpoint) -> None:
         self.stats.peers_accepted += 1

@@ -32,12 +32,14 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
+from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
 from tdtp.aio.timer import monotonic
-from tdtp.errors import ConnectionClosedError, EndpointClosedError
+from tdtp.errors import ConnectionClosedError, ConnectionStateError, EndpointClosedError
 from tdtp.session.connection import Connection, State
 from tdtp.session.events import (
     Address,
+    CloseCause,
     ConnectionClosed,
     ConnectionEstablished,
     DataReceived,
@@ -89,6 +91,8 @@ class Endpoint:
         on_closed: Callable[[Endpoint], None] | None = None,
         on_established: Callable[[Endpoint], None] | None = None,
         transport_closed: Callable[[], Awaitable[None]] | None = None,
+        reconnect: ReconnectPolicy | None = None,
+        new_connection: Callable[[], Connection] | None = None,
     ) -> None:
         self._conn = conn
         self._transport = transport
@@ -113,6 +117,16 @@ class Endpoint:
         self._silence: PeerSilent | None = None
         self._resumed: PeerResumed | None = None
         self._send_errors = 0
+        self._policy = reconnect
+        self._new_connection = new_connection
+        self.reconnects = ReconnectRecord()
+        """What reconnecting did (a master with ``reconnect=``): sessions reopened and why, samples
+        of the sessions before the current one. All zero otherwise."""
+        self._failures_in_a_row = 0
+        self._closing = False
+        self._silence_reopen = False
+        self._reopen_handle: asyncio.TimerHandle | None = None
+        self._remote: Address | None = None
         size = getattr(transport, "get_write_buffer_size", None)
         if size is not None and size() > 0:
             conn.pause_sending()  # a shared socket that is backed up already
@@ -231,6 +245,12 @@ class Endpoint:
             if event is None:
                 raise
             raise EndpointClosedError(event) from None
+        except ConnectionStateError:
+            if not self.reconnects.reopening:
+                raise
+            # No session while a new one opens: the sample is superseded by the next, not queued.
+            self.reconnects.samples_dropped += 1
+            return
         if not sent or conn.timer_hint < self._timer.deadline:
             self._flush(now)
 
@@ -326,6 +346,9 @@ class Endpoint:
 
     async def close(self) -> None:
         """Send CLOSE to the peer and release the timer (and a master's socket). Idempotent."""
+        self._closing = True
+        if self._reopen_handle is not None:
+            self._reopen_handle.cancel()
         if not self.is_closed:
             self._conn.close(now=monotonic())
             self._flush()
@@ -366,6 +389,13 @@ class Endpoint:
             if not self.is_closed:
                 self._flush()
 
+    def evict(self, now: float) -> None:
+        """Slave side: end this silent session so that a new master can have its slot (the
+        server does this when it is full; the session closes as ``EVICTED``)."""
+        self._conn.evict(now=now)
+        self._flush(now)
+        self._release()
+
     def fail_open(self, exc: BaseException) -> None:
         """The transport reported an error that ends a connection still opening (e.g. ICMP port
         unreachable): :meth:`wait_established` raises ``exc``."""
@@ -400,6 +430,8 @@ class Endpoint:
                     self._send_errors += 1
         if conn.pending_events:
             self._drain_events()
+            if conn is not self._conn:
+                return  # the session ended and a new one is opening: it flushes on its own
         timer = self._timer
         if conn.timer_hint < timer.deadline:
             # Something may be due before the armed deadline (the connection says so instead of
@@ -460,6 +492,10 @@ class Endpoint:
     ) -> None:
         if isinstance(event, PeerSilent):
             self._silence = event
+            policy = self._policy
+            if policy is not None and policy.after_silence is not None:
+                wait = policy.after_silence - (event.detected_at - event.since)
+                self._loop.call_later(max(0.0, wait), self._silence_check, self._conn, event)
             logger.warning(
                 "%s: nothing heard from the peer for %.3f s",
                 self._name(),
@@ -475,12 +511,17 @@ class Endpoint:
             self._call_watchdog(event)
         elif isinstance(event, ConnectionEstablished):
             logger.info("%s: connection established", self._name())
+            if self.reconnects.reopening:
+                self._reopened()
             if not self._established.done():
                 self._established.set_result(None)
             if self._on_established is not None:
                 callback, self._on_established = self._on_established, None
                 callback(self)
         else:
+            if self._policy is not None and self._may_reopen(event):
+                self._reopen(event)
+                return
             self._close_event = event
             logger.info(
                 "%s: connection closed (%s: %s)", self._name(), event.cause.value, event.detail
@@ -492,6 +533,85 @@ class Endpoint:
                 self._established.exception()  # mark retrieved: connect() reports it itself
             self._wake(self._data_waiters)
             self._wake(self._watch_waiters)
+
+    # ------------------------------------------------------------------ reconnecting (a master)
+
+    def _may_reopen(self, event: ConnectionClosed) -> bool:
+        policy = self._policy
+        if policy is None or self._closing or self._new_connection is None or not self.established:
+            return False
+        if event.cause is CloseCause.LOCAL_CLOSE:
+            return self._silence_reopen
+        if event.cause not in REOPEN_CAUSES:
+            return False
+        if event.cause is CloseCause.OPEN_TIMEOUT:
+            if not self.reconnects.reopening:
+                return False
+            self._failures_in_a_row += 1
+            self.reconnects.failed_attempts += 1
+            attempts = policy.attempts
+            return attempts is None or self._failures_in_a_row <= attempts
+        return True
+
+    def _reopen(self, event: ConnectionClosed) -> None:
+        """The session ended for a reason a new one can cure: open the next on the same socket."""
+        record = self.reconnects
+        old = self._conn
+        if not record.reopening:
+            why = "silence" if event.cause is CloseCause.LOCAL_CLOSE else event.cause.value
+            record.causes[why] = record.causes.get(why, 0) + 1
+            stats = old.stats
+            record.samples_received_before += stats.samples_delivered
+            record.samples_sent_before += stats.sent.data_packets
+            record.reopening = True
+            logger.warning(
+                "%s: session lost (%s: %s); opening a new one", self._name(), why, event.detail
+            )
+        self._silence_reopen = False
+        self._remote = old.peer
+        assert self._new_connection is not None and self._policy is not None
+        conn = self._new_connection()
+        if old.sending_paused:
+            conn.pause_sending()
+        self._conn = conn
+        failures = self._failures_in_a_row
+        policy = self._policy
+        delay = min(policy.max_backoff, policy.backoff * 2.0 ** (failures - 1)) if failures else 0.0
+        self._reopen_handle = self._loop.call_later(delay, self._start_reopen)
+
+    def _start_reopen(self) -> None:
+        self._reopen_handle = None
+        conn = self._conn
+        remote = self._remote
+        if self._closing or remote is None or conn.state is not State.IDLE:
+            return
+        conn.connect(remote, now=monotonic())
+        self._flush()
+
+    def _reopened(self) -> None:
+        record = self.reconnects
+        record.reopening = False
+        record.count += 1
+        record.last_at = now = monotonic()
+        self._failures_in_a_row = 0
+        logger.info("%s: reconnected (%d so far)", self._name(), record.count)
+        silence = self._silence
+        if silence is not None:
+            # The application held its machine on PeerSilent: the peer is back, in a new session.
+            self._silence = None
+            self._resumed = resumed = PeerResumed(now - silence.since, now)
+            self._wake(self._watch_waiters)
+            self._call_watchdog(resumed)
+
+    def _silence_check(self, conn: Connection, event: PeerSilent) -> None:
+        """``after_silence`` after the slave went silent: if it still is, open a new session."""
+        if conn is not self._conn or self._closing or conn.silent_since != event.since:
+            return
+        if conn.state is not State.ESTABLISHED:
+            return
+        self._silence_reopen = True
+        conn.close(now=monotonic())
+        self._flush()
 
     def _name(self) -> str:
         return f"tdtp {self._conn.role.value} {format_address(self._conn.peer)}"

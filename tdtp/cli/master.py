@@ -7,6 +7,7 @@ import math
 
 from tdtp.aio.api import connect
 from tdtp.aio.endpoint import format_address
+from tdtp.aio.reconnect import ReconnectPolicy
 from tdtp.aio.timer import monotonic
 from tdtp.capture.pcap import PcapWriter
 from tdtp.cli.live_stats import (
@@ -20,6 +21,8 @@ from tdtp.cli.session_tasks import (
     _with_display,
     every_second,
     open_capture,
+    reconnect_note,
+    reconnect_report,
     send_loop,
     silence_note,
     watchdog_logger,
@@ -47,6 +50,7 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
         netem_seed=netem_seed(args, 0),
         key=args.session_keys.master,
         pcap=capture,
+        reconnect=ReconnectPolicy(after_silence=args.reconnect_after) if args.reconnect else False,
     ) as ep:
         start = monotonic()
         until = start + (args.duration or math.inf)
@@ -65,6 +69,9 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
                 receive_line("S->M", side.received, reverse_meter, interval, side.latency),
             ]
             note = silence_note(ep, "master")
+            if note is not None:
+                lines.append(note)
+            note = reconnect_note(ep, start)
             if note is not None:
                 lines.append(note)
             display.update(lines)
@@ -95,6 +102,8 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
                     duration=elapsed,
                     latency=side.latency_counts(),
                 ),
+                "samples_received": side.received,
+                "reconnects": reconnect_report(ep, start),
                 "peer_silences": ep.stats.peer_silences,
                 "longest_silence_s": round(ep.stats.longest_silence, 3),
                 "close": close_info(ep),

@@ -118,6 +118,13 @@ def side_deadband(args: argparse.Namespace, *, master: bool) -> DeadbandSender |
     return DeadbandSender(groups=[(0, 1, 2)], config=DeadbandConfig(k=k, min_threshold=floor))
 
 
+def _positive_seconds(text: str) -> float:
+    value = _number(text)
+    if not (0.0 < value < float("inf")):  # also refuses nan
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     common = CommandParser(add_help=False)
     common.add_argument(
@@ -220,6 +227,20 @@ def build_parser() -> argparse.ArgumentParser:
     add_key_arguments(slave)
     master = commands.add_parser("master", parents=[common], help="connect to a slave")
     master.add_argument("address", type=host_port, help="the slave, HOST:PORT")
+    master.add_argument(
+        "--reconnect",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="open a new session when the slave restarts (RESET), the session idles out, or the "
+        "slave is silent for --reconnect-after seconds (default: on)",
+    )
+    master.add_argument(
+        "--reconnect-after",
+        type=_positive_seconds,
+        default=3.0,
+        metavar="SECONDS",
+        help="silence from the slave after which a reconnecting master opens a new session (3)",
+    )
     add_key_arguments(master)
     relay = commands.add_parser(
         "netem-relay",

@@ -99,6 +99,33 @@ def silence_note(ep: Endpoint, listener: str) -> str | None:
     return f"SILENT: {listener} hears nothing for {monotonic() - since:.1f} s"
 
 
+def reconnect_note(ep: Endpoint, start: float) -> str | None:
+    """The live display's line about reconnecting: under way, or how often it happened."""
+    record = ep.reconnects
+    if record.reopening:
+        return "RECONNECTING: the session ended; opening a new one"
+    if not record.count:
+        return None
+    causes = ", ".join(f"{cause} {n}" for cause, n in sorted(record.causes.items()))
+    last = record.last_at - start if record.last_at is not None else 0.0
+    return f"reconnected {record.count} time(s) ({causes}), last at t={last:.1f} s"
+
+
+def reconnect_report(ep: Endpoint, start: float) -> dict[str, Any]:
+    """The summary's ``reconnects`` entry."""
+    record = ep.reconnects
+    return {
+        "count": record.count,
+        "causes": dict(record.causes),
+        "failed_attempts": record.failed_attempts,
+        "last_at_s": None if record.last_at is None else round(record.last_at - start, 3),
+        "samples_received_before_last": record.samples_received_before,
+        "samples_received_since_last": ep.stats.samples_delivered if record.count else None,
+        "samples_dropped_while_reconnecting": record.samples_dropped,
+        "reconnecting_at_the_end": record.reopening,
+    }
+
+
 def watchdog_logger(
     display: LiveDisplay | None, start: float, listener: str, peer: str
 ) -> WatchdogCallback | None:

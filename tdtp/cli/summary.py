@@ -213,6 +213,14 @@ def summary_text(summary: dict[str, Any]) -> str:
         for key, label in (("master_to_slave", "M->S"), ("slave_to_master", "S->M"))
         if key in summary
     ]
+    reconnects = summary.get("reconnects")
+    if reconnects and reconnects["count"]:
+        causes = ", ".join(f"{c} {n}" for c, n in sorted(reconnects["causes"].items()))
+        lines.append(
+            f"reconnected {reconnects['count']} time(s) ({causes}), last at "
+            f"t={reconnects['last_at_s']:.1f} s; samples received {summary['samples_received']}, "
+            f"{reconnects['samples_received_since_last']} since the last reconnect"
+        )
     if "peer_silences" in summary:
         close = summary.get("close")
         ended = "open at the end" if close is None else f"closed ({close['cause']})"

@@ -3,6 +3,9 @@
 * ``key_id = HKDF(ikm=psk, salt="", info="tdtp2 key id")[:8]``: public, names the key in an OPEN.
 * OPEN key and IV: ``HKDF(ikm=psk, salt=master_nonce, info="tdtp2 open <suite>")``. Fresh for every
   connection attempt because the master's nonce is; it only authenticates the master's OPENs.
+* Reset key: ``HKDF(ikm=psk, salt="", info="tdtp3 reset")`` (32 bytes): a slave that lost its sessions
+  (it restarted) still holds it, so its RESET can prove it holds the master's key (HMAC-SHA256 over
+  the echoed bytes, truncated to 16).
 * Session keys: ``HKDF(ikm=psk, salt=master_nonce | slave_nonce, info="tdtp2 session <suite>")`` split
   into master-to-slave key and IV, then slave-to-master key and IV. Both nonces are fresh random
   128-bit values, so every session has its own keys: a session captured yesterday cannot be replayed
@@ -13,6 +16,8 @@ The secret is a random pre-shared key, not a password, so no stretching is neede
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 from typing import Final, NamedTuple
 
 from cryptography.hazmat.primitives import hashes
@@ -45,6 +50,18 @@ def _hkdf(ikm: bytes, salt: bytes, info: bytes, length: int) -> bytes:
 
 def derive_key_id(psk: bytes) -> bytes:
     return _hkdf(psk, b"", b"tdtp2 key id", KEY_ID_SIZE)
+
+
+RESET_KEY_SIZE: Final = 32
+
+
+def derive_reset_key(psk: bytes) -> bytes:
+    return _hkdf(psk, b"", b"tdtp3 reset", RESET_KEY_SIZE)
+
+
+def reset_tag(reset_key: bytes, echo: bytes) -> bytes:
+    """The 16-byte tag a keyed RESET carries for the key whose reset key is ``reset_key``."""
+    return hmac.new(reset_key, echo, hashlib.sha256).digest()[:16]
 
 
 def derive_open_secret(psk: bytes, master_nonce: bytes, suite: CipherSuite) -> TrafficSecret:

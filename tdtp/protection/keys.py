@@ -13,7 +13,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from typing import Final
 
 from tdtp.errors import InvalidKeyError
-from tdtp.protection.derivation import derive_key_id
+from tdtp.protection.derivation import derive_key_id, derive_reset_key
 
 KEY_SIZE: Final = 32
 """Bytes of a generated key (256 bits)."""
@@ -29,7 +29,7 @@ class PresharedKey:
     with HKDF) is what travels on the wire.
     """
 
-    __slots__ = ("_secret", "key_id", "name")
+    __slots__ = ("_secret", "key_id", "name", "reset_key")
 
     def __init__(self, secret: bytes, name: str = "") -> None:
         if not isinstance(secret, bytes | bytearray | memoryview):
@@ -46,6 +46,8 @@ class PresharedKey:
         self.name = name
         self.key_id = derive_key_id(secret)
         """The public identifier an OPEN carries (8 bytes)."""
+        self.reset_key = derive_reset_key(secret)
+        """The key a slave's RESET tag proves it holds (HKDF of the secret; never on the wire)."""
 
     @classmethod
     def generate(cls, name: str = "") -> PresharedKey:

@@ -64,6 +64,7 @@ from tdtp.session.liveness import Liveness
 from tdtp.session.outbox import Outbox
 from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
+from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
@@ -72,6 +73,7 @@ from tdtp.wire.control import (
     OPEN_BODY_SIZE,
     CloseBody,
     CloseReason,
+    ControlCode,
     OpenFlags,
     decode_control,
 )
@@ -84,6 +86,7 @@ from tdtp.wire.seqnum import SEQ_MODULUS
 _DATA: Final = int(PacketType.DATA)
 _ACK: Final = int(PacketType.ACK)
 _CONTROL: Final = int(PacketType.CONTROL)
+_RESET: Final = int(ControlCode.RESET)
 _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 """The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
 ``max_payload`` is."""
@@ -313,7 +316,10 @@ class Connection:
         self._peer = addr
         self._state = State.OPENING
         self._hint.value = -math.inf
-        self._handshake.start(now)
+        handshake = self._handshake
+        key = handshake.key
+        self._outbox.reset_guard = ResetGuard(key.reset_key if key is not None else None)
+        handshake.start(now)
         self._liveness.last_receive = now
 
     def send(self, payload: bytes | bytearray | memoryview, *, now: float) -> None:
@@ -428,11 +434,21 @@ class Connection:
             stats.count_drop(DropReason.OVERSIZED)
             return
         ptype = data[0] >> 6
-        if ptype == _CONTROL and size > HEADER_SIZE and data[HEADER_SIZE] in HANDSHAKE_CODES:
-            self._on_handshake(data, addr, now)
-            return
+        if ptype == _CONTROL and size > HEADER_SIZE:
+            code = data[HEADER_SIZE]
+            if code in HANDSHAKE_CODES:
+                self._on_handshake(data, addr, now)
+                return
+            if code == _RESET:
+                self._on_reset(data, now)
+                return
         if ptype > _CONTROL:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
+            return
+        if peer is None:
+            # A listening slave answers with a RESET (its master's session died with a restart).
+            self._handshake.on_stranger(data, addr, now)
+            self._hint.value = -math.inf
             return
         handshake = self._handshake
         if handshake.keyed:
@@ -467,6 +483,39 @@ class Connection:
             self._on_ack_packet(size, ack, sack, hold, now)
         else:
             self._on_session_control(data, size, ack, sack, hold, now)
+
+    def _on_reset(self, data: bytes, now: float) -> None:
+        """A RESET: the slave holds no session for us (PROTOCOL.md 5.7). Taken only by an
+        established master, if it echoes a recent datagram of ours (keyed: and proves the key)."""
+        guard = self._outbox.reset_guard
+        if self._state is not State.ESTABLISHED or guard is None:
+            self._stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            return
+        refused = guard.judge(data)
+        if refused is not None:
+            self._stats.count_drop(refused)
+            return
+        self._stats.received.control_packets += 1
+        peer = self._peer_address()
+        self._terminate(
+            CloseCause.PEER_RESTARTED,
+            f"the slave at {peer[0]}:{peer[1]} holds no session for us (it restarted); open a "
+            "new connection",
+        )
+
+    def evict(self, *, now: float) -> None:
+        """Slave side: give this session's slot to a new master (the server is full and ours has
+        been silent longest); the master, if it ever hears again, gets a CLOSE."""
+        if self._state is State.CLOSED:
+            return
+        if self._peer is not None:
+            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer)
+        silent = now - self._liveness.last_receive
+        self._terminate(
+            CloseCause.EVICTED,
+            f"the server was full and this master had been silent for {silent:.1f} s, longer "
+            "than any other; its slot went to a new master",
+        )
 
     def _on_unopened(self, opener: PacketOpener, now: float) -> None:
         """A protected datagram that did not authenticate (or was replayed): dropped and counted; a

@@ -32,6 +32,12 @@ class CloseCause(enum.Enum):
     """The same master opened a new connection (it restarted): this older one is over."""
     KEY_EXHAUSTED = "key_exhausted"
     """A keyed session protected as many packets as its keys may (or saw too many forgeries)."""
+    PEER_RESTARTED = "peer_restarted"
+    """The slave answered with a RESET: it holds no session for us (it restarted). Open a new
+    connection (``tdtp.connect(..., reconnect=...)`` does)."""
+    EVICTED = "evicted"
+    """Slave side: the server was full and this session's master had been silent longer than any
+    other, beyond the silence timeout, when a new master arrived; its slot went to the new one."""
 
 
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one

@@ -45,6 +45,7 @@ from tdtp.wire.control import (
     OpenAckBody,
     OpenBody,
     OpenFlags,
+    ResetBody,
     decode_control,
     encode_open,
     encode_open_ack,
@@ -135,6 +136,11 @@ class Handshake:
         self.open_deadline = 0.0
         self.open_next = 0.0
         """A master's next OPEN (re)transmission."""
+        self._max_opens = max(
+            1, math.floor(config.open_timeout / config.open_retry_interval + 1e-9)
+        )
+        """OPENs a master sends in all: one per retry interval of ``open_timeout`` (20). A COOKIE
+        pulls an OPEN forward but never adds one to the budget."""
         self.keys: tuple[PacketSealer, PacketOpener] | None = None
         """A keyed session's packet protection, ours and the peer's, once derived at the open."""
         self.peer_max_payload = 0
@@ -171,8 +177,13 @@ class Handshake:
             )
 
     def open_due(self, now: float) -> bool:
-        """Whether an OPEN should leave at ``now``; if so, the next one is due a retry later."""
+        """Whether an OPEN should leave at ``now``; if so, the next one is due a retry later. At most
+        ``open_timeout / open_retry_interval`` (20) OPENs leave in all, COOKIEs or not (PROTOCOL.md
+        5.1, rule 6 and 5.3); after the last one the master waits for the open timeout."""
         if now < self.open_next:
+            return False
+        if self.open_attempt >= self._max_opens:
+            self.open_next = self.open_deadline
             return False
         self.open_next = now + self._config.open_retry_interval
         return True
@@ -218,7 +229,7 @@ class Handshake:
         except MalformedPacketError:
             stats.count_drop(DropReason.BAD_CONTROL)
             return Reaction.IGNORED
-        if isinstance(body, OpenBody | KeepaliveBody):
+        if isinstance(body, OpenBody | KeepaliveBody | ResetBody):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
         elif body.nonce != self.master_nonce:
             stats.count_drop(DropReason.NONCE_MISMATCH)
@@ -336,6 +347,16 @@ class Handshake:
             # A live session is never replaced, so a replayed OPEN cannot end it.
             return Reaction.REPLACED
         return Reaction.IGNORED
+
+    def on_stranger(self, data: bytes, addr: Address, now: float) -> None:
+        """A session datagram while we hold no session: a listening slave answers it with a RESET
+        within admission's budget (PROTOCOL.md 5.7); a master before connect() drops it."""
+        self._stats.count_drop(DropReason.NOT_ESTABLISHED)
+        admission = self.admission
+        if admission is not None:
+            reset = admission.reset(data, now)
+            if reset is not None:
+                self._outbox.queue(reset, addr, 0, False)
 
     def adopt(self, admitted: AdmittedOpen) -> None:
         """A listening slave takes the master's choices from its admitted OPEN (and, keyed, derives

@@ -14,6 +14,7 @@ from tdtp.config import ConnectionConfig
 from tdtp.protection.packet_protection import PacketSealer
 from tdtp.session.events import Address
 from tdtp.session.liveness import Liveness
+from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.stats import ConnectionStats
 from tdtp.wire.control import ControlCode, encode_close, encode_keepalive
 from tdtp.wire.header import HEADER_SIZE, PacketType, encode_header
@@ -40,6 +41,8 @@ class Outbox:
         self.control: list[tuple[bytes, Address, int, bool]] = []
         """Control datagrams queued for the next flush: datagram, destination, protection bytes,
         and whether it is session traffic (not: admission's COOKIE or REJECT answering an OPEN)."""
+        self.reset_guard: ResetGuard | None = None
+        """A master's memory of its recent datagrams, which a RESET must echo (set at connect)."""
         self._ack_padding = bytes(config.ack_size - HEADER_SIZE)
         self._stats = stats
         self._liveness = liveness
@@ -74,6 +77,9 @@ class Outbox:
         sent.data_packets += 1
         sent.payload_bytes += payload_size
         self._count(len(datagram), now, self.overhead, True)
+        guard = self.reset_guard
+        if guard is not None:
+            guard.record(datagram)
         out.append((datagram, peer))
 
     def emit_ack(
@@ -82,6 +88,9 @@ class Outbox:
         datagram = self.protect(encode_header(_ACK, seq, ack, sack, hold), self._ack_padding)
         self._stats.sent.ack_packets += 1
         self._count(len(datagram), now, self.overhead, True)
+        guard = self.reset_guard
+        if guard is not None:
+            guard.record(datagram)
         out.append((datagram, peer))
 
     def emit_keepalive(
@@ -91,6 +100,9 @@ class Outbox:
             encode_header(_CONTROL, seq, ack, sack, hold) + _KEEPALIVE_PREFIX, b""
         )
         self.emit_control(out, datagram, peer, now, self.overhead, True)
+        guard = self.reset_guard
+        if guard is not None:
+            guard.record(datagram)
 
     def emit_control(
         self,

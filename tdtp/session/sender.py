@@ -153,6 +153,9 @@ class SampleSender:
             transmit(datagram, None if connected else peer)
         except OSError:
             self.transmit_errors += 1
+        guard = outbox.reset_guard
+        if guard is not None:
+            guard.record(datagram)
         # Bookkeeping, after the datagram has left.
         size = len(datagram)
         recovery.on_sent(now, size)

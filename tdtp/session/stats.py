@@ -55,6 +55,9 @@ class DropReason(enum.Enum):
     """Keyed session: the authentication tag did not verify (forged, corrupted, or another key)."""
     REPLAYED = "replayed"
     """Keyed session: a packet number already accepted, or too old to check (replayed)."""
+    UNMATCHED_RESET = "unmatched_reset"
+    """A RESET that echoes none of our recent datagrams, or (keyed) whose tags do not verify:
+    forged, replayed, or too late."""
 
 
 @dataclass(slots=True)

@@ -28,8 +28,9 @@ from typing import Final, NamedTuple
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.protected import TAG_SIZE
 
-PROTOCOL_VERSION: Final = 2
-"""The only version this implementation speaks (version 1 had no cookie and no keyed mode)."""
+PROTOCOL_VERSION: Final = 3
+"""The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
+had no RESET)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -56,6 +57,10 @@ class ControlCode(enum.IntEnum):
     COOKIE = 6
     """slave -> master: echo this cookie in the OPEN to prove you receive at your address. Sent
     statelessly, and never larger than the OPEN it answers."""
+    RESET = 7
+    """slave -> master: "I hold no session for you" (the slave restarted). Sent statelessly in answer
+    to a session datagram from an unknown address, never larger than it: the datagram's first
+    :data:`RESET_ECHO_SIZE` bytes echoed, then (keyed) one tag per key of the slave's ring that fits."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -174,7 +179,20 @@ class KeepaliveBody(NamedTuple):
     code: ControlCode
 
 
-ControlBody = OpenBody | OpenAckBody | CookieBody | CloseBody | KeepaliveBody
+class ResetBody(NamedTuple):
+    """RESET (slave -> master)."""
+
+    echo: bytes
+    """The first :data:`RESET_ECHO_SIZE` bytes of the datagram that found no session."""
+    tags: tuple[bytes, ...]
+    """Keyed: one tag per key the slave holds (as many as fit), empty when unkeyed."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.RESET
+
+
+ControlBody = ResetBody | OpenBody | OpenAckBody | CookieBody | CloseBody | KeepaliveBody
 
 # Layouts, byte offsets from the code byte (the first byte after the base header).
 _OPEN: Final = struct.Struct(
@@ -192,6 +210,13 @@ OPEN_ACK_BODY_SIZE: Final = _OPEN_ACK.size
 """40 bytes: with the header an unkeyed OPEN_ACK is 45 bytes, a keyed one 61."""
 COOKIE_BODY_SIZE: Final = _COOKIE.size
 """34 bytes: a COOKIE datagram is 39 bytes, smaller than the smallest OPEN (53)."""
+RESET_ECHO_SIZE: Final = 16
+"""Bytes of the triggering datagram a RESET echoes: header, packet number (keyed) and the first
+bytes after it, which an off-path attacker never sees."""
+RESET_TAG_SIZE: Final = 16
+"""Bytes of one keyed RESET tag: HMAC-SHA256 under a key's reset key, truncated."""
+RESET_SIZE: Final = 5 + 1 + RESET_ECHO_SIZE
+"""22 bytes: an unkeyed RESET (header, code, echo); a keyed one adds 16 per tag."""
 CLOSE_BODY_SIZE: Final = _CLOSE.size
 """18 bytes: an unkeyed CLOSE or any REJECT is 23 bytes."""
 KEEPALIVE_BODY_SIZE: Final = 1
@@ -236,6 +261,27 @@ def encode_cookie(nonce: bytes, cookie: bytes) -> bytes:
 def encode_close(code: ControlCode, nonce: bytes, reason: int) -> bytes:
     """A CLOSE or REJECT body (code byte included)."""
     return _CLOSE.pack(code, nonce, reason)
+
+
+def encode_reset(echo: bytes, tags: tuple[bytes, ...] = ()) -> bytes:
+    """A RESET body (code byte included): the echo, then the tags (keyed)."""
+    if len(echo) != RESET_ECHO_SIZE or any(len(tag) != RESET_TAG_SIZE for tag in tags):
+        raise ValueError("a RESET echoes 16 bytes and carries 16-byte tags")
+    return bytes((ControlCode.RESET,)) + echo + b"".join(tags)
+
+
+def decode_reset(body: bytes | memoryview) -> ResetBody:
+    """A RESET body (code byte included); raises :class:`MalformedPacketError` unless it is the
+    code, a 16-byte echo and whole 16-byte tags."""
+    size = len(body)
+    if size < 1 + RESET_ECHO_SIZE or body[0] != ControlCode.RESET:
+        raise MalformedPacketError("bad_control", f"RESET body of {size} bytes is too short")
+    rest = size - 1 - RESET_ECHO_SIZE
+    if rest % RESET_TAG_SIZE:
+        raise MalformedPacketError("bad_control", f"RESET tags of {rest} bytes are not whole")
+    start = 1 + RESET_ECHO_SIZE
+    tags = tuple(bytes(body[i : i + RESET_TAG_SIZE]) for i in range(start, size, RESET_TAG_SIZE))
+    return ResetBody(bytes(body[1:start]), tags)
 
 
 def encode_keepalive() -> bytes:
@@ -284,6 +330,8 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, version, nonce, cookie = _COOKIE.unpack(body)
         return CookieBody(version, nonce, cookie)
+    if code is ControlCode.RESET:
+        return decode_reset(body)
     if code in (ControlCode.CLOSE, ControlCode.REJECT):
         if len(body) != CLOSE_BODY_SIZE:
             raise MalformedPacketError(

@@ -15,6 +15,7 @@ from construct import (
     BitStruct,
     Bytes,
     Const,
+    GreedyRange,
     If,
     Int8ub,
     Int16ub,
@@ -28,6 +29,8 @@ from tdtp.wire.control import (
     COOKIE_SIZE,
     KEY_ID_SIZE,
     NONCE_SIZE,
+    RESET_ECHO_SIZE,
+    RESET_TAG_SIZE,
     ControlCode,
     OpenFlags,
 )
@@ -71,6 +74,11 @@ CookieBody: Any = Struct(
     "version" / Int8ub, "nonce" / Bytes(NONCE_SIZE), "cookie" / Bytes(COOKIE_SIZE)
 )
 CloseBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "reason" / Int8ub)
+ResetBody: Any = Struct(
+    "echo" / Bytes(RESET_ECHO_SIZE),
+    "tags" / GreedyRange(Bytes(RESET_TAG_SIZE)),
+)
+"""RESET: the first 16 bytes of the datagram that found no session, then (keyed) 16-byte tags."""
 
 ControlBody: Any = Struct(
     "code" / Int8ub,
@@ -84,6 +92,7 @@ ControlBody: Any = Struct(
             int(ControlCode.CLOSE): CloseBody,
             int(ControlCode.REJECT): CloseBody,
             int(ControlCode.KEEPALIVE): Const(b""),
+            int(ControlCode.RESET): ResetBody,
         },
     ),
 )
@@ -127,4 +136,5 @@ __all__ = [
     "OpenBody",
     "ProtectedControl",
     "ProtectedData",
+    "ResetBody",
 ]

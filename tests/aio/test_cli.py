@@ -93,7 +93,7 @@ def _wait_until_listening(port: int, patience: float = 20.0) -> None:
     from tdtp.wire import OpenBody, encode_header, encode_open
 
     probe_open = encode_header(2, 0, 0, 0, 255) + encode_open(
-        OpenBody(2, 0, 0, 1200, 0, bytes(16), bytes(8), bytes(16))
+        OpenBody(3, 0, 0, 1200, 0, bytes(16), bytes(8), bytes(16))
     )
     deadline = time.monotonic() + patience
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:

@@ -249,6 +249,7 @@ async def test_a_master_that_loses_its_slave_reports_the_true_cause() -> None:
                 f"127.0.0.1:{relay.address[1]}",
                 "--idle-timeout",
                 "3",
+                "--no-reconnect",  # (reconnecting, it would open a new session instead)
                 stdout=asyncio.subprocess.PIPE,
                 stderr=asyncio.subprocess.PIPE,
                 env={**os.environ, "PYTHONUNBUFFERED": "1"},

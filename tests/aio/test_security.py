@@ -26,7 +26,7 @@ KEY = PresharedKey.generate("station-1")
 def _open(nonce: bytes | None = None, keyed: bool = False) -> bytes:
     flags = int(OpenFlags.KEYED | OpenFlags.ENCRYPTED) if keyed else 0
     datagram = encode_header(2, 7, 0, 0, 255) + encode_open(
-        OpenBody(2, flags, 1 if keyed else 0, 1200, 0, nonce or os.urandom(16), bytes(8), bytes(16))
+        OpenBody(3, flags, 1 if keyed else 0, 1200, 0, nonce or os.urandom(16), bytes(8), bytes(16))
     )
     return datagram + (os.urandom(16) if keyed else b"")
 

@@ -16,7 +16,7 @@ NONCE = bytes(range(16))
 
 def _open(max_payload: int = 1200, nonce: bytes = NONCE) -> bytes:
     return encode_header(PacketType.CONTROL, 7, 0, 0, 255) + encode_open(
-        OpenBody(2, 0, 0, max_payload, 0, nonce, bytes(8), bytes(16))
+        OpenBody(3, 0, 0, max_payload, 0, nonce, bytes(8), bytes(16))
     )
 
 

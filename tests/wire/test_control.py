@@ -40,7 +40,10 @@ from tdtp.wire.control import (
     KEEPALIVE_BODY_SIZE,
     OPEN_ACK_BODY_SIZE,
     OPEN_BODY_SIZE,
+    RESET_ECHO_SIZE,
     ControlBody,
+    ResetBody,
+    encode_reset,
     open_version,
 )
 
@@ -58,6 +61,7 @@ UNKEYED_SIZES = {
     ControlCode.KEEPALIVE: KEEPALIVE_BODY_SIZE,
     ControlCode.CLOSE: CLOSE_BODY_SIZE,
     ControlCode.REJECT: CLOSE_BODY_SIZE,
+    ControlCode.RESET: 1 + RESET_ECHO_SIZE,
 }
 
 # Whole CONTROL datagrams, derived by hand field by field (docs/PROTOCOL.md section 7 shows the same).
@@ -65,46 +69,46 @@ UNKEYED_SIZES = {
 # one after the other, nonces and cookies as raw bytes.
 GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
     # OPEN, first attempt, no cookie yet: SEQ 0x5A5 (the master's initial data sequence number), no ACK
-    # -> 96 94 00 00 ff; code 01, version 02, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
+    # -> 96 94 00 00 ff; code 01, version 03, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
     # 00 00, nonce, key id 0 (unkeyed), cookie 0 (none).
     (
-        "96 94 00 00 ff" + "01 02 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
+        "96 94 00 00 ff" + "01 03 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(2, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
+        OpenBody(3, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
         b"",
     ),
-    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 02, the master's nonce, the cookie.
+    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 03, the master's nonce, the cookie.
     (
-        "80 00 00 00 ff" + "06 02" + NONCE.hex() + COOKIE.hex(),
+        "80 00 00 00 ff" + "06 03" + NONCE.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0, 0, 0, 255),
-        CookieBody(2, NONCE, COOKIE),
+        CookieBody(3, NONCE, COOKIE),
         b"",
     ),
     # OPEN, second attempt, echoing the cookie: attempt 00 01.
     (
-        "96 94 00 00 ff" + "01 02 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
+        "96 94 00 00 ff" + "01 03 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(2, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
+        OpenBody(3, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
         b"",
     ),
     # A keyed OPEN: flags 06 (KEYED | ENCRYPTED), suite 01 (AES-128-GCM), the key id, then the tag.
     (
         "96 94 00 00 ff"
-        + "01 02 06 01 04b0 0001"
+        + "01 03 06 01 04b0 0001"
         + NONCE.hex()
         + KEY_ID.hex()
         + COOKIE.hex()
         + TAG.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(2, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
+        OpenBody(3, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
         TAG,
     ),
-    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 02, flags 01 (SEPARATE_ACKS), suite
+    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 03, flags 01 (SEPARATE_ACKS), suite
     # 00, max_payload 100 = 00 64, packet number 00 00, both nonces.
     (
-        "83 0c 00 00 ff" + "02 02 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
+        "83 0c 00 00 ff" + "02 03 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
         Header(PacketType.CONTROL, 0x0C3, 0, 0, 255),
-        OpenAckBody(2, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
+        OpenAckBody(3, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
         b"",
     ),
     # KEEPALIVE carrying an acknowledgement: SEQ 0xABD, ACK 0x124, SACK 000001, HOLD 0 ->
@@ -120,6 +124,14 @@ GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
         "aa f4 00 00 ff 04" + NONCE.hex() + "00",
         Header(PacketType.CONTROL, 0xABD, 0, 0, 255),
         CloseBody(ControlCode.CLOSE, NONCE, CloseReason.NORMAL),
+        b"",
+    ),
+    # RESET (unkeyed): SEQ 0 -> 80 00 00 00 ff; code 07, the first 16 bytes of the DATA packet of
+    # PROTOCOL.md 7.1 with an 11-byte payload 00 01 .. 0a.
+    (
+        "80 00 00 00 ff 07" + "2af048ea1f" + bytes(range(11)).hex(),
+        Header(PacketType.CONTROL, 0, 0, 0, 255),
+        ResetBody(bytes.fromhex("2af048ea1f") + bytes(range(11)), ()),
         b"",
     ),
     # REJECT: SEQ 0 -> 80 00 00 00 ff; code 05, nonce, reason 05 (BUSY).
@@ -141,11 +153,13 @@ def encode_body(body: ControlBody) -> bytes:
         return encode_cookie(body.nonce, body.cookie)
     if isinstance(body, CloseBody):
         return encode_close(*body)
+    if isinstance(body, ResetBody):
+        return encode_reset(body.echo, body.tags)
     return encode_keepalive()
 
 
 def test_codes_and_constants_are_pinned() -> None:
-    assert PROTOCOL_VERSION == 2
+    assert PROTOCOL_VERSION == 3
     assert {c.name: int(c) for c in ControlCode} == {
         "OPEN": 1,
         "OPEN_ACK": 2,
@@ -153,6 +167,7 @@ def test_codes_and_constants_are_pinned() -> None:
         "CLOSE": 4,
         "REJECT": 5,
         "COOKIE": 6,
+        "RESET": 7,
     }
     assert {r.name: int(r) for r in CloseReason} == {
         "NORMAL": 0,
@@ -279,7 +294,7 @@ def test_empty_body_is_rejected() -> None:
     assert_bad_control(b"")
 
 
-@pytest.mark.parametrize("code", [0, *range(7, 256)])
+@pytest.mark.parametrize("code", [0, *range(8, 256)])
 def test_unknown_code_is_rejected(code: int) -> None:
     assert_bad_control(bytes([code]))
     assert_bad_control(bytes([code]) + bytes(12))
@@ -291,7 +306,8 @@ def test_every_wrong_size_is_rejected(code: ControlCode) -> None:
     for size in range(1, 90):
         # Flag byte 0xA9 (where a body has flags): KEYED clear, so no tag is expected.
         body = bytes([code]) + b"\xa9" * (size - 1)
-        if size == good:
+        tags = size - good  # a RESET carries whole 16-byte tags after its echo (keyed)
+        if size == good or (code is ControlCode.RESET and tags > 0 and tags % 16 == 0):
             assert decode_control(body).code == code
         else:
             assert_bad_control(body)
@@ -307,6 +323,9 @@ def test_arbitrary_bytes_decode_or_raise_bad_control(body: bytes) -> None:
     tag = b""
     if isinstance(decoded, OpenBody | OpenAckBody) and decoded.flags & OpenFlags.KEYED:
         tag = body[-TAG_SIZE:]
+    if isinstance(decoded, ResetBody):
+        assert encode_body(decoded) == body
+        return
     assert len(body) == UNKEYED_SIZES[decoded.code] + len(tag)
     assert encode_body(decoded) + tag == body
 

@@ -23,6 +23,7 @@ from tdtp.wire import (
     OpenAckBody,
     OpenBody,
     OpenFlags,
+    ResetBody,
     decode_control,
     decode_header,
     encode_close,
@@ -31,6 +32,7 @@ from tdtp.wire import (
     encode_keepalive,
     encode_open,
     encode_open_ack,
+    encode_reset,
     schema,
 )
 from tdtp.wire.control import CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, OPEN_BODY_SIZE
@@ -168,6 +170,16 @@ def test_close_body_agreement(code: ControlCode, nonce: bytes, reason: int) -> N
     assert parsed.code == code
     assert {name: parsed.body[name] for name in fields} == fields
     assert decode_control(fast) == CloseBody(code, nonce, reason)
+
+
+@given(b16, st.lists(b16, max_size=4))
+def test_reset_body_agreement(echo: bytes, tags: list[bytes]) -> None:
+    fast = encode_reset(echo, tuple(tags))
+    assert len(fast) == 17 + 16 * len(tags)
+    assert schema_control_bytes(ControlCode.RESET, {"echo": echo, "tags": tags}) == fast
+    parsed = schema.ControlBody.parse(fast)
+    assert parsed.body.echo == echo and list(parsed.body.tags) == tags
+    assert decode_control(fast) == ResetBody(echo, tuple(tags))
 
 
 def test_keepalive_body_agreement() -> None:

@@ -9,6 +9,7 @@ from tdtp.protection.derivation import derive_session_secrets
 from tdtp.protection.keys import PresharedKey
 from tdtp.protection.packet_protection import Direction, PacketSealer
 from tdtp.wire import (
+    PROTOCOL_VERSION,
     CipherSuite,
     CloseReason,
     ControlCode,
@@ -20,6 +21,7 @@ from tdtp.wire import (
     encode_keepalive,
     encode_open,
     encode_open_ack,
+    encode_reset,
 )
 
 from tdtp_adapter import COOKIE_PLACEHOLDER  # tests/vectors: generate.py puts it on the path
@@ -42,7 +44,7 @@ def _open(
     *,
     cookie: bool = False,
     max_payload: int = 1200,
-    version: int = 2,
+    version: int = PROTOCOL_VERSION,
     flags: int = 0,
     suite: int = 0,
     key_id: bytes = bytes(8),
@@ -59,7 +61,7 @@ def _open(
 
 def _open_ack(max_payload: int = 1200, *, seq: int = SLAVE_ISN) -> str:
     """An unkeyed OPEN_ACK from the slave (hex) answering the master's OPEN."""
-    body = OpenAckBody(2, 0, 0, max_payload, 0, MASTER_NONCE, SLAVE_NONCE)
+    body = OpenAckBody(PROTOCOL_VERSION, 0, 0, max_payload, 0, MASTER_NONCE, SLAVE_NONCE)
     return _hex(encode_header(2, seq, 0, 0, 255) + encode_open_ack(body))
 
 
@@ -174,7 +176,20 @@ def slave_session() -> dict[str, Any]:
 def slave_before_the_open() -> dict[str, Any]:
     s = MASTER_ISN
     steps = [
-        _step(0.0, "master", _data(s, b"too early")),
+        _step(
+            0.0,
+            "master",
+            _data(s, b"too early"),
+            note="14 bytes: smaller than a RESET (22), so no answer",
+        ),
+        _step(
+            0.0005,
+            "master",
+            _data(s, bytes(range(40))),
+            note="a session datagram with no session: answered with a RESET echoing its first 16 "
+            "bytes (section 5.7)",
+            exact=True,
+        ),
         _step(0.001, "master", _hex(encode_header(1, s, 0, 0, 255))),
         _step(0.002, "master", _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive())),
         _step(
@@ -280,7 +295,9 @@ def keyed_master_session() -> dict[str, Any]:
 
     def open_ack(number: int, flags: int = 6, forge: bool = False) -> str:
         datagram = encode_header(2, SLAVE_ISN, 0, 0, 255) + encode_open_ack(
-            OpenAckBody(2, flags, int(suite), 1200, number, MASTER_NONCE, SLAVE_NONCE)
+            OpenAckBody(
+                PROTOCOL_VERSION, flags, int(suite), 1200, number, MASTER_NONCE, SLAVE_NONCE
+            )
         )
         if flags & 2:
             tag = to_master.tag(number, datagram)
@@ -430,6 +447,12 @@ def master_session() -> dict[str, Any]:
             note="a stand-alone ACK of a packet before the first: optimistic",
         ),
         _step(0.007, "slave", _hex(encode_header(1, SLAVE_ISN + 1, 0, 0, 255))),
+        _step(
+            0.0075,
+            "slave",
+            _hex(encode_header(2, 0, 0, 0, 255) + encode_reset(bytes(range(16)))),
+            note="a RESET that echoes nothing the master sent: unmatched_reset, the session goes on",
+        ),
         _action(0.008, "close", exact=True),
         _step(0.009, "slave", _data(SLAVE_ISN + 1, b"two")),
     ]

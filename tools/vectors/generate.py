@@ -1,6 +1,6 @@
 """Generate the TDTP version 2 conformance vectors in tests/vectors/ (see tests/vectors/README.md).
 
-    python tools/vectors/generate.py            # rewrite tests/vectors/tdtp-v2-*.json
+    python tools/vectors/generate.py            # rewrite tests/vectors/tdtp-v3-*.json
     python tools/vectors/generate.py --check    # exit 1 if the committed files differ
 
 The expected values come from tdtp, the reference implementation, except where the specification
@@ -22,10 +22,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from tdtp.protection.derivation import (  # noqa: E402
+from tdtp.protection.derivation import (  # noqa: E402  # noqa: E402
     derive_key_id,
     derive_open_secret,
+    derive_reset_key,
     derive_session_secrets,
+    reset_tag,
 )
 from tdtp.protection.keys import PresharedKey  # noqa: E402
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
@@ -33,6 +35,7 @@ from tdtp.session.receive_window import ReceiveWindow  # noqa: E402
 from tdtp.session.rtt import RttEstimator  # noqa: E402
 from tdtp.session.sent_log import LostPacket, SentPacketLog  # noqa: E402
 from tdtp.session.stats import DropReason  # noqa: E402
+from tdtp.wire import PROTOCOL_VERSION as WIRE_VERSION  # noqa: E402
 from tdtp.wire import (  # noqa: E402
     CipherSuite,
     CloseReason,
@@ -49,6 +52,7 @@ from tdtp.wire import (  # noqa: E402
     encode_keepalive,
     encode_open,
     encode_open_ack,
+    encode_reset,
     expand_seq,
 )
 from tdtp.wire.errors import MalformedPacketError  # noqa: E402
@@ -68,7 +72,7 @@ from tdtp_adapter import ADDRESSES, ScriptRunner  # noqa: E402  (tests/vectors/)
 
 FORMAT = "tdtp-conformance-vectors"
 FORMAT_VERSION = 1
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = WIRE_VERSION
 OUT = ROOT / "tests" / "vectors"
 
 
@@ -303,7 +307,10 @@ def seqnum_vectors() -> dict[str, Any]:
 def _control_fields(body: object) -> dict[str, Any]:
     fields: dict[str, Any] = {}
     for name, value in body._asdict().items():  # type: ignore[attr-defined]
-        fields[name] = value.hex() if isinstance(value, bytes) else int(value)
+        if isinstance(value, tuple):  # a RESET's tags
+            fields[name] = [tag.hex() for tag in value]
+        else:
+            fields[name] = value.hex() if isinstance(value, bytes) else int(value)
     return fields
 
 
@@ -312,34 +319,50 @@ def control_vectors() -> dict[str, Any]:
     bodies: list[tuple[str, bytes]] = [
         (
             "OPEN, first attempt (7.2)",
-            encode_open(OpenBody(2, 0, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16))),
+            encode_open(OpenBody(WIRE_VERSION, 0, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16))),
         ),
         (
             "OPEN with the cookie, separate ACKs",
-            encode_open(OpenBody(2, 1, 0, 100, 1, MASTER_NONCE, bytes(8), COOKIE_BYTES)),
+            encode_open(OpenBody(WIRE_VERSION, 1, 0, 100, 1, MASTER_NONCE, bytes(8), COOKIE_BYTES)),
         ),
         (
             "keyed OPEN (flags KEYED | ENCRYPTED, suite 1): the tag is 16 more bytes",
             encode_open(
                 OpenBody(
-                    2, 6, 1, 1200, 1, MASTER_NONCE, bytes.fromhex("eb494c5fa44b9c55"), bytes(16)
+                    WIRE_VERSION,
+                    6,
+                    1,
+                    1200,
+                    1,
+                    MASTER_NONCE,
+                    bytes.fromhex("eb494c5fa44b9c55"),
+                    bytes(16),
                 )
             )
             + bytes(range(16)),
         ),
         (
             "OPEN_ACK (7.2)",
-            encode_open_ack(OpenAckBody(2, 1, 0, 100, 0, MASTER_NONCE, SLAVE_NONCE)),
+            encode_open_ack(OpenAckBody(WIRE_VERSION, 1, 0, 100, 0, MASTER_NONCE, SLAVE_NONCE)),
         ),
         (
             "keyed OPEN_ACK, packet number 0",
-            encode_open_ack(OpenAckBody(2, 2, 2, 1200, 0, MASTER_NONCE, SLAVE_NONCE)) + bytes(16),
+            encode_open_ack(OpenAckBody(WIRE_VERSION, 2, 2, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
+            + bytes(16),
         ),
         ("COOKIE (7.2)", encode_cookie(MASTER_NONCE, COOKIE_BYTES)),
         ("KEEPALIVE", encode_keepalive()),
         ("CLOSE NORMAL", encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
         ("CLOSE with an unknown reason 200", encode_close(ControlCode.CLOSE, MASTER_NONCE, 200)),
         ("REJECT BUSY", encode_close(ControlCode.REJECT, MASTER_NONCE, CloseReason.BUSY)),
+        (
+            "RESET, unkeyed: the first 16 bytes of the DATA it answers (7.6)",
+            encode_reset(bytes.fromhex("2af048ea1f") + bytes(range(11))),
+        ),
+        (
+            "RESET, keyed: the echo and two tags (a slave holding two keys)",
+            encode_reset(bytes(range(16)), (bytes(range(16, 32)), bytes(range(32, 48)))),
+        ),
     ]
     valid = []
     for name, body in bodies:
@@ -353,11 +376,15 @@ def control_vectors() -> dict[str, Any]:
                 "fields": {k: v for k, v in _control_fields(decoded).items() if k != "code"},
             }
         )
-    open_body = encode_open(OpenBody(2, 0, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16)))
+    open_body = encode_open(
+        OpenBody(WIRE_VERSION, 0, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16))
+    )
     broken: list[tuple[str, bytes]] = [
         ("no code byte", b""),
         ("code 0", b"\x00"),
-        ("code 7", b"\x07" + bytes(17)),
+        ("code 10", b"\x0a" + bytes(17)),
+        ("RESET one byte short of its echo", b"\x07" + bytes(15)),
+        ("RESET with a partial tag", b"\x07" + bytes(16 + 15)),
         ("code 255", b"\xff"),
         ("OPEN one byte short", open_body[:-1]),
         ("OPEN one byte long", open_body + b"\x00"),
@@ -365,7 +392,9 @@ def control_vectors() -> dict[str, Any]:
         ("OPEN too short to hold its flags", b"\x01\x02"),
         (
             "OPEN_ACK without its last byte",
-            encode_open_ack(OpenAckBody(2, 0, 0, 100, 0, MASTER_NONCE, SLAVE_NONCE))[:-1],
+            encode_open_ack(OpenAckBody(WIRE_VERSION, 0, 0, 100, 0, MASTER_NONCE, SLAVE_NONCE))[
+                :-1
+            ],
         ),
         ("COOKIE one byte long", encode_cookie(MASTER_NONCE, bytes(16)) + b"\x00"),
         ("KEEPALIVE with a body", b"\x03\x00"),
@@ -674,6 +703,19 @@ def sender_vectors() -> dict[str, Any]:
 # ---------------------------------------------------------------------------- keyed
 
 
+def _reset_tags() -> list[dict[str, Any]]:
+    """Keyed RESET tags (section 5.7): HMAC-SHA256(reset_key, echo)[:16]."""
+    cases = []
+    for psk in (PSK, bytes(range(100, 116))):
+        echo = bytes.fromhex("2af048ea1f0001") + bytes(range(9))
+        tag = reset_tag(derive_reset_key(psk), echo)
+        datagram = encode_header(2, 0, 0, 0, 255) + encode_reset(echo, (tag,))
+        cases.append(
+            {"psk": psk.hex(), "echo": echo.hex(), "tag": tag.hex(), "datagram": datagram.hex()}
+        )
+    return cases
+
+
 def keyed_vectors() -> dict[str, Any]:
     derivations = []
     for suite in (CipherSuite.AES_128_GCM, CipherSuite.CHACHA20_POLY1305):
@@ -693,6 +735,7 @@ def keyed_vectors() -> dict[str, Any]:
                     "m2s_iv": session.master_to_slave.iv.hex(),
                     "s2m_key": session.slave_to_master.key.hex(),
                     "s2m_iv": session.slave_to_master.iv.hex(),
+                    "reset_key": derive_reset_key(psk).hex(),
                 }
             )
     # The keyed OPEN and OPEN_ACK tags.
@@ -725,7 +768,7 @@ def keyed_vectors() -> dict[str, Any]:
             )
         session = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, suite)
         datagram = encode_header(2, SLAVE_ISN, 0, 0, 255) + encode_open_ack(
-            OpenAckBody(2, 6, int(suite), 1200, 0, MASTER_NONCE, SLAVE_NONCE)
+            OpenAckBody(WIRE_VERSION, 6, int(suite), 1200, 0, MASTER_NONCE, SLAVE_NONCE)
         )
         handshake.append(
             {
@@ -830,7 +873,13 @@ def keyed_vectors() -> dict[str, Any]:
         "tag). 'opening': a receiver's verdicts over a sequence of datagrams (accepted with the "
         "opened body, replayed, or unauthenticated) and the highest packet number accepted after "
         "each.",
-        {"derivations": derivations, "handshake_tags": handshake, "seal": seal, "opening": opening},
+        {
+            "derivations": derivations,
+            "handshake_tags": handshake,
+            "seal": seal,
+            "opening": opening,
+            "reset_tags": _reset_tags(),
+        },
     )
 
 

@@ -1,4 +1,4 @@
--- Wireshark dissector for TDTP, the Teleoperation Data Transport Protocol, version 2
+-- Wireshark dissector for TDTP, the Teleoperation Data Transport Protocol, version 3
 -- (docs/PROTOCOL.md in the tdtp repository).
 --
 -- Load it for one run:   tshark -X lua_script:tools/wireshark/tdtp.lua -r capture.pcap
@@ -7,14 +7,14 @@
 --
 -- What it decodes: the 5-byte base header (TYPE, SEQ, ACK, SACK, HOLD with the hold time in
 -- microseconds, and which peer packets the ACK/SACK fields report received or absent), DATA
--- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT), and
+-- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, RESET), and
 -- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
 -- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
 -- expert info (Analyze > Expert Information; tshark: -z expert).
 --
 -- How it finds TDTP: TDTP has no port of its own (UDP 47000, which tdtp's examples use, belongs to
 -- HCrt in Wireshark). A heuristic claims any UDP datagram that is a well-formed TDTP handshake
--- message (code, exact size, version 2), and then every datagram of that address pair. For a
+-- message (code, exact size, version 3), and then every datagram of that address pair. For a
 -- capture that starts mid-session, list the slave's port in the preference "tdtp.ports"
 -- (tshark -o tdtp.ports:47000), or let heuristics run first (-o udp.try_heuristic_first:TRUE).
 -- Whether a session is keyed is learnt from its OPEN or OPEN_ACK; preference "tdtp.keyed" forces it.
@@ -24,6 +24,7 @@ local tdtp = Proto("tdtp", "Teleoperation Data Transport Protocol")
 local TYPE_NAMES = { [0] = "DATA", [1] = "ACK", [2] = "CONTROL", [3] = "reserved" }
 local CODE_NAMES = {
     [1] = "OPEN", [2] = "OPEN_ACK", [3] = "KEEPALIVE", [4] = "CLOSE", [5] = "REJECT", [6] = "COOKIE",
+    [7] = "RESET",
 }
 local SUITE_NAMES = { [0] = "none", [1] = "AES-128-GCM", [2] = "ChaCha20-Poly1305" }
 local REASON_NAMES = {
@@ -36,7 +37,8 @@ local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknow
 local HEADER = 5
 local PN = 2
 local TAG = 16
-local VERSION = 2
+local VERSION = 3
+local RESET_ECHO = 16
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 6, 24 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
@@ -71,6 +73,8 @@ f.open_ack_pn = ProtoField.uint16("tdtp.open_ack.pn", "Packet number", base.DEC)
 f.slave_nonce = ProtoField.bytes("tdtp.slave_nonce", "Slave nonce")
 f.reason = ProtoField.uint8("tdtp.reason", "Reason", base.DEC, REASON_NAMES)
 f.tag = ProtoField.bytes("tdtp.tag", "Authentication tag")
+f.reset_echo = ProtoField.bytes("tdtp.reset.echo", "Echo (first 16 bytes of the datagram answered)")
+f.reset_tag = ProtoField.bytes("tdtp.reset.tag", "Reset tag (HMAC under a key's reset key)")
 f.pn = ProtoField.uint16("tdtp.pn", "Packet number (low 16 bits)", base.DEC)
 f.sealed = ProtoField.bytes("tdtp.sealed", "Sealed body")
 f.sealed_len = ProtoField.uint16("tdtp.sealed_len", "Sealed body length", base.DEC)
@@ -91,7 +95,7 @@ e.bad_control = ProtoExpert.new("tdtp.bad_control", "Malformed control packet (d
     expert.group.MALFORMED, expert.severity.ERROR)
 e.unknown_code = ProtoExpert.new("tdtp.unknown_code", "Unknown control code (dropped as bad_control)",
     expert.group.MALFORMED, expert.severity.ERROR)
-e.version = ProtoExpert.new("tdtp.unknown_version", "Not protocol version 2",
+e.version = ProtoExpert.new("tdtp.unknown_version", "Not protocol version 3",
     expert.group.PROTOCOL, expert.severity.WARN)
 e.flags = ProtoExpert.new("tdtp.bad_flags", "Inconsistent flags, suite or key id (dropped as bad_control)",
     expert.group.MALFORMED, expert.severity.ERROR)
@@ -339,6 +343,20 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         note_session(pinfo, nil)
         return close_fields(tree, tvb, length, "REJECT")
     end
+    if code == 7 then
+        -- RESET (section 5.7): never protected; an echo, then whole 16-byte tags when keyed.
+        local rest = length - HEADER - 1 - RESET_ECHO
+        if rest < 0 or rest % TAG ~= 0 then
+            tree:add_proto_expert_info(e.bad_control)
+            return "RESET (wrong length)"
+        end
+        tree:add(f.reset_echo, tvb(HEADER + 1, RESET_ECHO))
+        local tags = math.floor(rest / TAG)
+        for i = 0, tags - 1 do
+            tree:add(f.reset_tag, tvb(HEADER + 1 + RESET_ECHO + i * TAG, TAG))
+        end
+        return string.format("RESET tags=%d", tags)
+    end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then
         if length < HEADER + 1 + PN + TAG then
@@ -374,7 +392,7 @@ function tdtp.dissector(tvb, pinfo, tree)
     local handshake = false
     if ptype == 2 and length > HEADER then
         local code = tvb(HEADER, 1):uint()
-        handshake = code == 1 or code == 2 or code == 5 or code == 6
+        handshake = code == 1 or code == 2 or code == 5 or code == 6 or code == 7
     end
     if not handshake then root:add(f.keyed, keyed):set_generated() end
     if ptype == 3 then
