@@ -414,10 +414,15 @@ def run_pair(variant: str, seconds: float, warmup: float, profile: bool = False)
     if both:
         # Each process sends and receives: its CPU per packet handled in the window.
         per_packet = [
-            1e4 * w["cpu_percent"] / (w["rate"] + w["sent_rate"]) for w in windows if w is not None
+            _per_packet(w["cpu_percent"], w["rate"] + w["sent_rate"])
+            for w in windows
+            if w is not None
         ]
     else:
-        per_packet = [1e4 * rx_cpu / windows[0]["rate"], 1e4 * tx_cpu / tx_final["blast"]["rate"]]
+        per_packet = [
+            _per_packet(rx_cpu, windows[0]["rate"]),
+            _per_packet(tx_cpu, tx_final["blast"]["rate"]),
+        ]
     return {
         "variant": variant,
         "build": sorted(builds)[0] if len(builds) == 1 else "mixed",
@@ -432,6 +437,12 @@ def run_pair(variant: str, seconds: float, warmup: float, profile: bool = False)
         "server": rx_final,
         "client": tx_final,
     }
+
+
+def _per_packet(cpu_percent: float, rate: float) -> float:
+    """CPU microseconds per packet; NaN for a window in which nothing moved (a stalled machine: the
+    run then reports NaN for that figure instead of failing)."""
+    return 1e4 * cpu_percent / rate if rate > 0 else math.nan
 
 
 def main(argv: list[str] | None = None) -> int:
