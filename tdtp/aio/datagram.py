@@ -182,8 +182,12 @@ class DatagramLayer:
         self._max_pending = max_pending
         self.pending_dropped = 0
         """Datagrams dropped because the send buffer was full and ``max_pending`` were held."""
+        self.rearmed = 0
+        """Times the socket was registered with the loop again after a kernel error."""
         self._closed = False
         self._writing = False
+        self._on_error = on_error
+        self._rearm_due = False
         family = int(sock.family)
         module = _COMPILED if engine in ("auto", "compiled") else None
         impl: _Engine
@@ -194,7 +198,7 @@ class DatagramLayer:
                 batch,
                 buffer_size,
                 on_receive,
-                on_error=on_error,
+                on_error=self._error,
                 on_blocked=self._blocked,
                 timestamps=timestamps,
                 traffic_class=ecn,
@@ -209,7 +213,7 @@ class DatagramLayer:
                 batch,
                 buffer_size,
                 on_receive,
-                on_error=on_error,
+                on_error=self._error,
                 on_blocked=self._blocked,
                 timestamps=timestamps,
                 traffic_class=ecn,
@@ -264,6 +268,31 @@ class DatagramLayer:
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"<DatagramLayer {self.engine} batch={self.batch} {state}>"
+
+    # ------------------------------------------------------------------ errors
+
+    def _error(self, exc: OSError) -> None:
+        """A kernel error the engine counted: re-register the socket with the loop soon, then tell
+        the application. uvloop (libuv's uv_poll) stops watching a descriptor for good once epoll
+        reports EPOLLERR on it, which an ICMP error on a connected socket does, after one last call
+        of the reader; asyncio's selector loop does not, and re-registering costs it nothing."""
+        if not self._rearm_due and not self._closed:
+            self._rearm_due = True
+            self._loop.call_soon(self._rearm)
+        if self._on_error is not None:
+            self._on_error(exc)
+
+    def _rearm(self) -> None:
+        self._rearm_due = False
+        if self._closed or self._loop.is_closed():
+            return
+        loop, fd = self._loop, self._fd
+        loop.remove_reader(fd)
+        loop.add_reader(fd, self._impl.drain)
+        if self._writing:
+            loop.remove_writer(fd)
+            loop.add_writer(fd, self._writable)
+        self.rearmed += 1
 
     # ------------------------------------------------------------------ flow control
 
