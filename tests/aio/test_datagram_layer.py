@@ -6,6 +6,7 @@ burst tests send everything before the loop gets a turn, so it is all queued whe
 
 from __future__ import annotations
 
+import asyncio
 import math
 import os
 import socket
@@ -312,3 +313,29 @@ def test_the_pure_switch_selects_the_pure_engine() -> None:
         timeout=60,
     )
     assert out.stdout.split() == ["pure", "pure", "[b'hi']"]
+
+
+@pytest.mark.asyncio
+async def test_the_opt_in_switch_runs_connect_and_listen_on_the_layer(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import tdtp
+    from tdtp.aio.datagram_transport import BatchedDatagramTransport
+
+    monkeypatch.setenv("TDTP_DATAGRAM_LAYER", "1")
+    got: list[tdtp.DataReceived] = []
+    async with tdtp.listen("127.0.0.1", 0, on_data=got.append) as server:
+        async with tdtp.connect("127.0.0.1", server.port) as ep:
+            assert isinstance(server._transport, BatchedDatagramTransport)
+            assert isinstance(ep._transport, BatchedDatagramTransport)
+            for i in range(10):
+                ep.send(bytes([i]) * 20)
+                await asyncio.sleep(0.001)
+            await eventually(lambda: len(got) >= 1 and got[-1].payload == bytes([9]) * 20)
+            layer = server._transport._layer
+            assert layer is not None and layer.stats["datagrams_received"] >= len(got)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gone:
+        gone.bind(("127.0.0.1", 0))
+        port = gone.getsockname()[1]
+    with pytest.raises(tdtp.PortUnreachableError):
+        await tdtp.connect("127.0.0.1", port)
