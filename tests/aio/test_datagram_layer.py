@@ -324,16 +324,18 @@ async def test_the_opt_in_switch_runs_connect_and_listen_on_the_layer(
 
     monkeypatch.setenv("TDTP_DATAGRAM_LAYER", "1")
     got: list[tdtp.DataReceived] = []
-    async with tdtp.listen("127.0.0.1", 0, on_data=got.append) as server:
-        async with tdtp.connect("127.0.0.1", server.port) as ep:
-            assert isinstance(server._transport, BatchedDatagramTransport)
-            assert isinstance(ep._transport, BatchedDatagramTransport)
-            for i in range(10):
-                ep.send(bytes([i]) * 20)
-                await asyncio.sleep(0.001)
-            await eventually(lambda: len(got) >= 1 and got[-1].payload == bytes([9]) * 20)
-            layer = server._transport._layer
-            assert layer is not None and layer.stats["datagrams_received"] >= len(got)
+    async with (
+        tdtp.listen("127.0.0.1", 0, on_data=got.append) as server,
+        tdtp.connect("127.0.0.1", server.port) as ep,
+    ):
+        assert isinstance(server._transport, BatchedDatagramTransport)
+        assert isinstance(ep._transport, BatchedDatagramTransport)
+        for i in range(10):
+            ep.send(bytes([i]) * 20)
+            await asyncio.sleep(0.001)
+        await eventually(lambda: len(got) >= 1 and got[-1].payload == bytes([9]) * 20)
+        layer = server._transport._layer
+        assert layer is not None and layer.stats["datagrams_received"] >= len(got)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gone:
         gone.bind(("127.0.0.1", 0))
         port = gone.getsockname()[1]
