@@ -39,6 +39,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
+import importlib
 import os
 import socket
 from collections import deque
@@ -50,6 +52,7 @@ from typing import Final, Literal, Protocol
 
 from tdtp._build import PURE_ENV
 from tdtp.errors import (
+    AddressError,
     ArgumentTypeError,
     DatagramEngineUnavailableError,
     InvalidArgumentError,
@@ -114,7 +117,7 @@ def _load_compiled() -> tuple[ModuleType | None, str]:
     if os.environ.get(PURE_ENV, "") not in ("", "0"):
         return None, f"{PURE_ENV} is set"
     try:
-        from tdtp.aio import _datagram  # noqa: PLC0415 - optional, compiled by setup.py
+        _datagram = importlib.import_module("tdtp.aio._datagram")  # optional: setup.py builds it
     except ImportError:
         return None, "the C extension is not built: no C compiler, or TDTP_PURE_BUILD"
     library = getattr(_datagram, "__file__", None) or ""
@@ -369,11 +372,21 @@ async def _resolve(
     try:
         infos = await loop.getaddrinfo(host, port, family=family, type=socket.SOCK_DGRAM)
     except OSError as exc:
-        from tdtp.aio.api import address_error  # noqa: PLC0415 - one wording for every layer
-
-        raise address_error(exc, action, host, port) from exc
+        raise _address_error(exc, action, host, port) from exc
     af, _, _, _, sockaddr = infos[0]
     return int(af), sockaddr
+
+
+def _address_error(exc: OSError, action: str, host: object, port: int) -> AddressError:
+    """The :class:`~tdtp.AddressError` for resolving, binding or connecting ``host:port``."""
+    where = f"[{host}]:{port}" if ":" in str(host) else f"{host}:{port}"
+    if isinstance(exc, socket.gaierror):
+        return AddressError(f"cannot {action} {where}: host name not resolved ({exc.strerror})")
+    if exc.errno == errno.EADDRINUSE:
+        return AddressError(f"cannot {action} {where}: the port is in use")
+    if exc.errno == errno.EADDRNOTAVAIL:
+        return AddressError(f"cannot {action} {where}: not an address of this host")
+    return AddressError(f"cannot {action} {where}: {exc.strerror or exc}")
 
 
 def _check_addr(name: str, addr: object) -> tuple[str, int] | None:
@@ -475,11 +488,9 @@ async def open_datagram_endpoint(
             if remote_sockaddr is not None:
                 sock.connect(remote_sockaddr)
         except OSError as exc:
-            from tdtp.aio.api import address_error  # noqa: PLC0415
-
             assert where is not None
             action = "bind to" if where is local_sockaddr else "connect to"
-            raise address_error(exc, action, where[0], int(where[1])) from exc
+            raise _address_error(exc, action, where[0], int(where[1])) from exc
         return DatagramLayer(
             sock,
             loop,
