@@ -8,6 +8,10 @@ the same code runs as plain Python. ``tdtp.build_info()`` says which one a proce
 ``pip install .`` (a wheel) and ``pip install -e .`` (extensions built in place, beside the sources)
 both compile; ``make build`` recompiles in place after a source changed. The project metadata lives in
 pyproject.toml; this file only adds the extensions.
+
+Beside the core, one hand-written C extension: ``tdtp.aio._datagram``, the batched datagram engine
+(``recvmmsg``/``sendmmsg``, Linux). It is optional in the same way: where it does not compile, the
+core is still built and ``tdtp.aio.datagram`` runs its pure-Python engine.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from __future__ import annotations
 import os
 import sys
 
-from setuptools import setup
+from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
 COMPILED = [
@@ -53,6 +57,10 @@ COMPILED = [
 ]
 """The compiled core (tdtp/_build.py lists the same modules by name; a test checks they agree)."""
 
+DATAGRAM = "tdtp.aio._datagram"
+"""The batched datagram engine (recvmmsg/sendmmsg), plain C: optional, tdtp.aio.datagram falls back
+to its pure-Python engine where it was not built."""
+
 GROUP = "tdtp._core"
 """One shared library for the whole core, inside the package: tdtp/_core__mypyc.*.so."""
 
@@ -71,6 +79,15 @@ class OptionalBuildExt(build_ext):
             _warn(f"the compiled core could not be built ({exc})")
 
     def build_extension(self, ext: object) -> None:
+        if getattr(ext, "name", None) == DATAGRAM:
+            try:
+                super().build_extension(ext)  # type: ignore[arg-type]
+            except Exception as exc:  # the core still builds; the pure datagram engine runs
+                print(
+                    f"tdtp: could not compile {DATAGRAM} ({exc}); its pure-Python engine runs",
+                    file=sys.stderr,
+                )
+            return
         try:
             super().build_extension(ext)  # type: ignore[arg-type]
         except Exception as exc:
@@ -78,9 +95,20 @@ class OptionalBuildExt(build_ext):
             raise
 
 
+def _datagram_extension() -> list[object]:
+    """The C datagram engine, on Linux only (recvmmsg, sendmmsg, SO_TIMESTAMPNS)."""
+    if not sys.platform.startswith("linux"):
+        return []
+    return [Extension(DATAGRAM, ["tdtp/aio/_datagram.c"], extra_compile_args=["-O2", "-std=gnu11"])]
+
+
 def _extensions() -> list[object]:
     if os.environ.get("TDTP_PURE_BUILD"):
         return []
+    return _datagram_extension() + _core_extensions()
+
+
+def _core_extensions() -> list[object]:
     try:
         from mypyc.build import mypycify  # noqa: PLC0415 - a build-time dependency only
     except ImportError:

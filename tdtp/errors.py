@@ -86,3 +86,13 @@ class PortUnreachableError(ConnectError):
 
 class ServerClosedError(TdtpError, ConnectionError):
     """The listening server is closed; no more masters will be accepted."""
+
+
+class DatagramLayerClosedError(ConnectionStateError):
+    """The datagram layer (:mod:`tdtp.aio.datagram`) was closed; open a new one to send again."""
+
+
+class DatagramEngineUnavailableError(TdtpError, RuntimeError):
+    """The compiled datagram engine was asked for (``engine="compiled"``) but cannot run here: not
+    built (no C compiler, ``TDTP_PURE_BUILD``), switched off (``TDTP_PURE_PYTHON``), or older than its
+    source (``make build``). The message says which."""

@@ -370,3 +370,13 @@ def test_closed_loop_usage_errors() -> None:
         assert done.returncode == 2, done.stderr
         lines = done.stderr.strip().splitlines()
         assert len(lines) == 1 and says in lines[0], done.stderr
+
+
+@needs_uvloop
+def test_datagram_layer() -> None:
+    variants = ["raw-uvloop-both", "c-limit-both"]  # the script, the baseline, the C program
+    report = _run("datagram.py", "--variants", *variants)
+    _assert_rows(report, 2)
+    assert set(report["details"]["runs"]) <= set(variants)
+    if "c-limit-both" in report["details"]["runs"]:  # a C compiler was there
+        assert any("x raw uvloop" in (r["ratio_label"] or "") for r in report["rows"])

@@ -25,6 +25,7 @@ from typing import Any, Generic, Protocol, TypeVar
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
+from tdtp.aio.datagram_transport import datagram_endpoint
 from tdtp.aio.endpoint import (
     DataCallback,
     Endpoint,
@@ -308,7 +309,8 @@ async def _connect(
     # Both loops want (host, port) here and resolve it again themselves; the core compares only
     # host and port, so an IPv6 peer's 4-tuple source address still matches ``remote``.
     try:
-        transport, protocol = await loop.create_datagram_endpoint(
+        transport, protocol = await datagram_endpoint(
+            loop,
             _MasterProtocol,
             remote_addr=(str(remote[0]), int(remote[1])),
             local_addr=local_addr,
@@ -750,7 +752,8 @@ async def _listen(
     family = socket.AF_INET6 if host is not None and ":" in host else socket.AF_UNSPEC
     capture = open_capture(pcap) if pcap is not None else None
     try:
-        transport, protocol = await loop.create_datagram_endpoint(
+        transport, protocol = await datagram_endpoint(
+            loop,
             lambda: _ServerProtocol(server),
             local_addr=(host or "0.0.0.0", port),
             family=family,
