@@ -38,6 +38,8 @@ COMPILED = [
     "tdtp/session/ack_scheduler.py",
     "tdtp/session/sender.py",
     "tdtp/session/timer_hint.py",
+    "tdtp/session/path.py",
+    "tdtp/session/state.py",
     "tdtp/protection/replay_window.py",
     "tdtp/protection/packet_protection.py",
     "tdtp/control/base.py",

@@ -54,6 +54,8 @@ COMPILED_MODULES: Final = (
     "tdtp.session.ack_scheduler",
     "tdtp.session.sender",
     "tdtp.session.timer_hint",
+    "tdtp.session.path",
+    "tdtp.session.state",
     "tdtp.protection.replay_window",
     "tdtp.protection.packet_protection",
     "tdtp.control.base",

@@ -75,11 +75,20 @@ class AdmissionConfig:
     """Source addresses whose OPEN rate is tracked (least recently seen forgotten first)."""
     replies_per_second: float = 20_000.0
     """COOKIE and version-REJECT replies per second to unvalidated sources, all together: bounds the
-    CPU a flood of OPENs from forged addresses costs (each reply is never larger than its OPEN)."""
+    CPU a flood of OPENs from forged addresses costs (each reply is never larger than its OPEN).
+    PATH_CHALLENGEs (path migration) draw from the same budget."""
+    migration_trials_per_second: float = 2_000.0
+    """Keyed path migration: trial authentications per second, all together, of datagrams from
+    unknown addresses against sessions whose master is quiet. Bounds the CPU a flood from unknown
+    addresses costs (one AEAD check each; past the budget they are dropped and counted)."""
+    migration_quiet: float = 0.005
+    """A session is a candidate for path migration once nothing has come from its master's address
+    for this long (a master sends at least once per keep-alive interval)."""
 
     def __post_init__(self) -> None:
         _positive_finite("cookie_lifetime", self.cookie_lifetime)
-        for name in ("opens_per_source", "replies_per_second"):
+        _positive_finite("migration_quiet", self.migration_quiet)
+        for name in ("opens_per_source", "replies_per_second", "migration_trials_per_second"):
             _positive_finite(name, getattr(self, name), "per second")
         for name in ("open_burst", "max_sources"):
             value = getattr(self, name)

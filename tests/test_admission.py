@@ -29,6 +29,7 @@ from tdtp.wire import (
     encode_header,
     encode_open,
 )
+from tdtp.wire.control import PROTOCOL_VERSION
 
 from pair import MASTER_ADDR, SLAVE_ADDR, Endpoint, Pair
 
@@ -40,7 +41,7 @@ def _open(
     nonce: bytes = NONCE, cookie: bytes = bytes(16), max_payload: int = 1200, flags: int = 0
 ) -> bytes:
     return encode_header(2, 0x123, 0, 0, 255) + encode_open(
-        OpenBody(2, flags, 0, max_payload, 0, nonce, bytes(8), cookie)
+        OpenBody(PROTOCOL_VERSION, flags, 0, max_payload, 0, nonce, bytes(8), cookie)
     )
 
 

@@ -24,6 +24,7 @@ from tdtp.wire import (
     encode_header,
     encode_open,
 )
+from tdtp.wire.control import PROTOCOL_VERSION
 
 from capture_files import needs_tshark, read_pcap, tshark_fields, udp_payload
 from pair import MASTER_ADDR, Pair
@@ -189,9 +190,9 @@ def _build(path: Path) -> tuple[dict[int, bool], dict[int, str]]:
         inject(encode_header(0, 1, 5, 1, 255) + b"x", "HOLD 255 (no acknowledgement) with ACK")
         inject(encode_header(2, 1, 0, 0, 255) + b"\x09", "Unknown control code")
         inject(encode_header(2, 1, 0, 0, 255) + b"\x03\x00", "Malformed control packet")
-        open_body = OpenBody(2, 0, 0, 0, 0, bytes(16), bytes(8), bytes(16))
+        open_body = OpenBody(PROTOCOL_VERSION, 0, 0, 0, 0, bytes(16), bytes(8), bytes(16))
         inject(encode_header(2, 1, 0, 0, 255) + encode_open(open_body), "max_payload 0")
-        open_body = OpenBody(2, 4, 0, 100, 0, bytes(16), bytes(8), bytes(16))
+        open_body = OpenBody(PROTOCOL_VERSION, 4, 0, 100, 0, bytes(16), bytes(8), bytes(16))
         inject(encode_header(2, 1, 0, 0, 255) + encode_open(open_body), "Inconsistent flags")
         separate = _session(
             writer, SEPARATE, config=ConnectionConfig(ack_mode=AckMode.SEPARATE, ack_size=12)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Final, NamedTuple
 
 from tdtp.admission.cookie import CookieJar
+from tdtp.admission.path_migration import PathMigration
 from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
 from tdtp.config import ConnectionConfig
 from tdtp.protection.derivation import derive_open_secret
@@ -128,6 +129,8 @@ class Admission:
         )
         self._replies = TokenBucket(policy.replies_per_second, policy.replies_per_second)
         self.stats = AdmissionStats()
+        self.paths = PathMigration(policy, rng, self._replies)
+        """Path migration: finds the session a datagram from an unknown address belongs to."""
 
     def admit(self, data: bytes, addr: Address, now: float) -> AdmittedOpen | Reply | DropReason:
         """Judge one datagram that claims to be an OPEN (see the module docstring)."""

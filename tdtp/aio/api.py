@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
+from tdtp.admission.path_migration import MigrationStats
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.endpoint import (
     DataCallback,
@@ -47,8 +48,9 @@ from tdtp.errors import (
 )
 from tdtp.netem import NetemSpec
 from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
-from tdtp.session.connection import Connection, State
+from tdtp.session.connection import Connection
 from tdtp.session.events import Address
+from tdtp.session.state import State
 from tdtp.wire.control import CloseReason, ControlCode
 from tdtp.wire.header import HEADER_SIZE, PacketType
 
@@ -380,6 +382,8 @@ class ServerStats:
     """Connections established (the master confirmed the session)."""
     admission: AdmissionStats = field(default_factory=AdmissionStats)
     """The front door: OPENs seen, cookies and rejects sent, drops by reason, bytes in and out."""
+    migration: MigrationStats = field(default_factory=MigrationStats)
+    """Path migration: datagrams from unknown addresses, trials, challenges, sessions moved."""
 
 
 class _ServerProtocol(asyncio.DatagramProtocol):
@@ -448,7 +452,9 @@ class Server:
         self._waiters: list[asyncio.Future[None]] = []
         """Tasks waiting in accept(): each one looks again when a master is established."""
         self._closed = False
-        self.stats = ServerStats(admission=self._admission.stats)
+        self.stats = ServerStats(
+            admission=self._admission.stats, migration=self._admission.paths.stats
+        )
 
     @property
     def sockname(self) -> Address:
@@ -557,9 +563,11 @@ class Server:
             # The connection ended on this OPEN: its master restarted and opens anew.
         if self._closed:
             return
-        # Only an OPEN may lead to state, and only once admitted: anything else costs nothing.
+        # Only an OPEN may lead to state, and only once admitted; anything else may be a master
+        # whose address changed (path migration), within a bounded budget.
         if not _is_open(data):
             self.stats.datagrams_unattached += 1
+            self._on_unattached(data, key, addr)
             return
         assert self._sender is not None
         now = monotonic()
@@ -568,6 +576,32 @@ class Server:
             self._sender.sendto(verdict.datagram, addr)
         elif isinstance(verdict, AdmittedOpen):
             self._open(verdict, key, addr, now)
+
+    def _on_unattached(self, data: bytes, key: tuple[object, object], addr: Address) -> None:
+        """A datagram from an address no session holds: a master that moved (PROTOCOL.md 5.7)?"""
+        assert self._sender is not None
+        now = monotonic()
+        peers = self._peers
+        outcome = self._admission.paths.on_unattached(
+            data, addr, now, [endpoint.connection for endpoint in peers.values()]
+        )
+        if outcome is None:
+            return
+        if isinstance(outcome, bytes):
+            self._sender.sendto(outcome, addr)  # a PATH_CHALLENGE
+            return
+        for old_key, endpoint in peers.items():
+            if endpoint.connection is outcome:
+                del peers[old_key]
+                peers[key] = endpoint
+                logger.info(
+                    "tdtp slave: a master moved from %s:%s to %s",
+                    old_key[0],
+                    old_key[1],
+                    format_address(addr),
+                )
+                endpoint._flush(now)
+                return
 
     def _open(
         self, admitted: AdmittedOpen, key: tuple[object, object], addr: Address, now: float

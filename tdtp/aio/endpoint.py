@@ -35,7 +35,7 @@ from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.sample_iteration import samples_until_closed
 from tdtp.aio.timer import monotonic
 from tdtp.errors import ConnectionClosedError, EndpointClosedError
-from tdtp.session.connection import Connection, State
+from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
     ConnectionClosed,
@@ -44,6 +44,7 @@ from tdtp.session.events import (
     PeerResumed,
     PeerSilent,
 )
+from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats
 
 __all__ = [

@@ -13,20 +13,8 @@ connection survives the outage until ``idle_timeout`` (docs/PROTOCOL.md section 
 
 :class:`Connection` holds the session's state machine: it checks the caller's input against the state,
 takes every datagram in (address, size, packet protection, type) and dispatches it, and carries out
-what the opening and the watchdog decide. The pieces with state of their own live beside it, each
-owning that state and importing nothing of the connection:
-
-* :mod:`tdtp.session.handshake`: the opening (nonces, the keyed / cipher choice, cookie, OPEN retries),
-  the OPEN and OPEN_ACK messages, the derivation of the session's keys;
-* :mod:`tdtp.session.liveness`: last receive and send, the watchdog's silence and outage, keep-alive
-  and idle deadlines;
-* :mod:`tdtp.session.recovery`: the sent log, RTT and loss-rate estimators, loss detection, and the
-  feedback that turns an acknowledgement into the controller's ``on_ack`` and ``on_loss_event``;
-* :mod:`tdtp.session.ack_scheduler`: the receive window and the acknowledgements owed to the peer;
-* :mod:`tdtp.session.sender`: the newest sample waiting for the pacer or the socket, and its departure;
-* :mod:`tdtp.session.outbox`: the framing, sealing and counting of what leaves, the control queue;
-* :mod:`tdtp.session.event_queue`: the bounded queue of events for the application;
-* :mod:`tdtp.session.timer_hint`: the bound on moved deadlines they all lower (:attr:`Connection.timer_hint`).
+what the opening and the watchdog decide. The pieces with state of their own (listed in
+:mod:`tdtp.session`) live beside it, each owning that state and importing nothing of the connection.
 
 Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
 ``stats.drops`` by reason. Misuse by the caller raises a :class:`~tdtp.errors.TdtpError` subclass.
@@ -34,7 +22,6 @@ Peer input never raises: anything malformed, unexpected or hostile is dropped an
 
 from __future__ import annotations
 
-import enum
 import math
 import random
 from collections.abc import Callable
@@ -62,16 +49,20 @@ from tdtp.session.events import (
 from tdtp.session.handshake import Handshake, Reaction, close_reason_text
 from tdtp.session.liveness import Liveness
 from tdtp.session.outbox import Outbox
+from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.sender import SampleSender
+from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
 from tdtp.wire.control import (
     HANDSHAKE_CODES,
     OPEN_BODY_SIZE,
+    PATH_CODES,
     CloseBody,
     CloseReason,
+    KeepaliveBody,
     OpenFlags,
     decode_control,
 )
@@ -87,19 +78,6 @@ _CONTROL: Final = int(PacketType.CONTROL)
 _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 """The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
 ``max_payload`` is."""
-
-
-class State(enum.Enum):
-    """Where a :class:`Connection` is in its life: opening, established or closed."""
-
-    IDLE = "idle"
-    """A master that has not called :meth:`Connection.connect` yet."""
-    LISTENING = "listening"
-    """A slave waiting for its master's OPEN."""
-    OPENING = "opening"
-    """A master whose OPEN is not answered yet."""
-    ESTABLISHED = "established"
-    CLOSED = "closed"
 
 
 class Connection:
@@ -149,6 +127,7 @@ class Connection:
         )
         self._state = State.IDLE if role is Role.MASTER else State.LISTENING
         self._peer: Address | None = None
+        self._path = PeerPath(config, stats)  # the peer's address: validated, or under the 3x limit
         # The peer's packet protection, once keyed (Handshake.keys; ours is the outbox's sealer).
         self._opener: PacketOpener | None = None
         self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
@@ -199,6 +178,20 @@ class Connection:
     def peer(self) -> Address | None:
         """The peer's address once known (the master's at ``connect``, the slave's at the OPEN)."""
         return self._peer
+
+    @property
+    def master_nonce(self) -> bytes:
+        """The master's 128-bit nonce: names this session in every control packet."""
+        return self._handshake.master_nonce
+
+    @property
+    def migratable(self) -> bool:
+        """An established slave: may follow its master to a new address (PROTOCOL.md 5.7)."""
+        return self.role is Role.SLAVE and self._state is State.ESTABLISHED
+
+    def quiet_for(self, now: float) -> float:
+        """Seconds since the last datagram from the peer's address."""
+        return now - self._liveness.last_receive
 
     @property
     def ack_mode(self) -> AckMode:
@@ -284,13 +277,7 @@ class Connection:
     def stats(self) -> ConnectionStats:
         """Live counters; the derived figures (srtt, p, rate) are refreshed on each access."""
         stats = self._stats
-        recovery = self._recovery
-        rtt = recovery.rtt
-        stats.srtt = rtt.srtt if rtt.has_sample else 0.0
-        stats.rttvar = rtt.rttvar if rtt.has_sample else 0.0
-        stats.min_rtt = rtt.min_rtt if rtt.has_sample else 0.0
-        stats.loss_event_rate = recovery.loss.loss_event_rate
-        stats.packets_unreported = recovery.sent.unknown
+        self._recovery.refresh(stats)
         stats.rate = self._controller.rate
         return stats
 
@@ -350,7 +337,7 @@ class Connection:
         :meth:`send`, and :meth:`datagrams_to_send` must run. Raises what :meth:`send` raises.
         """
         peer = self._peer
-        if self._state is not State.ESTABLISHED or peer is None:
+        if self._state is not State.ESTABLISHED or peer is None or self._path.limited:
             self.send(payload, now=now)
             return False
         if not self._sender.send_direct(payload, transmit, peer, connected, now):
@@ -425,10 +412,24 @@ class Connection:
         if size > self._size_limit:
             stats.count_drop(DropReason.OVERSIZED)
             return
+        path = self._path
+        if path.limited:
+            path.on_received(size)
+            self._hint.value = -math.inf  # held data may go now
         ptype = data[0] >> 6
-        if ptype == _CONTROL and size > HEADER_SIZE and data[HEADER_SIZE] in HANDSHAKE_CODES:
-            self._on_handshake(data, addr, now)
-            return
+        if ptype == _CONTROL and size > HEADER_SIZE:
+            code = data[HEADER_SIZE]
+            if code in HANDSHAKE_CODES:
+                self._on_handshake(data, addr, now)
+                return
+            if code in PATH_CODES:  # an unkeyed master answers a PATH_CHALLENGE
+                established = self._state is State.ESTABLISHED and self.role is Role.MASTER
+                nonce = self._handshake.master_nonce
+                answer = self._path.answer(data, now, established and not self.keyed, nonce)
+                if answer is not None:
+                    self._outbox.queue(answer, addr, 0, False)
+                    self._hint.value = -math.inf
+                return
         if ptype > _CONTROL:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
             return
@@ -448,8 +449,13 @@ class Connection:
                 self._on_unopened(opener, now)
                 return
             data = data[:prefix] + body
-            size = len(data)  # from here on, sizes are without the protection (_accept adds it)
-        if handshake.confirming:
+        self._dispatch(data, ptype, now)
+
+    def _dispatch(self, data: bytes, ptype: int, now: float) -> None:
+        """A datagram from the peer, its protection removed (sizes from here on are without it:
+        :meth:`_accept` adds it)."""
+        size = len(data)
+        if self._handshake.confirming:
             # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
             self._establish(now)
         # The header, decoded in place (wire/header.py's layout) rather than into a Header tuple.
@@ -465,6 +471,33 @@ class Connection:
             self._on_ack_packet(size, ack, sack, hold, now)
         else:
             self._on_session_control(data, size, ack, sack, hold, now)
+
+    def roam(self, data: bytes, addr: Address, *, now: float) -> bool:
+        """Keyed slave: follow the master to ``addr`` if ``data`` from there authenticates with a
+        packet number above every one accepted so far (PROTOCOL.md 5.7), and take it in. False,
+        counting nothing, otherwise: the caller (:class:`~tdtp.admission.PathMigration`) counts."""
+        opener = self._opener
+        if opener is None or not self.migratable or len(data) > self._size_limit:
+            return False
+        opened = self._path.trial(opener, data, now)
+        if opened is None:
+            return False
+        self._stats.datagrams_in += 1
+        self._peer = addr
+        self._hint.value = -math.inf
+        self._path.move(False, len(data), self._recovery.sent.next_seq, self._sender.limit)
+        self._dispatch(opened, data[0] >> 6, now)
+        return True
+
+    def migrate(self, addr: Address, *, now: float) -> None:
+        """Unkeyed slave: move to ``addr``, validated (its PATH_RESPONSE carried our nonce)."""
+        if not self.migratable:
+            raise ConnectionStateError(f"migrate() is for an established slave, not {self!r}")
+        self._stats.datagrams_in += 1
+        self._peer = addr
+        self._hint.value = -math.inf
+        self._path.move(True, 0, 0, 0)
+        self._heard(now)
 
     def _on_unopened(self, opener: PacketOpener, now: float) -> None:
         """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
@@ -570,6 +603,8 @@ class Connection:
         """Hand the acknowledgement in a header to loss recovery; False if it acknowledges a packet
         never sent."""
         newly = self._recovery.on_feedback(ack, sack, hold, now)
+        if self._path.limited and newly >= 0:
+            self._path.on_acked(self._recovery.sent.largest_acked)
         if newly > 0:
             hint = self._hint
             if self._sender.pending is not None:
@@ -587,18 +622,19 @@ class Connection:
         except MalformedPacketError:
             stats.count_drop(DropReason.BAD_CONTROL)
             return
+        if not isinstance(body, CloseBody | KeepaliveBody):
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            return
+        # Another session's, or a blind forgery (the nonce is secret to off-path attackers): a
+        # forged KEEPALIVE must not pass for a sign of life and hide a dead master.
+        if body.nonce != self._handshake.master_nonce:
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+            return
         if isinstance(body, CloseBody):
-            if body.nonce != self._handshake.master_nonce or self._state not in (
-                State.OPENING,
-                State.ESTABLISHED,
-            ):
-                stats.count_drop(DropReason.NONCE_MISMATCH)
-                return
             self._accept(size, size - HEADER_SIZE, now)
             stats.received.control_packets += 1
             self._terminate(CloseCause.PEER_CLOSE, close_reason_text(body.reason))
             return
-        # KEEPALIVE
         if self._state is not State.ESTABLISHED:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
@@ -728,7 +764,11 @@ class Connection:
             return None
         # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
         # for a waiting sample; the next ACK; the next loss; the controller's own.
-        deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
+        if self._path.blocked(self._outbox.control):
+            # Nothing may leave before more arrives from the new path: only the watchdog's clock.
+            deadline = self._liveness.watchdog_deadline()
+        else:
+            deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
         loss_deadline = self._recovery.loss_deadline()
         if loss_deadline is not None and loss_deadline < deadline:
             deadline = loss_deadline
@@ -781,10 +821,24 @@ class Connection:
         state = self._state
         if state is State.OPENING and self.role is Role.MASTER and self._handshake.open_due(now):
             self._emit_open(out, now)
+        path = self._path
+        if path.blocked(
+            outbox.control
+        ):  # the 3x limit of an unvalidated new path (PROTOCOL.md 5.7)
+            if self._sender.pending is not None or self._liveness.keepalive_due(now):
+                self._stats.path_limited += 1
+            return out
         if outbox.control:
             outbox.flush(out, now)
-        if state is not State.ESTABLISHED or self._state is not State.ESTABLISHED:
-            return out
+        if state is State.ESTABLISHED and self._state is State.ESTABLISHED:
+            self._emit_session(out, now)
+        if path.limited:
+            path.on_sent(out)
+        return out
+
+    def _emit_session(self, out: list[tuple[bytes, Address]], now: float) -> None:
+        """The established session's share of :meth:`datagrams_to_send`."""
+        outbox = self._outbox
         peer = self._peer
         assert peer is not None  # ESTABLISHED implies it
         sent = self._recovery.sent
@@ -796,11 +850,11 @@ class Connection:
             window = acks.window
             assert window is not None
             ack, sack, hold = acks.piggyback(window, now)
-            outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, peer, now)
+            nonce = self._handshake.master_nonce
+            outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, nonce, peer, now)
         sealer = outbox.sealer
         if sealer is not None and sealer.exhausted:
             self._exhausted()
-        return out
 
     def _emit_open(self, out: list[tuple[bytes, Address]], now: float) -> None:
         handshake = self._handshake

@@ -45,6 +45,8 @@ from tdtp.wire.control import (
     OpenAckBody,
     OpenBody,
     OpenFlags,
+    PathChallengeBody,
+    PathResponseBody,
     decode_control,
     encode_open,
     encode_open_ack,
@@ -218,7 +220,7 @@ class Handshake:
         except MalformedPacketError:
             stats.count_drop(DropReason.BAD_CONTROL)
             return Reaction.IGNORED
-        if isinstance(body, OpenBody | KeepaliveBody):
+        if isinstance(body, OpenBody | KeepaliveBody | PathChallengeBody | PathResponseBody):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
         elif body.nonce != self.master_nonce:
             stats.count_drop(DropReason.NONCE_MISMATCH)

@@ -11,6 +11,9 @@ Two kinds of control packet exist:
 * **Handshake messages** (OPEN, COOKIE, OPEN_ACK, REJECT) have fixed layouts with every field in the
   clear, because the receiver needs them before it has session keys. In a keyed session OPEN and
   OPEN_ACK end in a 16-byte AEAD tag over everything before it (``KEYED`` flag).
+* **Path validation** (PATH_CHALLENGE, PATH_RESPONSE) moves an unkeyed session to its master's new
+  address after a NAT rebinding; always in the clear (a keyed session follows its master on any
+  authenticated datagram instead).
 * **Session control** (KEEPALIVE, CLOSE) uses the session's packet protection when keyed, exactly like
   DATA and ACK: ``header | code | PN | sealed body | tag`` (``tdtp.protection``). Unkeyed, it is
   ``header | code | body``.
@@ -28,8 +31,9 @@ from typing import Final, NamedTuple
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.protected import TAG_SIZE
 
-PROTOCOL_VERSION: Final = 2
-"""The only version this implementation speaks (version 1 had no cookie and no keyed mode)."""
+PROTOCOL_VERSION: Final = 3
+"""The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
+had no path validation, and its KEEPALIVE carried no nonce)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -56,6 +60,14 @@ class ControlCode(enum.IntEnum):
     COOKIE = 6
     """slave -> master: echo this cookie in the OPEN to prove you receive at your address. Sent
     statelessly, and never larger than the OPEN it answers."""
+    PATH_CHALLENGE = 8
+    """slave -> master, unkeyed sessions: a session datagram arrived from an address the slave does
+    not know while a session's master is silent; echo this token with your nonce (PATH_RESPONSE) to
+    move the session there. Sent statelessly, never larger than the datagram it answers. (Code 7 is
+    RESET's.)"""
+    PATH_RESPONSE = 9
+    """master -> slave: the PATH_CHALLENGE's token and the master's nonce, from the master's current
+    address."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -64,6 +76,10 @@ HANDSHAKE_CODES: Final = frozenset(
 )
 """Codes (as the byte on the wire) whose fields travel in the clear; KEEPALIVE and CLOSE are sealed
 in a keyed session."""
+PATH_CODES: Final = frozenset(
+    int(code) for code in (ControlCode.PATH_CHALLENGE, ControlCode.PATH_RESPONSE)
+)
+"""Path validation (unkeyed sessions only; always in the clear)."""
 
 
 class OpenFlags(enum.IntFlag):
@@ -171,10 +187,45 @@ class CloseBody(NamedTuple):
 
 
 class KeepaliveBody(NamedTuple):
+    """KEEPALIVE (either way): the master's nonce, so that a blind attacker cannot forge one."""
+
     code: ControlCode
+    nonce: bytes
+    """The master's nonce."""
 
 
-ControlBody = OpenBody | OpenAckBody | CookieBody | CloseBody | KeepaliveBody
+class PathChallengeBody(NamedTuple):
+    """PATH_CHALLENGE (slave -> master)."""
+
+    token: bytes
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.PATH_CHALLENGE
+
+
+class PathResponseBody(NamedTuple):
+    """PATH_RESPONSE (master -> slave)."""
+
+    token: bytes
+    """The challenge's token, echoed."""
+    nonce: bytes
+    """The master's nonce."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.PATH_RESPONSE
+
+
+ControlBody = (
+    OpenBody
+    | OpenAckBody
+    | CookieBody
+    | CloseBody
+    | KeepaliveBody
+    | PathChallengeBody
+    | PathResponseBody
+)
 
 # Layouts, byte offsets from the code byte (the first byte after the base header).
 _OPEN: Final = struct.Struct(
@@ -185,6 +236,9 @@ _OPEN_ACK: Final = struct.Struct(
 )  # code version flags suite max_payload pn nonce slave_nonce
 _COOKIE: Final = struct.Struct(">BB16s16s")  # code version nonce cookie
 _CLOSE: Final = struct.Struct(">B16sB")  # code nonce reason
+_KEEPALIVE: Final = struct.Struct(">B16s")  # code nonce
+_PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
+_PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
 
 OPEN_BODY_SIZE: Final = _OPEN.size
 """48 bytes: with the header an unkeyed OPEN is 53 bytes, a keyed one 69."""
@@ -194,7 +248,15 @@ COOKIE_BODY_SIZE: Final = _COOKIE.size
 """34 bytes: a COOKIE datagram is 39 bytes, smaller than the smallest OPEN (53)."""
 CLOSE_BODY_SIZE: Final = _CLOSE.size
 """18 bytes: an unkeyed CLOSE or any REJECT is 23 bytes."""
-KEEPALIVE_BODY_SIZE: Final = 1
+KEEPALIVE_BODY_SIZE: Final = _KEEPALIVE.size
+"""17 bytes: an unkeyed KEEPALIVE is 22 bytes, a keyed one 40."""
+PATH_TOKEN_SIZE: Final = 16
+"""Bytes of a PATH_CHALLENGE token (opaque to the master; the cookie's format)."""
+PATH_CHALLENGE_BODY_SIZE: Final = _PATH_CHALLENGE.size
+"""17 bytes: a PATH_CHALLENGE datagram is 22 bytes, no larger than the smallest session datagram
+that can trigger one (an unkeyed KEEPALIVE)."""
+PATH_RESPONSE_BODY_SIZE: Final = _PATH_RESPONSE.size
+"""33 bytes: a PATH_RESPONSE datagram is 38 bytes."""
 OPEN_NONCE_OFFSET: Final = struct.calcsize(">BBBBHH")
 """Where an OPEN body carries the master's nonce (after code, version, flags, suite, max_payload and
 attempt): 8."""
@@ -238,8 +300,17 @@ def encode_close(code: ControlCode, nonce: bytes, reason: int) -> bytes:
     return _CLOSE.pack(code, nonce, reason)
 
 
-def encode_keepalive() -> bytes:
-    return bytes((ControlCode.KEEPALIVE,))
+def encode_keepalive(nonce: bytes) -> bytes:
+    """A KEEPALIVE body (code byte included) carrying the master's nonce."""
+    return _KEEPALIVE.pack(ControlCode.KEEPALIVE, nonce)
+
+
+def encode_path_challenge(token: bytes) -> bytes:
+    return _PATH_CHALLENGE.pack(ControlCode.PATH_CHALLENGE, token)
+
+
+def encode_path_response(token: bytes, nonce: bytes) -> bytes:
+    return _PATH_RESPONSE.pack(ControlCode.PATH_RESPONSE, token, nonce)
 
 
 def _tagged(body: bytes | memoryview, size: int, name: str) -> bytes | memoryview:
@@ -291,9 +362,28 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, nonce, reason = _CLOSE.unpack(body)
         return CloseBody(code, nonce, reason)
+    if code is ControlCode.PATH_CHALLENGE:
+        if len(body) != PATH_CHALLENGE_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control",
+                f"PATH_CHALLENGE body is {len(body)} bytes, not {PATH_CHALLENGE_BODY_SIZE}",
+            )
+        _, token = _PATH_CHALLENGE.unpack(body)
+        return PathChallengeBody(token)
+    if code is ControlCode.PATH_RESPONSE:
+        if len(body) != PATH_RESPONSE_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control",
+                f"PATH_RESPONSE body is {len(body)} bytes, not {PATH_RESPONSE_BODY_SIZE}",
+            )
+        _, token, nonce = _PATH_RESPONSE.unpack(body)
+        return PathResponseBody(token, nonce)
     if len(body) != KEEPALIVE_BODY_SIZE:
-        raise MalformedPacketError("bad_control", f"KEEPALIVE body is {len(body)} bytes, not 1")
-    return KeepaliveBody(code)
+        raise MalformedPacketError(
+            "bad_control", f"KEEPALIVE body is {len(body)} bytes, not {KEEPALIVE_BODY_SIZE}"
+        )
+    _, nonce = _KEEPALIVE.unpack(body)
+    return KeepaliveBody(code, nonce)
 
 
 def open_version(body: bytes | memoryview) -> int | None:

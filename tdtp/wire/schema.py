@@ -14,7 +14,6 @@ from construct import (
     BitsInteger,
     BitStruct,
     Bytes,
-    Const,
     If,
     Int8ub,
     Int16ub,
@@ -28,6 +27,7 @@ from tdtp.wire.control import (
     COOKIE_SIZE,
     KEY_ID_SIZE,
     NONCE_SIZE,
+    PATH_TOKEN_SIZE,
     ControlCode,
     OpenFlags,
 )
@@ -71,6 +71,9 @@ CookieBody: Any = Struct(
     "version" / Int8ub, "nonce" / Bytes(NONCE_SIZE), "cookie" / Bytes(COOKIE_SIZE)
 )
 CloseBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "reason" / Int8ub)
+KeepaliveBody: Any = Struct("nonce" / Bytes(NONCE_SIZE))
+PathChallengeBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE))
+PathResponseBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE), "nonce" / Bytes(NONCE_SIZE))
 
 ControlBody: Any = Struct(
     "code" / Int8ub,
@@ -83,7 +86,9 @@ ControlBody: Any = Struct(
             int(ControlCode.COOKIE): CookieBody,
             int(ControlCode.CLOSE): CloseBody,
             int(ControlCode.REJECT): CloseBody,
-            int(ControlCode.KEEPALIVE): Const(b""),
+            int(ControlCode.KEEPALIVE): KeepaliveBody,
+            int(ControlCode.PATH_CHALLENGE): PathChallengeBody,
+            int(ControlCode.PATH_RESPONSE): PathResponseBody,
         },
     ),
 )
@@ -123,8 +128,11 @@ __all__ = [
     "ControlBody",
     "CookieBody",
     "Header",
+    "KeepaliveBody",
     "OpenAckBody",
     "OpenBody",
+    "PathChallengeBody",
+    "PathResponseBody",
     "ProtectedControl",
     "ProtectedData",
 ]

@@ -40,7 +40,13 @@ from tdtp.wire.control import (
     KEEPALIVE_BODY_SIZE,
     OPEN_ACK_BODY_SIZE,
     OPEN_BODY_SIZE,
+    PATH_CHALLENGE_BODY_SIZE,
+    PATH_RESPONSE_BODY_SIZE,
     ControlBody,
+    PathChallengeBody,
+    PathResponseBody,
+    encode_path_challenge,
+    encode_path_response,
     open_version,
 )
 
@@ -58,6 +64,8 @@ UNKEYED_SIZES = {
     ControlCode.KEEPALIVE: KEEPALIVE_BODY_SIZE,
     ControlCode.CLOSE: CLOSE_BODY_SIZE,
     ControlCode.REJECT: CLOSE_BODY_SIZE,
+    ControlCode.PATH_CHALLENGE: PATH_CHALLENGE_BODY_SIZE,
+    ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
 }
 
 # Whole CONTROL datagrams, derived by hand field by field (docs/PROTOCOL.md section 7 shows the same).
@@ -65,54 +73,68 @@ UNKEYED_SIZES = {
 # one after the other, nonces and cookies as raw bytes.
 GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
     # OPEN, first attempt, no cookie yet: SEQ 0x5A5 (the master's initial data sequence number), no ACK
-    # -> 96 94 00 00 ff; code 01, version 02, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
+    # -> 96 94 00 00 ff; code 01, version 03, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
     # 00 00, nonce, key id 0 (unkeyed), cookie 0 (none).
     (
-        "96 94 00 00 ff" + "01 02 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
+        "96 94 00 00 ff" + "01 03 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(2, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
+        OpenBody(3, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
         b"",
     ),
-    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 02, the master's nonce, the cookie.
+    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 03, the master's nonce, the cookie.
     (
-        "80 00 00 00 ff" + "06 02" + NONCE.hex() + COOKIE.hex(),
+        "80 00 00 00 ff" + "06 03" + NONCE.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0, 0, 0, 255),
-        CookieBody(2, NONCE, COOKIE),
+        CookieBody(3, NONCE, COOKIE),
         b"",
     ),
     # OPEN, second attempt, echoing the cookie: attempt 00 01.
     (
-        "96 94 00 00 ff" + "01 02 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
+        "96 94 00 00 ff" + "01 03 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(2, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
+        OpenBody(3, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
         b"",
     ),
     # A keyed OPEN: flags 06 (KEYED | ENCRYPTED), suite 01 (AES-128-GCM), the key id, then the tag.
     (
         "96 94 00 00 ff"
-        + "01 02 06 01 04b0 0001"
+        + "01 03 06 01 04b0 0001"
         + NONCE.hex()
         + KEY_ID.hex()
         + COOKIE.hex()
         + TAG.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(2, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
+        OpenBody(3, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
         TAG,
     ),
-    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 02, flags 01 (SEPARATE_ACKS), suite
+    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 03, flags 01 (SEPARATE_ACKS), suite
     # 00, max_payload 100 = 00 64, packet number 00 00, both nonces.
     (
-        "83 0c 00 00 ff" + "02 02 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
+        "83 0c 00 00 ff" + "02 03 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
         Header(PacketType.CONTROL, 0x0C3, 0, 0, 255),
-        OpenAckBody(2, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
+        OpenAckBody(3, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
         b"",
     ),
     # KEEPALIVE carrying an acknowledgement: SEQ 0xABD, ACK 0x124, SACK 000001, HOLD 0 ->
-    # 10 101010111101 000100100100 000001 00000000 = aa f4 49 01 00; body is the code alone: 03.
+    # 10 101010111101 000100100100 000001 00000000 = aa f4 49 01 00; code 03, the master's nonce.
     (
-        "aa f4 49 01 00 03",
+        "aa f4 49 01 00 03" + NONCE.hex(),
         Header(PacketType.CONTROL, 0xABD, 0x124, 1, 0),
-        KeepaliveBody(ControlCode.KEEPALIVE),
+        KeepaliveBody(ControlCode.KEEPALIVE, NONCE),
+        b"",
+    ),
+    # PATH_CHALLENGE: no sequence, no ACK -> 80 00 00 00 ff; code 08, token (the cookie's format).
+    (
+        "80 00 00 00 ff 08" + COOKIE.hex(),
+        Header(PacketType.CONTROL, 0, 0, 0, 255),
+        PathChallengeBody(COOKIE),
+        b"",
+    ),
+    # PATH_RESPONSE: 80 00 00 00 ff; code 09, the token echoed, the master's nonce.
+    (
+        "80 00 00 00 ff 09" + COOKIE.hex() + NONCE.hex(),
+        Header(PacketType.CONTROL, 0, 0, 0, 255),
+        PathResponseBody(COOKIE, NONCE),
         b"",
     ),
     # CLOSE: SEQ 0xABD, no ACK -> aa f4 00 00 ff; code 04, nonce, reason 00 (NORMAL).
@@ -141,11 +163,15 @@ def encode_body(body: ControlBody) -> bytes:
         return encode_cookie(body.nonce, body.cookie)
     if isinstance(body, CloseBody):
         return encode_close(*body)
-    return encode_keepalive()
+    if isinstance(body, PathChallengeBody):
+        return encode_path_challenge(body.token)
+    if isinstance(body, PathResponseBody):
+        return encode_path_response(body.token, body.nonce)
+    return encode_keepalive(body.nonce)
 
 
 def test_codes_and_constants_are_pinned() -> None:
-    assert PROTOCOL_VERSION == 2
+    assert PROTOCOL_VERSION == 3
     assert {c.name: int(c) for c in ControlCode} == {
         "OPEN": 1,
         "OPEN_ACK": 2,
@@ -153,6 +179,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "CLOSE": 4,
         "REJECT": 5,
         "COOKIE": 6,
+        "PATH_CHALLENGE": 8,
+        "PATH_RESPONSE": 9,
     }
     assert {r.name: int(r) for r in CloseReason} == {
         "NORMAL": 0,
@@ -180,7 +208,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "CHACHA20_POLY1305": 2,
     }
     assert (OPEN_BODY_SIZE, OPEN_ACK_BODY_SIZE, COOKIE_BODY_SIZE) == (48, 40, 34)
-    assert (CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, TAG_SIZE) == (18, 1, 16)
+    assert (CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, TAG_SIZE) == (18, 17, 16)
+    assert (PATH_CHALLENGE_BODY_SIZE, PATH_RESPONSE_BODY_SIZE) == (17, 33)
 
 
 def test_no_answer_to_an_unvalidated_open_is_larger_than_the_open() -> None:
@@ -265,8 +294,16 @@ def test_close_round_trip(code: ControlCode, nonce: bytes, reason: int) -> None:
 
 
 def test_keepalive_round_trip() -> None:
-    assert encode_keepalive() == b"\x03"
-    assert decode_control(b"\x03") == KeepaliveBody(ControlCode.KEEPALIVE)
+    assert encode_keepalive(NONCE) == b"\x03" + NONCE
+    assert decode_control(b"\x03" + NONCE) == KeepaliveBody(ControlCode.KEEPALIVE, NONCE)
+
+
+def test_path_messages_round_trip() -> None:
+    assert decode_control(encode_path_challenge(COOKIE)) == PathChallengeBody(COOKIE)
+    assert decode_control(encode_path_response(COOKIE, NONCE)) == PathResponseBody(COOKIE, NONCE)
+    # A challenge is never larger than the smallest session datagram that can trigger one (an
+    # unkeyed KEEPALIVE): it cannot amplify.
+    assert PATH_CHALLENGE_BODY_SIZE <= KEEPALIVE_BODY_SIZE
 
 
 def assert_bad_control(body: bytes) -> None:
@@ -279,7 +316,7 @@ def test_empty_body_is_rejected() -> None:
     assert_bad_control(b"")
 
 
-@pytest.mark.parametrize("code", [0, *range(7, 256)])
+@pytest.mark.parametrize("code", [0, 7, *range(10, 256)])
 def test_unknown_code_is_rejected(code: int) -> None:
     assert_bad_control(bytes([code]))
     assert_bad_control(bytes([code]) + bytes(12))
@@ -324,9 +361,9 @@ DOC_EXAMPLES = [
         encode_header(PacketType.ACK, 0x0ABD, 0x0124, 0b111111, encode_hold(1.5e-3)),
     ),
     (
-        "aa f4 49 01 00 03",
+        "aa f4 49 01 00 03" + " 00 11 22 33 44 55 66 77 88 99 aa bb cc dd ee ff",
         encode_header(PacketType.CONTROL, 0x0ABD, 0x0124, 0b000001, encode_hold(0.0))
-        + encode_keepalive(),
+        + encode_keepalive(NONCE),
     ),
 ] + [
     (
