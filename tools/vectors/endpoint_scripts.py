@@ -1,4 +1,4 @@
-"""The inputs of tdtp-v2-endpoint.json: what each script feeds an endpoint (generate.py records the
+"""The inputs of tdtp-v3-endpoint.json: what each script feeds an endpoint (generate.py records the
 expected outcomes by running tdtp). Every drop reason of PROTOCOL.md section 5.5 appears."""
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def _open(
     *,
     cookie: bool = False,
     max_payload: int = 1200,
-    version: int = 2,
+    version: int = 3,
     flags: int = 0,
     suite: int = 0,
     key_id: bytes = bytes(8),
@@ -59,7 +59,7 @@ def _open(
 
 def _open_ack(max_payload: int = 1200, *, seq: int = SLAVE_ISN) -> str:
     """An unkeyed OPEN_ACK from the slave (hex) answering the master's OPEN."""
-    body = OpenAckBody(2, 0, 0, max_payload, 0, MASTER_NONCE, SLAVE_NONCE)
+    body = OpenAckBody(3, 0, 0, max_payload, 0, MASTER_NONCE, SLAVE_NONCE)
     return _hex(encode_header(2, seq, 0, 0, 255) + encode_open_ack(body))
 
 
@@ -97,7 +97,7 @@ def _opening(start: float = 0.0) -> list[dict[str, Any]]:
         _step(
             start + 0.020,
             "master",
-            _hex(encode_header(2, MASTER_ISN, 0, 0, 255) + encode_keepalive()),
+            _hex(encode_header(2, MASTER_ISN, 0, 0, 255) + encode_keepalive(MASTER_NONCE)),
             note="the master's first packet of the session",
         ),
     ]
@@ -125,7 +125,17 @@ def slave_session() -> dict[str, Any]:
             note="acknowledges a packet the slave never sent",
         ),
         _step(0.032, "master", _hex(encode_header(2, s, 0, 0, 255) + b"\x09")),
-        _step(0.033, "master", _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive() + b"\x00")),
+        _step(
+            0.033,
+            "master",
+            _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(MASTER_NONCE) + b"\x00"),
+        ),
+        _step(
+            0.0335,
+            "master",
+            _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(OTHER_NONCE)),
+            note="a KEEPALIVE with another nonce: a blind forgery, no sign of life",
+        ),
         _step(
             0.034,
             "master",
@@ -176,7 +186,9 @@ def slave_before_the_open() -> dict[str, Any]:
     steps = [
         _step(0.0, "master", _data(s, b"too early")),
         _step(0.001, "master", _hex(encode_header(1, s, 0, 0, 255))),
-        _step(0.002, "master", _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive())),
+        _step(
+            0.002, "master", _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(MASTER_NONCE))
+        ),
         _step(
             0.003,
             "master",
@@ -280,7 +292,7 @@ def keyed_master_session() -> dict[str, Any]:
 
     def open_ack(number: int, flags: int = 6, forge: bool = False) -> str:
         datagram = encode_header(2, SLAVE_ISN, 0, 0, 255) + encode_open_ack(
-            OpenAckBody(2, flags, int(suite), 1200, number, MASTER_NONCE, SLAVE_NONCE)
+            OpenAckBody(3, flags, int(suite), 1200, number, MASTER_NONCE, SLAVE_NONCE)
         )
         if flags & 2:
             tag = to_master.tag(number, datagram)
@@ -323,10 +335,10 @@ def keyed_master_session() -> dict[str, Any]:
             "slave",
             _hex(
                 encode_header(2, SLAVE_ISN, 0, 0, 255)
-                + encode_open_ack(OpenAckBody(3, 6, 1, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
+                + encode_open_ack(OpenAckBody(4, 6, 1, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
                 + bytes(16)
             ),
-            note="version 3",
+            note="version 4",
         ),
         _step(0.006, "slave", open_ack(0, forge=True)),
         _step(0.007, "slave", open_ack(0), exact=True),

@@ -1,6 +1,6 @@
 """Generate the TDTP version 2 conformance vectors in tests/vectors/ (see tests/vectors/README.md).
 
-    python tools/vectors/generate.py            # rewrite tests/vectors/tdtp-v2-*.json
+    python tools/vectors/generate.py            # rewrite tests/vectors/tdtp-v3-*.json
     python tools/vectors/generate.py --check    # exit 1 if the committed files differ
 
 The expected values come from tdtp, the reference implementation, except where the specification
@@ -49,6 +49,8 @@ from tdtp.wire import (  # noqa: E402
     encode_keepalive,
     encode_open,
     encode_open_ack,
+    encode_path_challenge,
+    encode_path_response,
     expand_seq,
 )
 from tdtp.wire.errors import MalformedPacketError  # noqa: E402
@@ -68,7 +70,7 @@ from tdtp_adapter import ADDRESSES, ScriptRunner  # noqa: E402  (tests/vectors/)
 
 FORMAT = "tdtp-conformance-vectors"
 FORMAT_VERSION = 1
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 OUT = ROOT / "tests" / "vectors"
 
 
@@ -312,31 +314,33 @@ def control_vectors() -> dict[str, Any]:
     bodies: list[tuple[str, bytes]] = [
         (
             "OPEN, first attempt (7.2)",
-            encode_open(OpenBody(2, 0, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16))),
+            encode_open(OpenBody(3, 0, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16))),
         ),
         (
             "OPEN with the cookie, separate ACKs",
-            encode_open(OpenBody(2, 1, 0, 100, 1, MASTER_NONCE, bytes(8), COOKIE_BYTES)),
+            encode_open(OpenBody(3, 1, 0, 100, 1, MASTER_NONCE, bytes(8), COOKIE_BYTES)),
         ),
         (
             "keyed OPEN (flags KEYED | ENCRYPTED, suite 1): the tag is 16 more bytes",
             encode_open(
                 OpenBody(
-                    2, 6, 1, 1200, 1, MASTER_NONCE, bytes.fromhex("eb494c5fa44b9c55"), bytes(16)
+                    3, 6, 1, 1200, 1, MASTER_NONCE, bytes.fromhex("eb494c5fa44b9c55"), bytes(16)
                 )
             )
             + bytes(range(16)),
         ),
         (
             "OPEN_ACK (7.2)",
-            encode_open_ack(OpenAckBody(2, 1, 0, 100, 0, MASTER_NONCE, SLAVE_NONCE)),
+            encode_open_ack(OpenAckBody(3, 1, 0, 100, 0, MASTER_NONCE, SLAVE_NONCE)),
         ),
         (
             "keyed OPEN_ACK, packet number 0",
-            encode_open_ack(OpenAckBody(2, 2, 2, 1200, 0, MASTER_NONCE, SLAVE_NONCE)) + bytes(16),
+            encode_open_ack(OpenAckBody(3, 2, 2, 1200, 0, MASTER_NONCE, SLAVE_NONCE)) + bytes(16),
         ),
         ("COOKIE (7.2)", encode_cookie(MASTER_NONCE, COOKIE_BYTES)),
-        ("KEEPALIVE", encode_keepalive()),
+        ("KEEPALIVE (the master's nonce)", encode_keepalive(MASTER_NONCE)),
+        ("PATH_CHALLENGE (the cookie's format)", encode_path_challenge(COOKIE_BYTES)),
+        ("PATH_RESPONSE", encode_path_response(COOKIE_BYTES, MASTER_NONCE)),
         ("CLOSE NORMAL", encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
         ("CLOSE with an unknown reason 200", encode_close(ControlCode.CLOSE, MASTER_NONCE, 200)),
         ("REJECT BUSY", encode_close(ControlCode.REJECT, MASTER_NONCE, CloseReason.BUSY)),
@@ -353,7 +357,7 @@ def control_vectors() -> dict[str, Any]:
                 "fields": {k: v for k, v in _control_fields(decoded).items() if k != "code"},
             }
         )
-    open_body = encode_open(OpenBody(2, 0, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16)))
+    open_body = encode_open(OpenBody(3, 0, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16)))
     broken: list[tuple[str, bytes]] = [
         ("no code byte", b""),
         ("code 0", b"\x00"),
@@ -365,10 +369,16 @@ def control_vectors() -> dict[str, Any]:
         ("OPEN too short to hold its flags", b"\x01\x02"),
         (
             "OPEN_ACK without its last byte",
-            encode_open_ack(OpenAckBody(2, 0, 0, 100, 0, MASTER_NONCE, SLAVE_NONCE))[:-1],
+            encode_open_ack(OpenAckBody(3, 0, 0, 100, 0, MASTER_NONCE, SLAVE_NONCE))[:-1],
         ),
         ("COOKIE one byte long", encode_cookie(MASTER_NONCE, bytes(16)) + b"\x00"),
-        ("KEEPALIVE with a body", b"\x03\x00"),
+        ("KEEPALIVE without its nonce", b"\x03"),
+        ("KEEPALIVE one byte long", encode_keepalive(MASTER_NONCE) + b"\x00"),
+        ("PATH_CHALLENGE one byte short", encode_path_challenge(COOKIE_BYTES)[:-1]),
+        (
+            "PATH_RESPONSE without the nonce",
+            encode_path_challenge(COOKIE_BYTES)[:1].replace(b"\x08", b"\x09") + COOKIE_BYTES,
+        ),
         ("CLOSE without its reason", encode_close(ControlCode.CLOSE, MASTER_NONCE, 0)[:-1]),
         ("REJECT one byte long", encode_close(ControlCode.REJECT, MASTER_NONCE, 0) + b"\x00"),
     ]
@@ -725,7 +735,7 @@ def keyed_vectors() -> dict[str, Any]:
             )
         session = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, suite)
         datagram = encode_header(2, SLAVE_ISN, 0, 0, 255) + encode_open_ack(
-            OpenAckBody(2, 6, int(suite), 1200, 0, MASTER_NONCE, SLAVE_NONCE)
+            OpenAckBody(3, 6, int(suite), 1200, 0, MASTER_NONCE, SLAVE_NONCE)
         )
         handshake.append(
             {
@@ -741,7 +751,7 @@ def keyed_vectors() -> dict[str, Any]:
     prefixes = [
         ("DATA", encode_header(0, 0x0ABC, 0x0123, 0x2A, 31), b"hello"),
         ("ACK", encode_header(1, 0x0ABD, 0x0124, 0x3F, 110), b""),
-        ("KEEPALIVE", encode_header(2, 0x0ABD, 0x0124, 0x01, 0) + b"\x03", b""),
+        ("KEEPALIVE", encode_header(2, 0x0ABD, 0x0124, 0x01, 0) + b"\x03", MASTER_NONCE),
         (
             "CLOSE",
             encode_header(2, 0x0ABD, 0, 0, 255) + b"\x04",
