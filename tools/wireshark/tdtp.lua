@@ -1,4 +1,4 @@
--- Wireshark dissector for TDTP, the Teleoperation Data Transport Protocol, version 2
+-- Wireshark dissector for TDTP, the Teleoperation Data Transport Protocol, version 3
 -- (docs/PROTOCOL.md in the tdtp repository).
 --
 -- Load it for one run:   tshark -X lua_script:tools/wireshark/tdtp.lua -r capture.pcap
@@ -7,14 +7,15 @@
 --
 -- What it decodes: the 5-byte base header (TYPE, SEQ, ACK, SACK, HOLD with the hold time in
 -- microseconds, and which peer packets the ACK/SACK fields report received or absent), DATA
--- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT), and
+-- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, PATH_CHALLENGE,
+-- PATH_RESPONSE), and
 -- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
 -- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
 -- expert info (Analyze > Expert Information; tshark: -z expert).
 --
 -- How it finds TDTP: TDTP has no port of its own (UDP 47000, which tdtp's examples use, belongs to
 -- HCrt in Wireshark). A heuristic claims any UDP datagram that is a well-formed TDTP handshake
--- message (code, exact size, version 2), and then every datagram of that address pair. For a
+-- message (code, exact size, version 3), and then every datagram of that address pair. For a
 -- capture that starts mid-session, list the slave's port in the preference "tdtp.ports"
 -- (tshark -o tdtp.ports:47000), or let heuristics run first (-o udp.try_heuristic_first:TRUE).
 -- Whether a session is keyed is learnt from its OPEN or OPEN_ACK; preference "tdtp.keyed" forces it.
@@ -24,6 +25,7 @@ local tdtp = Proto("tdtp", "Teleoperation Data Transport Protocol")
 local TYPE_NAMES = { [0] = "DATA", [1] = "ACK", [2] = "CONTROL", [3] = "reserved" }
 local CODE_NAMES = {
     [1] = "OPEN", [2] = "OPEN_ACK", [3] = "KEEPALIVE", [4] = "CLOSE", [5] = "REJECT", [6] = "COOKIE",
+    [8] = "PATH_CHALLENGE", [9] = "PATH_RESPONSE",
 }
 local SUITE_NAMES = { [0] = "none", [1] = "AES-128-GCM", [2] = "ChaCha20-Poly1305" }
 local REASON_NAMES = {
@@ -36,10 +38,11 @@ local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknow
 local HEADER = 5
 local PN = 2
 local TAG = 16
-local VERSION = 2
+local VERSION = 3
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
-    [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 6, 24 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
+    [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
+    [8] = { 22 }, [9] = { 38 },
 }
 
 local f = tdtp.fields
@@ -67,6 +70,7 @@ f.attempt = ProtoField.uint16("tdtp.attempt", "Attempt", base.DEC)
 f.nonce = ProtoField.bytes("tdtp.nonce", "Nonce")
 f.key_id = ProtoField.bytes("tdtp.key_id", "Key id")
 f.cookie = ProtoField.bytes("tdtp.cookie", "Cookie")
+f.path_token = ProtoField.bytes("tdtp.path_token", "Path token")
 f.open_ack_pn = ProtoField.uint16("tdtp.open_ack.pn", "Packet number", base.DEC)
 f.slave_nonce = ProtoField.bytes("tdtp.slave_nonce", "Slave nonce")
 f.reason = ProtoField.uint8("tdtp.reason", "Reason", base.DEC, REASON_NAMES)
@@ -91,7 +95,7 @@ e.bad_control = ProtoExpert.new("tdtp.bad_control", "Malformed control packet (d
     expert.group.MALFORMED, expert.severity.ERROR)
 e.unknown_code = ProtoExpert.new("tdtp.unknown_code", "Unknown control code (dropped as bad_control)",
     expert.group.MALFORMED, expert.severity.ERROR)
-e.version = ProtoExpert.new("tdtp.unknown_version", "Not protocol version 2",
+e.version = ProtoExpert.new("tdtp.unknown_version", "Not protocol version 3",
     expert.group.PROTOCOL, expert.severity.WARN)
 e.flags = ProtoExpert.new("tdtp.bad_flags", "Inconsistent flags, suite or key id (dropped as bad_control)",
     expert.group.MALFORMED, expert.severity.ERROR)
@@ -339,6 +343,16 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         note_session(pinfo, nil)
         return close_fields(tree, tvb, length, "REJECT")
     end
+    -- Path validation (unkeyed sessions): always in the clear.
+    if code == 8 or code == 9 then
+        if length ~= CONTROL_SIZES[code][1] then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (wrong length)"
+        end
+        tree:add(f.path_token, tvb(HEADER + 1, 16))
+        if code == 9 then tree:add(f.nonce, tvb(HEADER + 17, 16)) end
+        return name
+    end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then
         if length < HEADER + 1 + PN + TAG then
@@ -353,7 +367,11 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         return string.format("%s pn=%d", name, pn)
     end
     if code == 3 then
-        if length ~= CONTROL_SIZES[3][1] then tree:add_proto_expert_info(e.bad_control) end
+        if length ~= CONTROL_SIZES[3][1] then
+            tree:add_proto_expert_info(e.bad_control)
+        else
+            tree:add(f.nonce, tvb(HEADER + 1, 16))
+        end
         return "KEEPALIVE"
     end
     return close_fields(tree, tvb, length, "CLOSE")
@@ -374,7 +392,7 @@ function tdtp.dissector(tvb, pinfo, tree)
     local handshake = false
     if ptype == 2 and length > HEADER then
         local code = tvb(HEADER, 1):uint()
-        handshake = code == 1 or code == 2 or code == 5 or code == 6
+        handshake = code == 1 or code == 2 or code == 5 or code == 6 or code == 8 or code == 9
     end
     if not handshake then root:add(f.keyed, keyed):set_generated() end
     if ptype == 3 then
