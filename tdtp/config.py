@@ -160,6 +160,10 @@ class ConnectionConfig:
     encrypt: bool = True
     """Keyed sessions: encrypt payloads (otherwise they are authenticated but readable). The master
     chooses; the slave adopts its choice."""
+    takeover: bool = False
+    """Keyed master: ask an exclusive slave (``listen(exclusive=True)``) to hand control to this
+    master at once, ending the session of the master that has it (the OPEN's TAKEOVER flag;
+    docs/PROTOCOL.md 5.8). Ignored by an unkeyed master: anyone could send it."""
     admission: AdmissionConfig = field(default_factory=AdmissionConfig)
     """A slave's policy for OPENs: cookies and rate limits."""
 
@@ -243,6 +247,7 @@ class ConnectionConfig:
             f"got {self.cipher_suite!r}",
         )
         _require(isinstance(self.encrypt, bool), f"encrypt must be a bool, got {self.encrypt!r}")
+        _require(isinstance(self.takeover, bool), f"takeover must be a bool, got {self.takeover!r}")
         _require(
             isinstance(self.admission, AdmissionConfig),
             f"admission must be an AdmissionConfig, got {self.admission!r}",

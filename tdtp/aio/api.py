@@ -51,7 +51,7 @@ from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
 from tdtp.session.state import State
-from tdtp.wire.control import CloseReason, ControlCode
+from tdtp.wire.control import CloseReason, ControlCode, OpenFlags
 from tdtp.wire.header import HEADER_SIZE, PacketType
 
 __all__ = ["ConnectError", "Opener", "Server", "ServerStats", "connect", "listen"]
@@ -380,6 +380,10 @@ class ServerStats:
     accept backlog was full."""
     peers_accepted: int = 0
     """Connections established (the master confirmed the session)."""
+    peers_in_use: int = 0
+    """Exclusive server: admitted OPENs answered with REJECT ``IN_USE`` (another master commands)."""
+    takeovers: int = 0
+    """Exclusive server: sessions ended because another master took control."""
     admission: AdmissionStats = field(default_factory=AdmissionStats)
     """The front door: OPENs seen, cookies and rejects sent, drops by reason, bytes in and out."""
     migration: MigrationStats = field(default_factory=MigrationStats)
@@ -431,9 +435,24 @@ class Server:
         on_watchdog: WatchdogCallback | None = None,
         backlog: int = 16,
         keys: KeyRing | None = None,
+        exclusive: bool = False,
+        takeover_after: int = 3,
     ) -> None:
         if isinstance(max_peers, bool) or not isinstance(max_peers, int) or max_peers < 1:
             raise InvalidArgumentError(f"max_peers must be an integer >= 1, got {max_peers!r}")
+        if not isinstance(exclusive, bool):
+            raise ArgumentTypeError(f"exclusive must be True or False, got {exclusive!r}")
+        if (
+            isinstance(takeover_after, bool)
+            or not isinstance(takeover_after, int)
+            or not 1 <= takeover_after <= 1000
+        ):
+            raise InvalidArgumentError(
+                f"takeover_after must be an integer from 1 to 1000 (watchdog periods), got "
+                f"{takeover_after!r}"
+            )
+        self._exclusive = exclusive
+        self._takeover_after = takeover_after
         if isinstance(backlog, bool) or not isinstance(backlog, int) or backlog < 1:
             raise InvalidArgumentError(f"backlog must be an integer >= 1, got {backlog!r}")
         self._config = config
@@ -603,10 +622,39 @@ class Server:
                 endpoint._flush(now)
                 return
 
+    def _exclusive_refuses(self, admitted: AdmittedOpen, addr: Address, now: float) -> bool:
+        """Exclusive server (PROTOCOL.md 5.8): the master commanding the slave keeps it unless it
+        has been silent for ``takeover_after`` watchdog periods, or the new master is keyed and
+        asks with TAKEOVER; then it is ended (``taken_over``). True: refused with REJECT IN_USE."""
+        holders = [ep for ep in self._peers.values() if not ep.is_closed]
+        if not holders:
+            return False
+        takeover = admitted.key is not None and bool(admitted.body.flags & OpenFlags.TAKEOVER)
+        silence = self._takeover_after * self._admission.config.silence_timeout
+        if not takeover and any(ep.connection.quiet_for(now) < silence for ep in holders):
+            assert self._sender is not None
+            self.stats.peers_in_use += 1
+            self._sender.sendto(self._admission.reject(admitted, CloseReason.IN_USE), addr)
+            logger.info("tdtp slave: refused %s (exclusive, in use)", format_address(addr))
+            return True
+        for endpoint in holders:
+            self.stats.takeovers += 1
+            logger.info(
+                "tdtp slave: %s takes control from %s%s",
+                format_address(addr),
+                format_address(endpoint.peer),
+                " (takeover flag)" if takeover else " (silent)",
+            )
+            endpoint.connection.close(now=now, taken_over=True)
+            endpoint._flush(now)
+        return False
+
     def _open(
         self, admitted: AdmittedOpen, key: tuple[object, object], addr: Address, now: float
     ) -> None:
         assert self._sender is not None
+        if self._exclusive and self._exclusive_refuses(admitted, addr, now):
+            return
         if len(self._peers) >= self._max_peers or (
             self._on_data is None and len(self._pending) >= self._backlog
         ):
@@ -672,6 +720,8 @@ def listen(
     keys: KeysInput | None = None,
     pcap: CaptureTarget | None = None,
     reuse_port: bool = False,
+    exclusive: bool = False,
+    takeover_after: int = 3,
 ) -> Opener[Server]:
     """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
 
@@ -698,6 +748,12 @@ def listen(
     each listen on the same port: the kernel hands a master's datagrams, by its address, always to
     the same one. A process per core, each with its own server, spreads the masters over every core
     (README, "Sessions at scale"). Every process must pass ``reuse_port=True``.
+
+    ``exclusive=True``: at most one master commands the slave at a time (docs/PROTOCOL.md 5.8). A new
+    master is refused (REJECT ``IN_USE``) unless the one in control has been silent for
+    ``takeover_after`` watchdog periods (``silence_timeout`` each; 1 to 1000, default 3), or the new
+    one is keyed and connects with ``ConnectionConfig(takeover=True)``: then the old session ends with
+    the cause ``taken_over`` and the new master takes control.
     """
     if host is not None and not isinstance(host, str):
         raise InvalidArgumentError(f"host must be an address, a host name or None, got {host!r}")
@@ -722,6 +778,8 @@ def listen(
         on_watchdog=on_watchdog,
         backlog=backlog,
         keys=ring,
+        exclusive=exclusive,
+        takeover_after=takeover_after,
     )
     return Opener(lambda: _listen(server, host, port, spec, netem_seed, timer, pcap, reuse_port))
 

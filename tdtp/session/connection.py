@@ -1,15 +1,12 @@
 """The sans-IO TDTP connection: a state machine that never touches a socket or reads a clock.
 
-The caller owns I/O and time. It feeds datagrams in with :meth:`Connection.receive_datagram`, timer expiries
-with :meth:`Connection.handle_timer` and samples with :meth:`Connection.send`, always passing ``now``
-(seconds on one monotonic clock). After every input it collects :meth:`Connection.datagrams_to_send` and
-re-arms a single timer at :meth:`Connection.get_timer`. What happened comes out of
-:meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and the virtual-time simulator
-all drive this one class.
-
-The watchdog's reactions live here too: nothing heard from the peer for ``silence_timeout`` gives a
-:class:`~tdtp.session.events.PeerSilent` event, the next datagram a :class:`~tdtp.session.events.PeerResumed`, and the
-connection survives the outage until ``idle_timeout`` (docs/PROTOCOL.md section 5.2).
+The caller owns I/O and time. It feeds datagrams in with :meth:`Connection.receive_datagram`, timer
+expiries with :meth:`Connection.handle_timer` and samples with :meth:`Connection.send`, always passing
+``now`` (seconds on one monotonic clock). After every input it collects
+:meth:`Connection.datagrams_to_send` and re-arms a single timer at :meth:`Connection.get_timer`. What
+happened comes out of :meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and
+the virtual-time simulator all drive this one class. The watchdog's reactions (PeerSilent, PeerResumed,
+the idle timeout: docs/PROTOCOL.md section 5.2) and path migration (5.7) live here too.
 
 :class:`Connection` holds the session's state machine: it checks the caller's input against the state,
 takes every datagram in (address, size, packet protection, type) and dispatches it, and carries out
@@ -367,13 +364,17 @@ class Connection:
         """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
         self._sender.resume()
 
-    def close(self, *, now: float) -> None:
-        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`."""
+    def close(self, *, now: float, taken_over: bool = False) -> None:
+        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`.
+        ``taken_over``: an exclusive slave hands control to another master (PROTOCOL.md 5.8)."""
         if self._state is State.CLOSED:
             return
+        reason = CloseReason.TAKEN_OVER if taken_over else CloseReason.NORMAL
         if self._state in (State.OPENING, State.ESTABLISHED) and self._peer is not None:
-            self._queue_close(CloseReason.NORMAL, self._peer)
-        self._terminate(CloseCause.LOCAL_CLOSE, "closed by the application")
+            self._queue_close(reason, self._peer)
+        cause = CloseCause.TAKEN_OVER if taken_over else CloseCause.LOCAL_CLOSE
+        detail = "another master took control" if taken_over else "closed by the application"
+        self._terminate(cause, detail)
 
     def accept_open(self, admitted: AdmittedOpen, addr: Address, *, now: float) -> None:
         """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already

@@ -32,6 +32,10 @@ class CloseCause(enum.Enum):
     """The same master opened a new connection (it restarted): this older one is over."""
     KEY_EXHAUSTED = "key_exhausted"
     """A keyed session protected as many packets as its keys may (or saw too many forgeries)."""
+    TAKEN_OVER = "taken_over"
+    """An exclusive slave handed control to another master (this one was silent, or the other
+    asked with ``takeover=True``); the slave's side ends with this cause, the master's with
+    ``peer_close`` and the detail ``taken_over``."""
 
 
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one

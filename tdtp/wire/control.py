@@ -90,9 +90,14 @@ class OpenFlags(enum.IntFlag):
     """Pre-shared-key session: OPEN and OPEN_ACK end in a tag, every later packet is protected."""
     ENCRYPTED = 0x04
     """Keyed session whose payloads are encrypted (otherwise only authenticated). Needs KEYED."""
+    TAKEOVER = 0x08
+    """OPEN only, keyed only: an exclusive slave hands control to this master at once, ending the
+    session of the master that had it (docs/PROTOCOL.md 5.8). Never echoed in the OPEN_ACK."""
 
 
-KNOWN_FLAGS: Final = int(OpenFlags.SEPARATE_ACKS | OpenFlags.KEYED | OpenFlags.ENCRYPTED)
+KNOWN_FLAGS: Final = int(
+    OpenFlags.SEPARATE_ACKS | OpenFlags.KEYED | OpenFlags.ENCRYPTED | OpenFlags.TAKEOVER
+)
 
 
 class CipherSuite(enum.IntEnum):
@@ -126,6 +131,11 @@ class CloseReason(enum.IntEnum):
     """The same master opened a new connection; this older one is over."""
     KEY_EXHAUSTED = 11
     """The session sent as many packets as its keys may protect; open a new connection."""
+    IN_USE = 12
+    """REJECT: the slave is exclusive and another master commands it (docs/PROTOCOL.md 5.8)."""
+    TAKEN_OVER = 13
+    """CLOSE: the slave is exclusive and another master took control (after this one was silent,
+    or at once with the TAKEOVER flag)."""
 
 
 class OpenBody(NamedTuple):
