@@ -50,21 +50,23 @@ async def test_a_silent_master_is_replaced_after_its_takeover_period() -> None:
 
 @pytest.mark.asyncio
 async def test_a_keyed_master_takes_over_at_once_with_the_flag() -> None:
-    async with listen(keys=[KEY, SECOND], exclusive=True) as server:
-        async with connect("127.0.0.1", server.port, key=KEY) as first:
-            held = await server.accept()
-            # Without the flag: refused while the first one is alive.
-            with pytest.raises(ConnectError, match="IN_USE|exclusive"):
-                await connect("127.0.0.1", server.port, key=SECOND)
-            config = ConnectionConfig(takeover=True)
-            async with connect("127.0.0.1", server.port, key=SECOND, config=config) as second:
-                taken = await server.accept()
-                assert taken.connection.key == SECOND
-                assert (await held.wait_closed()).cause is CloseCause.TAKEN_OVER
-                # The master that lost control hears it: CLOSE with the reason taken_over.
-                lost = await first.wait_closed()
-                assert lost.cause is CloseCause.PEER_CLOSE and lost.detail == "taken_over"
-                assert not second.is_closed
+    async with (
+        listen(keys=[KEY, SECOND], exclusive=True) as server,
+        connect("127.0.0.1", server.port, key=KEY) as first,
+    ):
+        held = await server.accept()
+        # Without the flag: refused while the first one is alive.
+        with pytest.raises(ConnectError, match="exclusive"):
+            await connect("127.0.0.1", server.port, key=SECOND)
+        config = ConnectionConfig(takeover=True)
+        async with connect("127.0.0.1", server.port, key=SECOND, config=config) as second:
+            taken = await server.accept()
+            assert taken.connection.key == SECOND
+            assert (await held.wait_closed()).cause is CloseCause.TAKEN_OVER
+            # The master that lost control hears it: CLOSE with the reason taken_over.
+            lost = await first.wait_closed()
+            assert lost.cause is CloseCause.PEER_CLOSE and lost.detail == "taken_over"
+            assert not second.is_closed
 
 
 @pytest.mark.asyncio
