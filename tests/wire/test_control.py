@@ -195,12 +195,15 @@ def test_codes_and_constants_are_pinned() -> None:
         "SUITE_UNSUPPORTED": 9,
         "REPLACED": 10,
         "KEY_EXHAUSTED": 11,
+        "IN_USE": 12,
+        "TAKEN_OVER": 13,
     }
     assert int(OpenFlags.NONE) == 0
     assert {f.name: int(f) for f in OpenFlags if f.name} == {
         "SEPARATE_ACKS": 1,
         "KEYED": 2,
         "ENCRYPTED": 4,
+        "TAKEOVER": 8,
     }
     assert {s.name: int(s) for s in CipherSuite} == {
         "NONE": 0,

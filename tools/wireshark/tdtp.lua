@@ -32,6 +32,7 @@ local REASON_NAMES = {
     [0] = "NORMAL", [1] = "IDLE_TIMEOUT", [2] = "PROTOCOL_ERROR", [3] = "VERSION_UNSUPPORTED",
     [4] = "REFUSED", [5] = "BUSY", [6] = "KEY_REQUIRED", [7] = "KEY_UNKNOWN",
     [8] = "PAYLOAD_TOO_SMALL", [9] = "SUITE_UNSUPPORTED", [10] = "REPLACED", [11] = "KEY_EXHAUSTED",
+    [12] = "IN_USE", [13] = "TAKEN_OVER",
 }
 local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknowledgement" }
 
@@ -63,7 +64,8 @@ f.flags = ProtoField.uint8("tdtp.flags", "Flags", base.HEX)
 f.flag_separate = ProtoField.bool("tdtp.flags.separate_acks", "SEPARATE_ACKS", 8, nil, 0x01)
 f.flag_keyed = ProtoField.bool("tdtp.flags.keyed", "KEYED", 8, nil, 0x02)
 f.flag_encrypted = ProtoField.bool("tdtp.flags.encrypted", "ENCRYPTED", 8, nil, 0x04)
-f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0xF8)
+f.flag_takeover = ProtoField.bool("tdtp.flags.takeover", "TAKEOVER", 8, nil, 0x08)
+f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0xF0)
 f.suite = ProtoField.uint8("tdtp.suite", "Cipher suite", base.DEC, SUITE_NAMES)
 f.max_payload = ProtoField.uint16("tdtp.max_payload", "Max payload", base.DEC)
 f.attempt = ProtoField.uint16("tdtp.attempt", "Attempt", base.DEC)
@@ -231,9 +233,10 @@ local function add_flags(tree, tvb, offset)
     item:add(f.flag_separate, tvb(offset, 1))
     item:add(f.flag_keyed, tvb(offset, 1))
     item:add(f.flag_encrypted, tvb(offset, 1))
+    item:add(f.flag_takeover, tvb(offset, 1))
     item:add(f.flag_reserved, tvb(offset, 1))
     local flags = tvb(offset, 1):uint()
-    if flags >= 8 then item:add_proto_expert_info(e.reserved_flags) end
+    if flags >= 16 then item:add_proto_expert_info(e.reserved_flags) end
     return flags, item
 end
 
