@@ -11,7 +11,9 @@
   opening), :mod:`~tdtp.session.liveness` (keep-alive, watchdog and idle clocks),
   :mod:`~tdtp.session.recovery` (loss recovery), :mod:`~tdtp.session.ack_scheduler` (the ACKs owed),
   :mod:`~tdtp.session.sender` (the sample waiting to leave), :mod:`~tdtp.session.outbox` (what leaves),
-  :mod:`~tdtp.session.event_queue` (the bounded event queue), :mod:`~tdtp.session.timer_hint`.
+  :mod:`~tdtp.session.event_queue` (the bounded event queue), :mod:`~tdtp.session.timer_hint`,
+  :mod:`~tdtp.session.path` (the peer's address: validated, or under the 3x amplification limit);
+* :mod:`tdtp.session.state`: :class:`State`, where a session is in its life.
 
 Nothing here imports asyncio, the command line, the emulator or the simulator, or reads a clock
 (docs/ARCHITECTURE.md; ``tests/test_layering.py`` enforces it). This package's ``__init__`` imports
