@@ -34,7 +34,7 @@ from tdtp.errors import (
 )
 from tdtp.protection.key_file import load_keys, write_key_file
 from tdtp.protection.keys import KeyRing, PresharedKey
-from tdtp.session.connection import Connection, State
+from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
     CloseCause,
@@ -45,6 +45,7 @@ from tdtp.session.events import (
     PeerResumed,
     PeerSilent,
 )
+from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats, DirectionStats, DropReason
 from tdtp.wire import HEADER_SIZE, CipherSuite
 

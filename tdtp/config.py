@@ -75,16 +75,30 @@ class AdmissionConfig:
     """Source addresses whose OPEN rate is tracked (least recently seen forgotten first)."""
     replies_per_second: float = 20_000.0
     """COOKIE and version-REJECT replies per second to unvalidated sources, all together: bounds the
-    CPU a flood of OPENs from forged addresses costs (each reply is never larger than its OPEN)."""
+    CPU a flood of OPENs from forged addresses costs (each reply is never larger than its OPEN).
+    PATH_CHALLENGEs (path migration) draw from the same budget."""
     resets_per_second: float = 1000.0
     """RESETs per second, all sources together, answering session datagrams from addresses without a
     session (a restarted slave hearing its old masters): a budget of its own, so that a flood of them
     cannot starve the COOKIEs a reconnecting master needs, and bounded so that it caps the CPU (one
     HMAC per key that fits, keyed) and the bytes (never more than what arrived) a flood can cost."""
+    migration_trials_per_second: float = 2_000.0
+    """Keyed path migration: trial authentications per second, all together, of datagrams from
+    unknown addresses against sessions whose master is quiet. Bounds the CPU a flood from unknown
+    addresses costs (one AEAD check each; past the budget they are dropped and counted)."""
+    migration_quiet: float = 0.005
+    """A session is a candidate for path migration once nothing has come from its master's address
+    for this long (a master sends at least once per keep-alive interval)."""
 
     def __post_init__(self) -> None:
         _positive_finite("cookie_lifetime", self.cookie_lifetime)
-        for name in ("opens_per_source", "replies_per_second", "resets_per_second"):
+        _positive_finite("migration_quiet", self.migration_quiet)
+        for name in (
+            "opens_per_source",
+            "replies_per_second",
+            "resets_per_second",
+            "migration_trials_per_second",
+        ):
             _positive_finite(name, getattr(self, name), "per second")
         for name in ("open_burst", "max_sources"):
             value = getattr(self, name)
@@ -159,6 +173,10 @@ class ConnectionConfig:
     encrypt: bool = True
     """Keyed sessions: encrypt payloads (otherwise they are authenticated but readable). The master
     chooses; the slave adopts its choice."""
+    takeover: bool = False
+    """Keyed master: ask an exclusive slave (``listen(exclusive=True)``) to hand control to this
+    master at once, ending the session of the master that has it (the OPEN's TAKEOVER flag;
+    docs/PROTOCOL.md 5.9). Ignored by an unkeyed master: anyone could send it."""
     admission: AdmissionConfig = field(default_factory=AdmissionConfig)
     """A slave's policy for OPENs: cookies and rate limits."""
 
@@ -242,6 +260,7 @@ class ConnectionConfig:
             f"got {self.cipher_suite!r}",
         )
         _require(isinstance(self.encrypt, bool), f"encrypt must be a bool, got {self.encrypt!r}")
+        _require(isinstance(self.takeover, bool), f"takeover must be a bool, got {self.takeover!r}")
         _require(
             isinstance(self.admission, AdmissionConfig),
             f"admission must be an AdmissionConfig, got {self.admission!r}",

@@ -13,12 +13,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from tdtp import Connection, ConnectionConfig, DataReceived, Event, Role
+from tdtp.admission import Admission, PathMigration
 from tdtp.capture.pcap import PcapWriter
 from tdtp.protection.keys import KeyInput, KeysInput
 
 MASTER_ADDR = ("192.0.2.1", 40001)
 SLAVE_ADDR = ("192.0.2.2", 40002)
 
+Addr = tuple[str, int]
 DropRule = Callable[[int], bool]
 DelayRule = Callable[[int], float]
 
@@ -104,13 +106,21 @@ class Pair:
         )
         self.ms = ms if ms is not None else Direction()
         self.sm = sm if sm is not None else Direction()
-        self._in_flight: list[tuple[float, int, bytes, bool]] = []  # (time, order, data, to_slave)
+        # (time, order, data, to_slave, source address, destination address)
+        self._in_flight: list[tuple[float, int, bytes, bool, Addr, Addr]] = []
         self._order = 0
         self.capture: PcapWriter | None = None
         """Records every datagram sent (before the fake network's loss) and injected."""
         self.capture_epoch = 1_700_000_000.0
         self.addresses = (MASTER_ADDR, SLAVE_ADDR)
         """What the capture names the master and the slave (the connections use the defaults)."""
+        self.migration: PathMigration | None = None
+        """The slave's front for datagrams from addresses its session does not hold (path
+        migration), as a server has; ``None`` (the default): they reach the connection directly."""
+        self.to_dead_address = 0
+        """Datagrams the slave sent to an address the master no longer has (after rebind_master)."""
+        self.challenges = 0
+        """PATH_CHALLENGEs the slave's front sent."""
 
     # ----------------------------------------------------------------- driving
 
@@ -184,9 +194,22 @@ class Pair:
     def _step(self) -> None:
         now = self.now
         while self._in_flight and self._in_flight[0][0] <= now:
-            _, _, data, to_slave = heapq.heappop(self._in_flight)
-            target, source = (self.slave, self.master) if to_slave else (self.master, self.slave)
-            target.conn.receive_datagram(data, source.addr, now=now)
+            _, _, data, to_slave, src, dst = heapq.heappop(self._in_flight)
+            target = self.slave if to_slave else self.master
+            if dst != target.addr:
+                self.to_dead_address += 1
+                continue
+            peer = target.conn.peer
+            if to_slave and self.migration is not None and peer is not None and src != peer:
+                outcome = self.migration.on_unattached(data, src, now, [target.conn])
+                if isinstance(outcome, bytes):
+                    self.challenges += 1
+                    self._send(outcome, to_slave=False, src=SLAVE_ADDR, dst=src)
+                    continue
+                if outcome is None:
+                    continue
+            else:
+                target.conn.receive_datagram(data, src, now=now)
             self._drain(target)
             self._flush(target)
         for endpoint in (self.master, self.slave):
@@ -211,18 +234,32 @@ class Pair:
             else:
                 endpoint.events.append(event)
 
+    def rebind_master(self, addr: Addr) -> None:
+        """A NAT rebinding: from now on the master's datagrams come from ``addr``, and what the
+        slave sends to the old address is lost. Installs the slave's path-migration front (as a
+        server has) if there is none."""
+        self.master.addr = addr
+        if self.migration is None:
+            self.migration = Admission(self.slave.conn.config, rng=random.Random(7)).paths
+
     def _flush(self, endpoint: Endpoint) -> None:
         to_slave = endpoint is self.master
+        for data, addr in endpoint.conn.datagrams_to_send(now=self.now):
+            self._send(data, to_slave=to_slave, src=endpoint.addr, dst=addr)
+
+    def _send(self, data: bytes, *, to_slave: bool, src: Addr, dst: Addr) -> None:
         direction = self.ms if to_slave else self.sm
-        for data, _addr in endpoint.conn.datagrams_to_send(now=self.now):
-            if self.capture is not None:
-                source, target = self.addresses if to_slave else self.addresses[::-1]
-                self.capture.write_udp(source, target, data, self.capture_epoch + self.now)
-            admitted = direction.admit(data)
-            if admitted is not None:
-                delay, arriving = admitted
-                self._order += 1
-                heapq.heappush(self._in_flight, (self.now + delay, self._order, arriving, to_slave))
+        if self.capture is not None:
+            source, target = self.addresses if to_slave else self.addresses[::-1]
+            self.capture.write_udp(source, target, data, self.capture_epoch + self.now)
+        admitted = direction.admit(data)
+        if admitted is not None:
+            delay, arriving = admitted
+            self._order += 1
+            heapq.heappush(
+                self._in_flight,
+                (self.now + delay, self._order, arriving, to_slave, src, dst),
+            )
 
     def inject(self, data: bytes, *, to_slave: bool, source: tuple[str, int]) -> None:
         """Hand a crafted datagram to one side now, as if it came from ``source``."""

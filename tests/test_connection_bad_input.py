@@ -18,8 +18,11 @@ from tdtp.wire import (
     PacketType,
     encode_close,
     encode_header,
+    encode_keepalive,
     encode_open,
     encode_open_ack,
+    encode_path_challenge,
+    encode_path_response,
 )
 
 from pair import MASTER_ADDR, SLAVE_ADDR, Pair
@@ -29,7 +32,9 @@ OTHER_NONCE = bytes(range(16))
 CONTROL_HEADER = encode_header(2, 0, 0, 0, 255)
 
 
-def _open(nonce: bytes = OTHER_NONCE, cookie: bytes = bytes(16), version: int = 3) -> bytes:
+def _open(
+    nonce: bytes = OTHER_NONCE, cookie: bytes = bytes(16), version: int = PROTOCOL_VERSION
+) -> bytes:
     body = OpenBody(version, 0, 0, 1200, 0, nonce, bytes(8), cookie)
     return CONTROL_HEADER + encode_open(body)
 
@@ -62,6 +67,15 @@ def _drops(pair: Pair) -> dict[str, int]:
             CONTROL_HEADER + encode_close(ControlCode.CLOSE, OTHER_NONCE, 0),
             MASTER_ADDR,
             "nonce_mismatch",
+        ),
+        # A KEEPALIVE with another nonce (a blind forgery): no sign of life, counted.
+        (CONTROL_HEADER + encode_keepalive(OTHER_NONCE), MASTER_ADDR, "nonce_mismatch"),
+        # Path validation is the master's to answer and the server's to check, not a slave session's.
+        (CONTROL_HEADER + encode_path_challenge(OTHER_NONCE), MASTER_ADDR, "unexpected_control"),
+        (
+            CONTROL_HEADER + encode_path_response(OTHER_NONCE, OTHER_NONCE),
+            MASTER_ADDR,
+            "unexpected_control",
         ),
         # An OPEN without a cookie: answered with a COOKIE, nothing kept.
         (_open(), MASTER_ADDR, "unvalidated"),

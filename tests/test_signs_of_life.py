@@ -10,6 +10,7 @@ import pytest
 
 from tdtp import CloseCause, Connection, ConnectionClosed, ConnectionConfig, Role, State
 from tdtp.wire import ControlCode, OpenBody, PacketType, encode_header, encode_open
+from tdtp.wire.control import PROTOCOL_VERSION
 
 from pair import MASTER_ADDR, SLAVE_ADDR, Direction, Pair
 
@@ -18,7 +19,7 @@ OTHER_NONCE = bytes(range(16))
 
 def _open(nonce: bytes, cookie: bytes = bytes(16), max_payload: int = 1200) -> bytes:
     return encode_header(PacketType.CONTROL, 0x123, 0, 0, 255) + encode_open(
-        OpenBody(3, 0, 0, max_payload, 1, nonce, bytes(8), cookie)
+        OpenBody(PROTOCOL_VERSION, 0, 0, max_payload, 1, nonce, bytes(8), cookie)
     )
 
 

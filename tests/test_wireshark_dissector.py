@@ -18,15 +18,20 @@ from tdtp.wire import (
     OpenAckBody,
     OpenBody,
     OpenFlags,
+    PathChallengeBody,
+    PathResponseBody,
     decode_control,
     decode_header,
     decode_hold,
     encode_header,
     encode_open,
+    encode_path_challenge,
+    encode_path_response,
 )
+from tdtp.wire.control import PROTOCOL_VERSION
 
 from capture_files import needs_tshark, read_pcap, tshark_fields, udp_payload
-from pair import MASTER_ADDR, Pair
+from pair import MASTER_ADDR, SLAVE_ADDR, Pair
 
 pytestmark = needs_tshark
 
@@ -51,6 +56,7 @@ FIELDS = [
     "tdtp.nonce",
     "tdtp.key_id",
     "tdtp.cookie",
+    "tdtp.path_token",
     "tdtp.open_ack.pn",
     "tdtp.slave_nonce",
     "tdtp.reason",
@@ -86,7 +92,7 @@ def expected_fields(datagram: bytes, keyed: bool) -> dict[str, str]:
         absent = [(ack - i) % 4096 for i in range(1, 7) if not sack >> (i - 1) & 1]
         out["tdtp.acked"] = ",".join(map(str, received))
         out["tdtp.absent"] = ",".join(map(str, absent))
-    handshake = ptype == 2 and len(datagram) > 5 and datagram[5] in (1, 2, 5, 6, 7)
+    handshake = ptype == 2 and len(datagram) > 5 and datagram[5] in (1, 2, 5, 6, 7, 8, 9)
     if not handshake:
         out["tdtp.keyed"] = "1" if keyed else "0"
     if ptype == 2:
@@ -99,7 +105,10 @@ def expected_fields(datagram: bytes, keyed: bool) -> dict[str, str]:
         return out
     if ptype == 0:
         out["tdtp.payload_len"] = str(len(datagram) - 5)
-    if ptype != 2 or datagram[5] == 3:
+    if ptype != 2:
+        return out
+    if datagram[5] == 3:
+        out["tdtp.nonce"] = datagram[6:22].hex()
         return out
     tag = b""
     body = decode_control(datagram[5:])
@@ -137,6 +146,11 @@ def expected_fields(datagram: bytes, keyed: bool) -> dict[str, str]:
     elif isinstance(body, CloseBody):
         out["tdtp.nonce"] = body.nonce.hex()
         out["tdtp.reason"] = str(body.reason)
+    elif isinstance(body, PathChallengeBody):
+        out["tdtp.path_token"] = body.token.hex()
+    elif isinstance(body, PathResponseBody):
+        out["tdtp.path_token"] = body.token.hex()
+        out["tdtp.nonce"] = body.nonce.hex()
     if tag:
         out["tdtp.tag"] = tag.hex()
     return out
@@ -187,12 +201,18 @@ def _build(path: Path) -> tuple[dict[int, bool], dict[int, str]]:
         inject(encode_header(3, 1, 0, 0, 255) + b"x", "TYPE 3 is reserved")
         inject(encode_header(0, 1, 0, 0, 255), "DATA without payload")
         inject(encode_header(0, 1, 5, 1, 255) + b"x", "HOLD 255 (no acknowledgement) with ACK")
-        inject(encode_header(2, 1, 0, 0, 255) + b"\x09", "Unknown control code")
+        # Path validation: a challenge to the master, its response to the slave.
+        token = bytes(range(16, 32))
+        challenge = encode_header(2, 0, 0, 0, 255) + encode_path_challenge(token)
+        pair.inject(challenge, to_slave=False, source=SLAVE_ADDR)
+        response = encode_path_response(token, pair.master.conn.master_nonce)
+        pair.inject(encode_header(2, 0, 0, 0, 255) + response, to_slave=True, source=MASTER_ADDR)
+        inject(encode_header(2, 1, 0, 0, 255) + b"\x0a", "Unknown control code")
         inject(encode_header(2, 1, 0, 0, 255) + b"\x03\x00", "Malformed control packet")
         inject(encode_header(2, 0, 0, 0, 255) + b"\x07" + bytes(20), "Malformed control packet")
-        open_body = OpenBody(3, 0, 0, 0, 0, bytes(16), bytes(8), bytes(16))
+        open_body = OpenBody(PROTOCOL_VERSION, 0, 0, 0, 0, bytes(16), bytes(8), bytes(16))
         inject(encode_header(2, 1, 0, 0, 255) + encode_open(open_body), "max_payload 0")
-        open_body = OpenBody(3, 4, 0, 100, 0, bytes(16), bytes(8), bytes(16))
+        open_body = OpenBody(PROTOCOL_VERSION, 4, 0, 100, 0, bytes(16), bytes(8), bytes(16))
         inject(encode_header(2, 1, 0, 0, 255) + encode_open(open_body), "Inconsistent flags")
         separate = _session(
             writer, SEPARATE, config=ConnectionConfig(ack_mode=AckMode.SEPARATE, ack_size=12)
@@ -235,7 +255,7 @@ def test_every_packet_type_field_by_field(tmp_path: Path) -> None:
     assert {("0", False), ("1", False), ("2", False), ("0", True), ("1", True), ("2", True)} <= (
         types_seen
     )
-    assert {"1", "2", "3", "4", "5", "6"} <= codes_seen
+    assert {"1", "2", "3", "4", "5", "6", "8", "9"} <= codes_seen
 
 
 def test_the_port_preference_claims_a_port_another_dissector_owns(tmp_path: Path) -> None:

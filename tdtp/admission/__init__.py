@@ -3,6 +3,7 @@ per-session state exists (docs/PROTOCOL.md section 5.1)."""
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
 from tdtp.admission.cookie import CookieJar
+from tdtp.admission.path_migration import MigrationStats, PathMigration
 from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
 
 __all__ = [
@@ -10,6 +11,8 @@ __all__ = [
     "AdmissionStats",
     "AdmittedOpen",
     "CookieJar",
+    "MigrationStats",
+    "PathMigration",
     "Reply",
     "SourceRateLimiter",
     "TokenBucket",

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Final, NamedTuple
 
 from tdtp.admission.cookie import CookieJar
+from tdtp.admission.path_migration import PathMigration
 from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
 from tdtp.config import ConnectionConfig
 from tdtp.protection.derivation import derive_open_secret, reset_tag
@@ -146,6 +147,8 @@ class Admission:
             tuple(key.reset_key for key in keys) if keys is not None else ()
         )
         self.stats = AdmissionStats()
+        self.paths = PathMigration(policy, rng, self._replies)
+        """Path migration: finds the session a datagram from an unknown address belongs to."""
 
     def reset(self, data: bytes, now: float) -> bytes | None:
         """A RESET for a session datagram (DATA, ACK, KEEPALIVE) from an address holding no

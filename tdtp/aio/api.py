@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
+from tdtp.admission.path_migration import MigrationStats
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.datagram_transport import datagram_endpoint
 from tdtp.aio.endpoint import (
@@ -49,9 +50,10 @@ from tdtp.errors import (
 )
 from tdtp.netem import NetemSpec
 from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
-from tdtp.session.connection import Connection, State
+from tdtp.session.connection import Connection
 from tdtp.session.events import Address
-from tdtp.wire.control import CloseReason, ControlCode
+from tdtp.session.state import State
+from tdtp.wire.control import CloseReason, ControlCode, OpenFlags
 from tdtp.wire.header import HEADER_SIZE, PacketType
 
 __all__ = ["ConnectError", "Opener", "Server", "ServerStats", "connect", "listen"]
@@ -397,8 +399,14 @@ class ServerStats:
     peers_evicted: int = 0
     """Sessions closed (``EVICTED``) to make room for a new master while the server was full: each
     one's master had been silent longest, beyond its silence timeout."""
+    peers_in_use: int = 0
+    """Exclusive server: admitted OPENs answered with REJECT ``IN_USE`` (another master commands)."""
+    takeovers: int = 0
+    """Exclusive server: sessions ended because another master took control."""
     admission: AdmissionStats = field(default_factory=AdmissionStats)
     """The front door: OPENs seen, cookies and rejects sent, drops by reason, bytes in and out."""
+    migration: MigrationStats = field(default_factory=MigrationStats)
+    """Path migration: datagrams from unknown addresses, trials, challenges, sessions moved."""
 
 
 class _ServerProtocol(asyncio.DatagramProtocol):
@@ -446,9 +454,24 @@ class Server:
         on_watchdog: WatchdogCallback | None = None,
         backlog: int = 16,
         keys: KeyRing | None = None,
+        exclusive: bool = False,
+        takeover_after: int = 3,
     ) -> None:
         if isinstance(max_peers, bool) or not isinstance(max_peers, int) or max_peers < 1:
             raise InvalidArgumentError(f"max_peers must be an integer >= 1, got {max_peers!r}")
+        if not isinstance(exclusive, bool):
+            raise ArgumentTypeError(f"exclusive must be True or False, got {exclusive!r}")
+        if (
+            isinstance(takeover_after, bool)
+            or not isinstance(takeover_after, int)
+            or not 1 <= takeover_after <= 1000
+        ):
+            raise InvalidArgumentError(
+                f"takeover_after must be an integer from 1 to 1000 (watchdog periods), got "
+                f"{takeover_after!r}"
+            )
+        self._exclusive = exclusive
+        self._takeover_after = takeover_after
         if isinstance(backlog, bool) or not isinstance(backlog, int) or backlog < 1:
             raise InvalidArgumentError(f"backlog must be an integer >= 1, got {backlog!r}")
         self._config = config
@@ -467,7 +490,9 @@ class Server:
         self._waiters: list[asyncio.Future[None]] = []
         """Tasks waiting in accept(): each one looks again when a master is established."""
         self._closed = False
-        self.stats = ServerStats(admission=self._admission.stats)
+        self.stats = ServerStats(
+            admission=self._admission.stats, migration=self._admission.paths.stats
+        )
 
     @property
     def sockname(self) -> Address:
@@ -576,16 +601,14 @@ class Server:
             # The connection ended on this OPEN: its master restarted and opens anew.
         if self._closed:
             return
-        # Only an OPEN may lead to state, and only once admitted. A session datagram from an address
-        # without a session gets a RESET (its master's session died with a restart of ours), within
-        # the RESET budget and never larger than what arrived; anything else costs nothing.
-        assert self._sender is not None
+        # Only an OPEN may lead to state, and only once admitted. Anything else may be a master
+        # whose address changed (path migration, within a bounded budget) or, when no session
+        # claims it, a master whose session died with a restart of ours: it gets a RESET.
         if not _is_open(data):
             self.stats.datagrams_unattached += 1
-            reset = self._admission.reset(data, monotonic())
-            if reset is not None:
-                self._sender.sendto(reset, addr)
+            self._on_unattached(data, key, addr)
             return
+        assert self._sender is not None
         now = monotonic()
         verdict = self._admission.admit(data, addr, now)
         if isinstance(verdict, Reply):
@@ -593,10 +616,72 @@ class Server:
         elif isinstance(verdict, AdmittedOpen):
             self._open(verdict, key, addr, now)
 
+    def _on_unattached(self, data: bytes, key: tuple[object, object], addr: Address) -> None:
+        """A datagram from an address no session holds: a master that moved (PROTOCOL.md 5.8)?"""
+        assert self._sender is not None
+        now = monotonic()
+        peers = self._peers
+        paths = self._admission.paths
+        outcome = paths.on_unattached(
+            data, addr, now, [endpoint.connection for endpoint in peers.values()]
+        )
+        if outcome is None:
+            # Only a datagram no session may own gets a RESET (PROTOCOL.md 5.7): one that might be
+            # the datagram of a master that moved does not (PathMigration.unclaimed).
+            if paths.unclaimed:
+                reset = self._admission.reset(data, now)
+                if reset is not None:
+                    self._sender.sendto(reset, addr)
+            return
+        if isinstance(outcome, bytes):
+            self._sender.sendto(outcome, addr)  # a PATH_CHALLENGE
+            return
+        for old_key, endpoint in peers.items():
+            if endpoint.connection is outcome:
+                del peers[old_key]
+                peers[key] = endpoint
+                logger.info(
+                    "tdtp slave: a master moved from %s:%s to %s",
+                    old_key[0],
+                    old_key[1],
+                    format_address(addr),
+                )
+                endpoint._flush(now)
+                return
+
+    def _exclusive_refuses(self, admitted: AdmittedOpen, addr: Address, now: float) -> bool:
+        """Exclusive server (PROTOCOL.md 5.9): the master commanding the slave keeps it unless it
+        has been silent for ``takeover_after`` watchdog periods, or the new master is keyed and
+        asks with TAKEOVER; then it is ended (``taken_over``). True: refused with REJECT IN_USE."""
+        holders = [ep for ep in self._peers.values() if not ep.is_closed]
+        if not holders:
+            return False
+        takeover = admitted.key is not None and bool(admitted.body.flags & OpenFlags.TAKEOVER)
+        silence = self._takeover_after * self._admission.config.silence_timeout
+        if not takeover and any(ep.connection.quiet_for(now) < silence for ep in holders):
+            assert self._sender is not None
+            self.stats.peers_in_use += 1
+            self._sender.sendto(self._admission.reject(admitted, CloseReason.IN_USE), addr)
+            logger.info("tdtp slave: refused %s (exclusive, in use)", format_address(addr))
+            return True
+        for endpoint in holders:
+            self.stats.takeovers += 1
+            logger.info(
+                "tdtp slave: %s takes control from %s%s",
+                format_address(addr),
+                format_address(endpoint.peer),
+                " (takeover flag)" if takeover else " (silent)",
+            )
+            endpoint.connection.close(now=now, taken_over=True)
+            endpoint._flush(now)
+        return False
+
     def _open(
         self, admitted: AdmittedOpen, key: tuple[object, object], addr: Address, now: float
     ) -> None:
         assert self._sender is not None
+        if self._exclusive and self._exclusive_refuses(admitted, addr, now):
+            return
         if len(self._peers) >= self._max_peers:
             self._evict_silent(now)
         if len(self._peers) >= self._max_peers or (
@@ -684,6 +769,8 @@ def listen(
     keys: KeysInput | None = None,
     pcap: CaptureTarget | None = None,
     reuse_port: bool = False,
+    exclusive: bool = False,
+    takeover_after: int = 3,
 ) -> Opener[Server]:
     """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
 
@@ -710,6 +797,12 @@ def listen(
     each listen on the same port: the kernel hands a master's datagrams, by its address, always to
     the same one. A process per core, each with its own server, spreads the masters over every core
     (README, "Sessions at scale"). Every process must pass ``reuse_port=True``.
+
+    ``exclusive=True``: at most one master commands the slave at a time (docs/PROTOCOL.md 5.9). A new
+    master is refused (REJECT ``IN_USE``) unless the one in control has been silent for
+    ``takeover_after`` watchdog periods (``silence_timeout`` each; 1 to 1000, default 3), or the new
+    one is keyed and connects with ``ConnectionConfig(takeover=True)``: then the old session ends with
+    the cause ``taken_over`` and the new master takes control.
     """
     if host is not None and not isinstance(host, str):
         raise InvalidArgumentError(f"host must be an address, a host name or None, got {host!r}")
@@ -734,6 +827,8 @@ def listen(
         on_watchdog=on_watchdog,
         backlog=backlog,
         keys=ring,
+        exclusive=exclusive,
+        takeover_after=takeover_after,
     )
     return Opener(lambda: _listen(server, host, port, spec, netem_seed, timer, pcap, reuse_port))
 

@@ -36,7 +36,7 @@ from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
 from tdtp.aio.timer import monotonic
 from tdtp.errors import ConnectionClosedError, ConnectionStateError, EndpointClosedError
-from tdtp.session.connection import Connection, State
+from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
     CloseCause,
@@ -46,6 +46,7 @@ from tdtp.session.events import (
     PeerResumed,
     PeerSilent,
 )
+from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats
 
 __all__ = [

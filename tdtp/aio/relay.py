@@ -112,6 +112,18 @@ class NetemRelay:
         self.forward.change(spec)
         self.back.change(spec if return_spec is None else return_spec)
 
+    async def rebind(self) -> None:
+        """A NAT rebinding: from now on each client's datagrams reach the target from a new socket
+        (a new source port), and the old sockets are closed, so what the target still sends to
+        them is lost. Tests path migration (docs/PROTOCOL.md 5.8)."""
+        for client, old in list(self._clients.items()):
+            fresh = _Upstream(self, client)
+            fresh.last_seen = old.last_seen
+            self._clients[client] = fresh
+            if old.transport is not None:
+                old.transport.close()
+            await self._open_upstream(fresh)
+
     def _from_client(self, data: bytes, client: Address) -> None:
         upstream = self._clients.get(client)
         if upstream is None:

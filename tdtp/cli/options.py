@@ -224,6 +224,21 @@ def build_parser() -> argparse.ArgumentParser:
     slave.add_argument(
         "--max-peers", type=_integer(1, 1 << 20), default=256, help="masters served at once (256)"
     )
+    slave.add_argument(
+        "--exclusive",
+        action="store_true",
+        help="at most one master commands this slave; another one is refused (REJECT IN_USE) "
+        "unless the one in control is silent for --takeover-after watchdog periods, or is keyed "
+        "and connects with --takeover",
+    )
+    slave.add_argument(
+        "--takeover-after",
+        type=_integer(1, 1000),
+        default=3,
+        metavar="N",
+        help="--exclusive: watchdog periods (--silence-timeout each) a master must be silent "
+        "before another one takes control (3)",
+    )
     add_key_arguments(slave)
     master = commands.add_parser("master", parents=[common], help="connect to a slave")
     master.add_argument("address", type=host_port, help="the slave, HOST:PORT")
@@ -240,6 +255,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=3.0,
         metavar="SECONDS",
         help="silence from the slave after which a reconnecting master opens a new session (3)",
+    )
+    master.add_argument(
+        "--takeover",
+        action="store_true",
+        help="take control of an exclusive slave at once, ending the session of the master "
+        "that has it (needs --key-file)",
     )
     add_key_arguments(master)
     relay = commands.add_parser(
@@ -281,6 +302,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def session_config(args: argparse.Namespace) -> ConnectionConfig:
+    takeover = bool(getattr(args, "takeover", False))
+    if takeover and getattr(args, "key_file", None) is None:
+        raise UsageError(
+            "--takeover needs --key-file: only a keyed master may take an exclusive slave over "
+            "(unkeyed, anyone could)"
+        )
     controller_config: object | None = None
     if args.controller == "fixed":
         controller_config = FixedConfig(rate=args.rate)
@@ -296,6 +323,7 @@ def session_config(args: argparse.Namespace) -> ConnectionConfig:
             # A peer that cannot take our samples is refused at the open, not on the first send.
             min_peer_payload=args.size,
             encrypt=not getattr(args, "no_encrypt", False),
+            takeover=takeover,
         )
     except InvalidArgumentError as exc:
         field = str(exc).split(" ", 1)[0]

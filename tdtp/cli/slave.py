@@ -59,6 +59,8 @@ async def _slave(
         netem_seed=netem_seed(args, 1),
         keys=keys.slave,
         pcap=capture,
+        exclusive=args.exclusive,
+        takeover_after=args.takeover_after,
     ) as server:
         warn_if_exposed(args.host, keys)  # once bound: a slave that failed to start exposes nothing
         display = None if args.json else LiveDisplay()

@@ -12,7 +12,11 @@
   :mod:`~tdtp.session.recovery` (loss recovery), :mod:`~tdtp.session.ack_scheduler` (the ACKs owed),
   :mod:`~tdtp.session.sender` (the sample waiting to leave), :mod:`~tdtp.session.outbox` (what leaves),
   :mod:`~tdtp.session.event_queue` (the bounded event queue), :mod:`~tdtp.session.timer_hint`,
-  :mod:`~tdtp.session.reset_guard` (a master's recent datagrams, which a RESET must echo).
+  :mod:`~tdtp.session.reset_guard` (a master's recent datagrams, which a RESET must echo),
+  :mod:`~tdtp.session.path` (the peer's address: validated, or under the 3x amplification limit);
+* :mod:`tdtp.session.state`: :class:`State`, where a session is in its life;
+* :mod:`tdtp.session.view`: :class:`~tdtp.session.view.ConnectionView`, the connection's read-only
+  properties (its base class).
 
 Nothing here imports asyncio, the command line, the emulator or the simulator, or reads a clock
 (docs/ARCHITECTURE.md; ``tests/test_layering.py`` enforces it). This package's ``__init__`` imports

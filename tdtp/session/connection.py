@@ -1,32 +1,17 @@
 """The sans-IO TDTP connection: a state machine that never touches a socket or reads a clock.
 
-The caller owns I/O and time. It feeds datagrams in with :meth:`Connection.receive_datagram`, timer expiries
-with :meth:`Connection.handle_timer` and samples with :meth:`Connection.send`, always passing ``now``
-(seconds on one monotonic clock). After every input it collects :meth:`Connection.datagrams_to_send` and
-re-arms a single timer at :meth:`Connection.get_timer`. What happened comes out of
-:meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and the virtual-time simulator
-all drive this one class.
-
-The watchdog's reactions live here too: nothing heard from the peer for ``silence_timeout`` gives a
-:class:`~tdtp.session.events.PeerSilent` event, the next datagram a :class:`~tdtp.session.events.PeerResumed`, and the
-connection survives the outage until ``idle_timeout`` (docs/PROTOCOL.md section 5.2).
+The caller owns I/O and time. It feeds datagrams in with :meth:`Connection.receive_datagram`, timer
+expiries with :meth:`Connection.handle_timer` and samples with :meth:`Connection.send`, always passing
+``now`` (seconds on one monotonic clock). After every input it collects
+:meth:`Connection.datagrams_to_send` and re-arms a single timer at :meth:`Connection.get_timer`. What
+happened comes out of :meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and
+the virtual-time simulator all drive this one class. The watchdog's reactions (PeerSilent, PeerResumed,
+the idle timeout: docs/PROTOCOL.md section 5.2) and path migration (5.8) live here too.
 
 :class:`Connection` holds the session's state machine: it checks the caller's input against the state,
 takes every datagram in (address, size, packet protection, type) and dispatches it, and carries out
-what the opening and the watchdog decide. The pieces with state of their own live beside it, each
-owning that state and importing nothing of the connection:
-
-* :mod:`tdtp.session.handshake`: the opening (nonces, the keyed / cipher choice, cookie, OPEN retries),
-  the OPEN and OPEN_ACK messages, the derivation of the session's keys;
-* :mod:`tdtp.session.liveness`: last receive and send, the watchdog's silence and outage, keep-alive
-  and idle deadlines;
-* :mod:`tdtp.session.recovery`: the sent log, RTT and loss-rate estimators, loss detection, and the
-  feedback that turns an acknowledgement into the controller's ``on_ack`` and ``on_loss_event``;
-* :mod:`tdtp.session.ack_scheduler`: the receive window and the acknowledgements owed to the peer;
-* :mod:`tdtp.session.sender`: the newest sample waiting for the pacer or the socket, and its departure;
-* :mod:`tdtp.session.outbox`: the framing, sealing and counting of what leaves, the control queue;
-* :mod:`tdtp.session.event_queue`: the bounded queue of events for the application;
-* :mod:`tdtp.session.timer_hint`: the bound on moved deadlines they all lower (:attr:`Connection.timer_hint`).
+what the opening and the watchdog decide. The pieces with state of their own (listed in
+:mod:`tdtp.session`) live beside it, each owning that state and importing nothing of the connection.
 
 Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
 ``stats.drops`` by reason. Misuse by the caller raises a :class:`~tdtp.errors.TdtpError` subclass.
@@ -34,7 +19,6 @@ Peer input never raises: anything malformed, unexpected or hostile is dropped an
 
 from __future__ import annotations
 
-import enum
 import math
 import random
 from collections.abc import Callable
@@ -42,10 +26,9 @@ from typing import Final
 
 from tdtp.admission.admission import Admission, AdmittedOpen
 from tdtp.config import AckMode, ConnectionConfig, Role
-from tdtp.control.base import RateController
 from tdtp.control.registry import create_controller
 from tdtp.errors import ArgumentTypeError, ConnectionClosedError, ConnectionStateError
-from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey
+from tdtp.protection.keys import KeyInput, KeysInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session.ack_scheduler import AckScheduler
 from tdtp.session.event_queue import EventQueue
@@ -62,18 +45,23 @@ from tdtp.session.events import (
 from tdtp.session.handshake import Handshake, Reaction, close_reason_text
 from tdtp.session.liveness import Liveness
 from tdtp.session.outbox import Outbox
+from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
+from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
+from tdtp.session.view import ConnectionView
 from tdtp.wire.control import (
     HANDSHAKE_CODES,
     OPEN_BODY_SIZE,
+    PATH_CODES,
     CloseBody,
     CloseReason,
     ControlCode,
+    KeepaliveBody,
     OpenFlags,
     decode_control,
 )
@@ -92,20 +80,7 @@ _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 ``max_payload`` is."""
 
 
-class State(enum.Enum):
-    """Where a :class:`Connection` is in its life: opening, established or closed."""
-
-    IDLE = "idle"
-    """A master that has not called :meth:`Connection.connect` yet."""
-    LISTENING = "listening"
-    """A slave waiting for its master's OPEN."""
-    OPENING = "opening"
-    """A master whose OPEN is not answered yet."""
-    ESTABLISHED = "established"
-    CLOSED = "closed"
-
-
-class Connection:
+class Connection(ConnectionView):
     """One TDTP association between a master and a slave.
 
     Unkeyed by default. A master given ``key=`` (a :class:`~tdtp.protection.PresharedKey` or its
@@ -152,6 +127,7 @@ class Connection:
         )
         self._state = State.IDLE if role is Role.MASTER else State.LISTENING
         self._peer: Address | None = None
+        self._path = PeerPath(config, stats)  # the peer's address: validated, or under the 3x limit
         # The peer's packet protection, once keyed (Handshake.keys; ours is the outbox's sealer).
         self._opener: PacketOpener | None = None
         self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
@@ -191,113 +167,6 @@ class Connection:
         self._deliver_late = config.deliver_late
         self._deliver_duplicates = config.deliver_duplicates
         self._close_event: ConnectionClosed | None = None
-
-    # ------------------------------------------------------------------ introspection
-
-    @property
-    def state(self) -> State:
-        return self._state
-
-    @property
-    def peer(self) -> Address | None:
-        """The peer's address once known (the master's at ``connect``, the slave's at the OPEN)."""
-        return self._peer
-
-    @property
-    def ack_mode(self) -> AckMode:
-        """The mode in force: the master's choice, adopted by the slave at the open."""
-        return self._acks.mode
-
-    @property
-    def max_send_payload(self) -> int:
-        """The largest payload :meth:`send` accepts: the smaller of ours and the peer's maximum."""
-        return self._sender.limit
-
-    @property
-    def controller(self) -> RateController:
-        return self._controller
-
-    @property
-    def keyed(self) -> bool:
-        """Whether the session is keyed (every datagram authenticated, and encrypted if
-        :attr:`encrypted`). A listening slave with keys answers keyed OPENs only."""
-        return self._handshake.keyed
-
-    @property
-    def encrypted(self) -> bool:
-        """Whether a keyed session encrypts its payloads (the master's choice)."""
-        return self._handshake.keyed and self._handshake.encrypt
-
-    @property
-    def key(self) -> PresharedKey | None:
-        """The session's pre-shared key: the master's own, or the one a slave found in its ring for
-        this master (its :attr:`~tdtp.protection.PresharedKey.name` says which master it is)."""
-        return self._handshake.key
-
-    @property
-    def admission(self) -> Admission | None:
-        """A slave's front door (cookie, rate limits, keys); ``None`` for a master."""
-        return self._handshake.admission
-
-    @property
-    def peer_silent(self) -> bool:
-        """True while the watchdog finds the peer silent (between :class:`~tdtp.session.events.PeerSilent`
-        and :class:`~tdtp.session.events.PeerResumed`)."""
-        return self._liveness.silent_since is not None
-
-    @property
-    def silent_since(self) -> float | None:
-        """The ``now`` of the peer's last datagram while it is silent, else ``None``."""
-        return self._liveness.silent_since
-
-    @property
-    def close_event(self) -> ConnectionClosed | None:
-        """Why the connection ended, once it has (the same event :meth:`next_event` reports)."""
-        return self._close_event
-
-    @property
-    def timer_hint(self) -> float:
-        """A bound on what has moved since :meth:`get_timer` was last called (which resets it to
-        ``math.inf``): no deadline of this connection moved earlier than ``timer_hint``.
-
-        A caller that keeps one timer armed at the connection's deadline, and re-arms it only for an
-        earlier one (a later deadline just wakes it early, which is harmless: :meth:`handle_timer`
-        does nothing and the timer is re-armed), needs :meth:`get_timer` only when ``timer_hint``
-        is earlier than the armed deadline, instead of after every input. ``-math.inf`` means
-        anything may have changed."""
-        return self._hint.value
-
-    @property
-    def pending_events(self) -> int:
-        """Events waiting for :meth:`next_event`."""
-        return self._events.count()
-
-    @property
-    def transmit_errors(self) -> int:
-        """Datagrams whose ``transmit`` in :meth:`send_direct` raised :class:`OSError` (lost like
-        any other)."""
-        return self._sender.transmit_errors
-
-    @property
-    def sending_paused(self) -> bool:
-        """True between :meth:`pause_sending` and :meth:`resume_sending`."""
-        return self._sender.paused
-
-    @property
-    def stats(self) -> ConnectionStats:
-        """Live counters; the derived figures (srtt, p, rate) are refreshed on each access."""
-        stats = self._stats
-        recovery = self._recovery
-        rtt = recovery.rtt
-        stats.srtt = rtt.srtt if rtt.has_sample else 0.0
-        stats.rttvar = rtt.rttvar if rtt.has_sample else 0.0
-        stats.min_rtt = rtt.min_rtt if rtt.has_sample else 0.0
-        stats.loss_event_rate = recovery.loss.loss_event_rate
-        stats.packets_unreported = recovery.sent.unknown
-        stats.packets_reordered = recovery.sent.reordered
-        stats.rate = self._controller.rate
-        stats.rate_limit = self._controller.rate_limit
-        return stats
 
     # ------------------------------------------------------------------ caller API
 
@@ -358,7 +227,7 @@ class Connection:
         :meth:`send`, and :meth:`datagrams_to_send` must run. Raises what :meth:`send` raises.
         """
         peer = self._peer
-        if self._state is not State.ESTABLISHED or peer is None:
+        if self._state is not State.ESTABLISHED or peer is None or self._path.limited:
             self.send(payload, now=now)
             return False
         if not self._sender.send_direct(payload, transmit, peer, connected, now):
@@ -388,13 +257,17 @@ class Connection:
         """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
         self._sender.resume()
 
-    def close(self, *, now: float) -> None:
-        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`."""
+    def close(self, *, now: float, taken_over: bool = False) -> None:
+        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`.
+        ``taken_over``: an exclusive slave hands control to another master (PROTOCOL.md 5.9)."""
         if self._state is State.CLOSED:
             return
+        reason = CloseReason.TAKEN_OVER if taken_over else CloseReason.NORMAL
         if self._state in (State.OPENING, State.ESTABLISHED) and self._peer is not None:
-            self._queue_close(CloseReason.NORMAL, self._peer)
-        self._terminate(CloseCause.LOCAL_CLOSE, "closed by the application")
+            self._queue_close(reason, self._peer)
+        cause = CloseCause.TAKEN_OVER if taken_over else CloseCause.LOCAL_CLOSE
+        detail = "another master took control" if taken_over else "closed by the application"
+        self._terminate(cause, detail)
 
     def accept_open(self, admitted: AdmittedOpen, addr: Address, *, now: float) -> None:
         """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already
@@ -433,6 +306,10 @@ class Connection:
         if size > self._size_limit:
             stats.count_drop(DropReason.OVERSIZED)
             return
+        path = self._path
+        if path.limited:
+            path.on_received(size)
+            self._hint.value = -math.inf  # held data may go now
         ptype = data[0] >> 6
         if ptype == _CONTROL and size > HEADER_SIZE:
             code = data[HEADER_SIZE]
@@ -441,6 +318,14 @@ class Connection:
                 return
             if code == _RESET:
                 self._on_reset(data, now)
+                return
+            if code in PATH_CODES:  # an unkeyed master answers a PATH_CHALLENGE
+                established = self._state is State.ESTABLISHED and self.role is Role.MASTER
+                nonce = self._handshake.master_nonce
+                answer = self._path.answer(data, now, established and not self.keyed, nonce)
+                if answer is not None:
+                    self._outbox.queue(answer, addr, 0, False)
+                    self._hint.value = -math.inf
                 return
         if ptype > _CONTROL:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
@@ -466,8 +351,13 @@ class Connection:
                 self._on_unopened(opener, now)
                 return
             data = data[:prefix] + body
-            size = len(data)  # from here on, sizes are without the protection (_accept adds it)
-        if handshake.confirming:
+        self._dispatch(data, ptype, now)
+
+    def _dispatch(self, data: bytes, ptype: int, now: float) -> None:
+        """A datagram from the peer, its protection removed (sizes from here on are without it:
+        :meth:`_accept` adds it)."""
+        size = len(data)
+        if self._handshake.confirming:
             # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
             self._establish(now)
         # The header, decoded in place (wire/header.py's layout) rather than into a Header tuple.
@@ -516,6 +406,33 @@ class Connection:
             f"the server was full and this master had been silent for {silent:.1f} s, longer "
             "than any other; its slot went to a new master",
         )
+
+    def roam(self, data: bytes, addr: Address, *, now: float) -> bool:
+        """Keyed slave: follow the master to ``addr`` if ``data`` from there authenticates with a
+        packet number above every one accepted so far (PROTOCOL.md 5.8), and take it in. False,
+        counting nothing, otherwise: the caller (:class:`~tdtp.admission.PathMigration`) counts."""
+        opener = self._opener
+        if opener is None or not self.migratable or len(data) > self._size_limit:
+            return False
+        opened = self._path.trial(opener, data, now)
+        if opened is None:
+            return False
+        self._stats.datagrams_in += 1
+        self._peer = addr
+        self._hint.value = -math.inf
+        self._path.move(False, len(data), self._recovery.sent.next_seq, self._sender.limit)
+        self._dispatch(opened, data[0] >> 6, now)
+        return True
+
+    def migrate(self, addr: Address, *, now: float) -> None:
+        """Unkeyed slave: move to ``addr``, validated (its PATH_RESPONSE carried our nonce)."""
+        if not self.migratable:
+            raise ConnectionStateError(f"migrate() is for an established slave, not {self!r}")
+        self._stats.datagrams_in += 1
+        self._peer = addr
+        self._hint.value = -math.inf
+        self._path.move(True, 0, 0, 0)
+        self._heard(now)
 
     def _on_unopened(self, opener: PacketOpener, now: float) -> None:
         """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
@@ -621,6 +538,8 @@ class Connection:
         """Hand the acknowledgement in a header to loss recovery; False if it acknowledges a packet
         never sent."""
         newly = self._recovery.on_feedback(ack, sack, hold, now)
+        if self._path.limited and newly >= 0:
+            self._path.on_acked(self._recovery.sent.largest_acked)
         if newly > 0:
             hint = self._hint
             if self._sender.pending is not None:
@@ -638,18 +557,19 @@ class Connection:
         except MalformedPacketError:
             stats.count_drop(DropReason.BAD_CONTROL)
             return
+        if not isinstance(body, CloseBody | KeepaliveBody):
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            return
+        # Another session's, or a blind forgery (the nonce is secret to off-path attackers): a
+        # forged KEEPALIVE must not pass for a sign of life and hide a dead master.
+        if body.nonce != self._handshake.master_nonce:
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+            return
         if isinstance(body, CloseBody):
-            if body.nonce != self._handshake.master_nonce or self._state not in (
-                State.OPENING,
-                State.ESTABLISHED,
-            ):
-                stats.count_drop(DropReason.NONCE_MISMATCH)
-                return
             self._accept(size, size - HEADER_SIZE, now)
             stats.received.control_packets += 1
             self._terminate(CloseCause.PEER_CLOSE, close_reason_text(body.reason))
             return
-        # KEEPALIVE
         if self._state is not State.ESTABLISHED:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
@@ -779,7 +699,11 @@ class Connection:
             return None
         # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
         # for a waiting sample; the next ACK; the next loss; the controller's own.
-        deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
+        if self._path.blocked(self._outbox.control):
+            # Nothing may leave before more arrives from the new path: only the watchdog's clock.
+            deadline = self._liveness.watchdog_deadline()
+        else:
+            deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
         loss_deadline = self._recovery.loss_deadline()
         if loss_deadline is not None and loss_deadline < deadline:
             deadline = loss_deadline
@@ -832,10 +756,24 @@ class Connection:
         state = self._state
         if state is State.OPENING and self.role is Role.MASTER and self._handshake.open_due(now):
             self._emit_open(out, now)
+        path = self._path
+        if path.blocked(
+            outbox.control
+        ):  # the 3x limit of an unvalidated new path (PROTOCOL.md 5.8)
+            if self._sender.pending is not None or self._liveness.keepalive_due(now):
+                self._stats.path_limited += 1
+            return out
         if outbox.control:
             outbox.flush(out, now)
-        if state is not State.ESTABLISHED or self._state is not State.ESTABLISHED:
-            return out
+        if state is State.ESTABLISHED and self._state is State.ESTABLISHED:
+            self._emit_session(out, now)
+        if path.limited:
+            path.on_sent(out)
+        return out
+
+    def _emit_session(self, out: list[tuple[bytes, Address]], now: float) -> None:
+        """The established session's share of :meth:`datagrams_to_send`."""
+        outbox = self._outbox
         peer = self._peer
         assert peer is not None  # ESTABLISHED implies it
         sent = self._recovery.sent
@@ -847,11 +785,11 @@ class Connection:
             window = acks.window
             assert window is not None
             ack, sack, hold = acks.piggyback(window, now)
-            outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, peer, now)
+            nonce = self._handshake.master_nonce
+            outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, nonce, peer, now)
         sealer = outbox.sealer
         if sealer is not None and sealer.exhausted:
             self._exhausted()
-        return out
 
     def _emit_open(self, out: list[tuple[bytes, Address]], now: float) -> None:
         handshake = self._handshake

@@ -38,6 +38,10 @@ class CloseCause(enum.Enum):
     EVICTED = "evicted"
     """Slave side: the server was full and this session's master had been silent longer than any
     other, beyond the silence timeout, when a new master arrived; its slot went to the new one."""
+    TAKEN_OVER = "taken_over"
+    """An exclusive slave handed control to another master (this one was silent, or the other
+    asked with ``takeover=True``); the slave's side ends with this cause, the master's with
+    ``peer_close`` and the detail ``taken_over``."""
 
 
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one

@@ -45,6 +45,8 @@ from tdtp.wire.control import (
     OpenAckBody,
     OpenBody,
     OpenFlags,
+    PathChallengeBody,
+    PathResponseBody,
     ResetBody,
     decode_control,
     encode_open,
@@ -195,10 +197,13 @@ class Handshake:
             return None
         self.open_attempt = attempt + 1
         key = self.key
+        flags = self.open_flags(ack_mode)
+        if self.keyed and self._config.takeover:
+            flags |= OpenFlags.TAKEOVER
         datagram = encode_header(_CONTROL, seq, 0, 0, HOLD_NO_ACK) + encode_open(
             OpenBody(
                 PROTOCOL_VERSION,
-                self.open_flags(ack_mode),
+                flags,
                 int(self.suite),
                 self._config.max_payload,
                 attempt,
@@ -229,7 +234,9 @@ class Handshake:
         except MalformedPacketError:
             stats.count_drop(DropReason.BAD_CONTROL)
             return Reaction.IGNORED
-        if isinstance(body, OpenBody | KeepaliveBody | ResetBody):
+        if isinstance(
+            body, OpenBody | KeepaliveBody | ResetBody | PathChallengeBody | PathResponseBody
+        ):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
         elif body.nonce != self.master_nonce:
             stats.count_drop(DropReason.NONCE_MISMATCH)
@@ -427,4 +434,7 @@ _REJECT_TEXT = {
     CloseReason.PAYLOAD_TOO_SMALL: "the slave sends payloads larger than this master's "
     "max_payload ({max_payload}); raise max_payload",
     CloseReason.SUITE_UNSUPPORTED: "the slave does not implement the cipher suite {suite}",
+    CloseReason.IN_USE: "the slave is exclusive and another master commands it; it hands over "
+    "once that master has been silent for its takeover period, or at once to a keyed master that "
+    "connects with takeover=True (--takeover)",
 }

@@ -44,6 +44,12 @@ class Liveness:
         keepalive = self.last_send + self.keepalive
         return keepalive if keepalive < deadline else deadline
 
+    def watchdog_deadline(self) -> float:
+        """The watchdog's deadline alone (the silence timeout, or the idle timeout while silent)."""
+        return self.last_receive + (
+            self.silence if self.silent_since is None else self.idle_timeout
+        )
+
     def idle_expired(self, now: float) -> bool:
         """Nothing heard from the peer for the idle timeout: the session is over."""
         return now >= self.last_receive + self.idle_timeout

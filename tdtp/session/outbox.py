@@ -16,14 +16,14 @@ from tdtp.session.events import Address
 from tdtp.session.liveness import Liveness
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.stats import ConnectionStats
-from tdtp.wire.control import ControlCode, encode_close, encode_keepalive
+from tdtp.wire.control import ControlCode, encode_close
 from tdtp.wire.header import HEADER_SIZE, PacketType, encode_header
 from tdtp.wire.hold import HOLD_NO_ACK
 
 _ACK = int(PacketType.ACK)
 _CONTROL = int(PacketType.CONTROL)
 _CLOSE_PREFIX = bytes((ControlCode.CLOSE,))
-_KEEPALIVE_PREFIX = encode_keepalive()
+_KEEPALIVE_PREFIX = bytes((ControlCode.KEEPALIVE,))
 
 Datagrams = list[tuple[bytes, Address]]
 
@@ -94,10 +94,19 @@ class Outbox:
         out.append((datagram, peer))
 
     def emit_keepalive(
-        self, out: Datagrams, seq: int, ack: int, sack: int, hold: int, peer: Address, now: float
+        self,
+        out: Datagrams,
+        seq: int,
+        ack: int,
+        sack: int,
+        hold: int,
+        nonce: bytes,
+        peer: Address,
+        now: float,
     ) -> None:
+        """A KEEPALIVE carrying the master's ``nonce`` (sealed with the rest in a keyed session)."""
         datagram = self.protect(
-            encode_header(_CONTROL, seq, ack, sack, hold) + _KEEPALIVE_PREFIX, b""
+            encode_header(_CONTROL, seq, ack, sack, hold) + _KEEPALIVE_PREFIX, nonce
         )
         self.emit_control(out, datagram, peer, now, self.overhead, True)
         guard = self.reset_guard

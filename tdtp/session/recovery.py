@@ -116,6 +116,16 @@ class LossRecovery:
             )
         return newly
 
+    def refresh(self, stats: ConnectionStats) -> None:
+        """Copy the derived figures (RTT, loss-event rate, packets unreported and reordered) into ``stats``."""
+        rtt = self.rtt
+        stats.srtt = rtt.srtt if rtt.has_sample else 0.0
+        stats.rttvar = rtt.rttvar if rtt.has_sample else 0.0
+        stats.min_rtt = rtt.min_rtt if rtt.has_sample else 0.0
+        stats.loss_event_rate = self.loss.loss_event_rate
+        stats.packets_unreported = self.sent.unknown
+        stats.packets_reordered = self.sent.reordered
+
     def detect_losses(self, now: float) -> None:
         """Declare lost what has been absent longer than the loss delay (the timer's check)."""
         lost = self._lost

@@ -129,6 +129,18 @@ class ConnectionStats:
     """Peer data packets that arrived after a newer one."""
     peer_gaps: int = 0
     """Peer sequence numbers skipped at arrival (lost or not yet arrived), as this side saw them."""
+    migrations: int = 0
+    """Times a slave's session followed its master to a new address (path migration, PROTOCOL.md
+    5.8): a keyed datagram that authenticated from there, or an unkeyed PATH_RESPONSE."""
+    paths_validated: int = 0
+    """New paths validated (unkeyed: at once by the PATH_RESPONSE; keyed: by an authenticated
+    datagram from there that acknowledges a packet sent on it)."""
+    path_limited: int = 0
+    """Times the amplification limit of a path not validated yet held back what was due."""
+    unvalidated_bytes_in: int = 0
+    """Bytes received from a new address before it was validated (the amplification budget's base)."""
+    unvalidated_bytes_out: int = 0
+    """Bytes sent to a new address before it was validated: at most 3 x ``unvalidated_bytes_in``."""
     rtt_samples: int = 0
     srtt: float = 0.0
     rttvar: float = 0.0

@@ -22,8 +22,9 @@ from dataclasses import dataclass
 
 from tdtp.config import ConnectionConfig, Role
 from tdtp.errors import InvalidArgumentError
-from tdtp.session.connection import Connection, State
+from tdtp.session.connection import Connection
 from tdtp.session.events import ConnectionClosed, ConnectionEstablished, DataReceived
+from tdtp.session.state import State
 from tdtp.sim.engine import Network, Node, Packet, Timer
 from tdtp.sim.metrics import FlowRecorder
 

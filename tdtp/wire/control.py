@@ -6,11 +6,16 @@ interval), so they carry what the data path leaves out: the protocol version, 12
 every control packet to one connection, the address-validation cookie and, in a keyed session, the key
 identifier and the authentication tag.
 
-Two kinds of control packet exist:
+Four kinds of control packet exist:
 
 * **Handshake messages** (OPEN, COOKIE, OPEN_ACK, REJECT) have fixed layouts with every field in the
   clear, because the receiver needs them before it has session keys. In a keyed session OPEN and
   OPEN_ACK end in a 16-byte AEAD tag over everything before it (``KEYED`` flag).
+* **Path validation** (PATH_CHALLENGE, PATH_RESPONSE) moves an unkeyed session to its master's new
+  address after a NAT rebinding; always in the clear (a keyed session follows its master on any
+  authenticated datagram instead).
+* **RESET** (a restarted slave's "no session for you") is stateless and in the clear: an echo of the
+  datagram that found no session and, keyed, tags under the slave's keys.
 * **Session control** (KEEPALIVE, CLOSE) uses the session's packet protection when keyed, exactly like
   DATA and ACK: ``header | code | PN | sealed body | tag`` (``tdtp.protection``). Unkeyed, it is
   ``header | code | body``.
@@ -30,7 +35,7 @@ from tdtp.wire.protected import TAG_SIZE
 
 PROTOCOL_VERSION: Final = 3
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
-had no RESET)."""
+had no RESET, no path validation, and its KEEPALIVE carried no nonce)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -61,6 +66,14 @@ class ControlCode(enum.IntEnum):
     """slave -> master: "I hold no session for you" (the slave restarted). Sent statelessly in answer
     to a session datagram from an unknown address, never larger than it: the datagram's first
     :data:`RESET_ECHO_SIZE` bytes echoed, then (keyed) one tag per key of the slave's ring that fits."""
+    PATH_CHALLENGE = 8
+    """slave -> master, unkeyed sessions: a session datagram arrived from an address the slave does
+    not know while a session's master is silent; echo this token with your nonce (PATH_RESPONSE) to
+    move the session there. Sent statelessly, never larger than the datagram it answers. (Code 7 is
+    RESET's.)"""
+    PATH_RESPONSE = 9
+    """master -> slave: the PATH_CHALLENGE's token and the master's nonce, from the master's current
+    address."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -69,6 +82,10 @@ HANDSHAKE_CODES: Final = frozenset(
 )
 """Codes (as the byte on the wire) whose fields travel in the clear; KEEPALIVE and CLOSE are sealed
 in a keyed session."""
+PATH_CODES: Final = frozenset(
+    int(code) for code in (ControlCode.PATH_CHALLENGE, ControlCode.PATH_RESPONSE)
+)
+"""Path validation (unkeyed sessions only; always in the clear)."""
 
 
 class OpenFlags(enum.IntFlag):
@@ -79,9 +96,14 @@ class OpenFlags(enum.IntFlag):
     """Pre-shared-key session: OPEN and OPEN_ACK end in a tag, every later packet is protected."""
     ENCRYPTED = 0x04
     """Keyed session whose payloads are encrypted (otherwise only authenticated). Needs KEYED."""
+    TAKEOVER = 0x08
+    """OPEN only, keyed only: an exclusive slave hands control to this master at once, ending the
+    session of the master that had it (docs/PROTOCOL.md 5.9). Never echoed in the OPEN_ACK."""
 
 
-KNOWN_FLAGS: Final = int(OpenFlags.SEPARATE_ACKS | OpenFlags.KEYED | OpenFlags.ENCRYPTED)
+KNOWN_FLAGS: Final = int(
+    OpenFlags.SEPARATE_ACKS | OpenFlags.KEYED | OpenFlags.ENCRYPTED | OpenFlags.TAKEOVER
+)
 
 
 class CipherSuite(enum.IntEnum):
@@ -115,6 +137,11 @@ class CloseReason(enum.IntEnum):
     """The same master opened a new connection; this older one is over."""
     KEY_EXHAUSTED = 11
     """The session sent as many packets as its keys may protect; open a new connection."""
+    IN_USE = 12
+    """REJECT: the slave is exclusive and another master commands it (docs/PROTOCOL.md 5.9)."""
+    TAKEN_OVER = 13
+    """CLOSE: the slave is exclusive and another master took control (after this one was silent,
+    or at once with the TAKEOVER flag)."""
 
 
 class OpenBody(NamedTuple):
@@ -176,7 +203,11 @@ class CloseBody(NamedTuple):
 
 
 class KeepaliveBody(NamedTuple):
+    """KEEPALIVE (either way): the master's nonce, so that a blind attacker cannot forge one."""
+
     code: ControlCode
+    nonce: bytes
+    """The master's nonce."""
 
 
 class ResetBody(NamedTuple):
@@ -192,7 +223,39 @@ class ResetBody(NamedTuple):
         return ControlCode.RESET
 
 
-ControlBody = ResetBody | OpenBody | OpenAckBody | CookieBody | CloseBody | KeepaliveBody
+class PathChallengeBody(NamedTuple):
+    """PATH_CHALLENGE (slave -> master)."""
+
+    token: bytes
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.PATH_CHALLENGE
+
+
+class PathResponseBody(NamedTuple):
+    """PATH_RESPONSE (master -> slave)."""
+
+    token: bytes
+    """The challenge's token, echoed."""
+    nonce: bytes
+    """The master's nonce."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.PATH_RESPONSE
+
+
+ControlBody = (
+    ResetBody
+    | OpenBody
+    | OpenAckBody
+    | CookieBody
+    | CloseBody
+    | KeepaliveBody
+    | PathChallengeBody
+    | PathResponseBody
+)
 
 # Layouts, byte offsets from the code byte (the first byte after the base header).
 _OPEN: Final = struct.Struct(
@@ -203,6 +266,9 @@ _OPEN_ACK: Final = struct.Struct(
 )  # code version flags suite max_payload pn nonce slave_nonce
 _COOKIE: Final = struct.Struct(">BB16s16s")  # code version nonce cookie
 _CLOSE: Final = struct.Struct(">B16sB")  # code nonce reason
+_KEEPALIVE: Final = struct.Struct(">B16s")  # code nonce
+_PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
+_PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
 
 OPEN_BODY_SIZE: Final = _OPEN.size
 """48 bytes: with the header an unkeyed OPEN is 53 bytes, a keyed one 69."""
@@ -219,7 +285,15 @@ RESET_SIZE: Final = 5 + 1 + RESET_ECHO_SIZE
 """22 bytes: an unkeyed RESET (header, code, echo); a keyed one adds 16 per tag."""
 CLOSE_BODY_SIZE: Final = _CLOSE.size
 """18 bytes: an unkeyed CLOSE or any REJECT is 23 bytes."""
-KEEPALIVE_BODY_SIZE: Final = 1
+KEEPALIVE_BODY_SIZE: Final = _KEEPALIVE.size
+"""17 bytes: an unkeyed KEEPALIVE is 22 bytes, a keyed one 40."""
+PATH_TOKEN_SIZE: Final = 16
+"""Bytes of a PATH_CHALLENGE token (opaque to the master; the cookie's format)."""
+PATH_CHALLENGE_BODY_SIZE: Final = _PATH_CHALLENGE.size
+"""17 bytes: a PATH_CHALLENGE datagram is 22 bytes, no larger than the smallest session datagram
+that can trigger one (an unkeyed KEEPALIVE)."""
+PATH_RESPONSE_BODY_SIZE: Final = _PATH_RESPONSE.size
+"""33 bytes: a PATH_RESPONSE datagram is 38 bytes."""
 OPEN_NONCE_OFFSET: Final = struct.calcsize(">BBBBHH")
 """Where an OPEN body carries the master's nonce (after code, version, flags, suite, max_payload and
 attempt): 8."""
@@ -284,8 +358,17 @@ def decode_reset(body: bytes | memoryview) -> ResetBody:
     return ResetBody(bytes(body[1:start]), tags)
 
 
-def encode_keepalive() -> bytes:
-    return bytes((ControlCode.KEEPALIVE,))
+def encode_keepalive(nonce: bytes) -> bytes:
+    """A KEEPALIVE body (code byte included) carrying the master's nonce."""
+    return _KEEPALIVE.pack(ControlCode.KEEPALIVE, nonce)
+
+
+def encode_path_challenge(token: bytes) -> bytes:
+    return _PATH_CHALLENGE.pack(ControlCode.PATH_CHALLENGE, token)
+
+
+def encode_path_response(token: bytes, nonce: bytes) -> bytes:
+    return _PATH_RESPONSE.pack(ControlCode.PATH_RESPONSE, token, nonce)
 
 
 def _tagged(body: bytes | memoryview, size: int, name: str) -> bytes | memoryview:
@@ -339,9 +422,28 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, nonce, reason = _CLOSE.unpack(body)
         return CloseBody(code, nonce, reason)
+    if code is ControlCode.PATH_CHALLENGE:
+        if len(body) != PATH_CHALLENGE_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control",
+                f"PATH_CHALLENGE body is {len(body)} bytes, not {PATH_CHALLENGE_BODY_SIZE}",
+            )
+        _, token = _PATH_CHALLENGE.unpack(body)
+        return PathChallengeBody(token)
+    if code is ControlCode.PATH_RESPONSE:
+        if len(body) != PATH_RESPONSE_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control",
+                f"PATH_RESPONSE body is {len(body)} bytes, not {PATH_RESPONSE_BODY_SIZE}",
+            )
+        _, token, nonce = _PATH_RESPONSE.unpack(body)
+        return PathResponseBody(token, nonce)
     if len(body) != KEEPALIVE_BODY_SIZE:
-        raise MalformedPacketError("bad_control", f"KEEPALIVE body is {len(body)} bytes, not 1")
-    return KeepaliveBody(code)
+        raise MalformedPacketError(
+            "bad_control", f"KEEPALIVE body is {len(body)} bytes, not {KEEPALIVE_BODY_SIZE}"
+        )
+    _, nonce = _KEEPALIVE.unpack(body)
+    return KeepaliveBody(code, nonce)
 
 
 def open_version(body: bytes | memoryview) -> int | None:

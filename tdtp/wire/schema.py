@@ -14,7 +14,6 @@ from construct import (
     BitsInteger,
     BitStruct,
     Bytes,
-    Const,
     GreedyRange,
     If,
     Int8ub,
@@ -29,6 +28,7 @@ from tdtp.wire.control import (
     COOKIE_SIZE,
     KEY_ID_SIZE,
     NONCE_SIZE,
+    PATH_TOKEN_SIZE,
     RESET_ECHO_SIZE,
     RESET_TAG_SIZE,
     ControlCode,
@@ -79,6 +79,9 @@ ResetBody: Any = Struct(
     "tags" / GreedyRange(Bytes(RESET_TAG_SIZE)),
 )
 """RESET: the first 16 bytes of the datagram that found no session, then (keyed) 16-byte tags."""
+KeepaliveBody: Any = Struct("nonce" / Bytes(NONCE_SIZE))
+PathChallengeBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE))
+PathResponseBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE), "nonce" / Bytes(NONCE_SIZE))
 
 ControlBody: Any = Struct(
     "code" / Int8ub,
@@ -91,8 +94,10 @@ ControlBody: Any = Struct(
             int(ControlCode.COOKIE): CookieBody,
             int(ControlCode.CLOSE): CloseBody,
             int(ControlCode.REJECT): CloseBody,
-            int(ControlCode.KEEPALIVE): Const(b""),
             int(ControlCode.RESET): ResetBody,
+            int(ControlCode.KEEPALIVE): KeepaliveBody,
+            int(ControlCode.PATH_CHALLENGE): PathChallengeBody,
+            int(ControlCode.PATH_RESPONSE): PathResponseBody,
         },
     ),
 )
@@ -132,8 +137,11 @@ __all__ = [
     "ControlBody",
     "CookieBody",
     "Header",
+    "KeepaliveBody",
     "OpenAckBody",
     "OpenBody",
+    "PathChallengeBody",
+    "PathResponseBody",
     "ProtectedControl",
     "ProtectedData",
     "ResetBody",

@@ -86,6 +86,8 @@ MISUSES: list[tuple[list[str], str]] = [
     (["demo", "--netem", "delay 20xs"], "20xs"),
     (["demo", "--netem-seed", "-5", "--netem", "loss 1%"], "--netem-seed"),
     (["demo", "--controller", "nope"], "invalid choice: 'nope'"),
+    (["master", "127.0.0.1:9", "--takeover"], "--takeover needs --key-file"),
+    (["slave", "--port", "0", "--exclusive", "--takeover-after", "0"], "--takeover-after"),
     (["master", "127.0.0.1:0"], "expected HOST:PORT"),
     (["master", "no-port-here"], "expected HOST:PORT"),
     (["netem-relay", "delay 1ms", "--listen", ":0", "--forward", "nosuch.invalid:1"], "resolved"),

@@ -19,6 +19,7 @@ import pytest
 from tdtp import CloseCause, ConnectionConfig, DataReceived, PresharedKey
 from tdtp.aio.api import ConnectError, connect, listen
 from tdtp.wire import OpenBody, OpenFlags, encode_header, encode_open
+from tdtp.wire.control import PROTOCOL_VERSION
 
 KEY = PresharedKey.generate("station-1")
 
@@ -26,7 +27,16 @@ KEY = PresharedKey.generate("station-1")
 def _open(nonce: bytes | None = None, keyed: bool = False) -> bytes:
     flags = int(OpenFlags.KEYED | OpenFlags.ENCRYPTED) if keyed else 0
     datagram = encode_header(2, 7, 0, 0, 255) + encode_open(
-        OpenBody(3, flags, 1 if keyed else 0, 1200, 0, nonce or os.urandom(16), bytes(8), bytes(16))
+        OpenBody(
+            PROTOCOL_VERSION,
+            flags,
+            1 if keyed else 0,
+            1200,
+            0,
+            nonce or os.urandom(16),
+            bytes(8),
+            bytes(16),
+        )
     )
     return datagram + (os.urandom(16) if keyed else b"")
 

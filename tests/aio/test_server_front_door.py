@@ -10,13 +10,14 @@ import pytest
 
 from tdtp.aio.api import connect, listen
 from tdtp.wire import ControlCode, OpenBody, PacketType, encode_header, encode_open
+from tdtp.wire.control import PROTOCOL_VERSION
 
 NONCE = bytes(range(16))
 
 
 def _open(max_payload: int = 1200, nonce: bytes = NONCE) -> bytes:
     return encode_header(PacketType.CONTROL, 7, 0, 0, 255) + encode_open(
-        OpenBody(3, 0, 0, max_payload, 0, nonce, bytes(8), bytes(16))
+        OpenBody(PROTOCOL_VERSION, 0, 0, max_payload, 0, nonce, bytes(8), bytes(16))
     )
 
 

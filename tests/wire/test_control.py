@@ -40,9 +40,15 @@ from tdtp.wire.control import (
     KEEPALIVE_BODY_SIZE,
     OPEN_ACK_BODY_SIZE,
     OPEN_BODY_SIZE,
+    PATH_CHALLENGE_BODY_SIZE,
+    PATH_RESPONSE_BODY_SIZE,
     RESET_ECHO_SIZE,
     ControlBody,
+    PathChallengeBody,
+    PathResponseBody,
     ResetBody,
+    encode_path_challenge,
+    encode_path_response,
     encode_reset,
     open_version,
 )
@@ -62,6 +68,8 @@ UNKEYED_SIZES = {
     ControlCode.CLOSE: CLOSE_BODY_SIZE,
     ControlCode.REJECT: CLOSE_BODY_SIZE,
     ControlCode.RESET: 1 + RESET_ECHO_SIZE,
+    ControlCode.PATH_CHALLENGE: PATH_CHALLENGE_BODY_SIZE,
+    ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
 }
 
 # Whole CONTROL datagrams, derived by hand field by field (docs/PROTOCOL.md section 7 shows the same).
@@ -112,11 +120,25 @@ GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
         b"",
     ),
     # KEEPALIVE carrying an acknowledgement: SEQ 0xABD, ACK 0x124, SACK 000001, HOLD 0 ->
-    # 10 101010111101 000100100100 000001 00000000 = aa f4 49 01 00; body is the code alone: 03.
+    # 10 101010111101 000100100100 000001 00000000 = aa f4 49 01 00; code 03, the master's nonce.
     (
-        "aa f4 49 01 00 03",
+        "aa f4 49 01 00 03" + NONCE.hex(),
         Header(PacketType.CONTROL, 0xABD, 0x124, 1, 0),
-        KeepaliveBody(ControlCode.KEEPALIVE),
+        KeepaliveBody(ControlCode.KEEPALIVE, NONCE),
+        b"",
+    ),
+    # PATH_CHALLENGE: no sequence, no ACK -> 80 00 00 00 ff; code 08, token (the cookie's format).
+    (
+        "80 00 00 00 ff 08" + COOKIE.hex(),
+        Header(PacketType.CONTROL, 0, 0, 0, 255),
+        PathChallengeBody(COOKIE),
+        b"",
+    ),
+    # PATH_RESPONSE: 80 00 00 00 ff; code 09, the token echoed, the master's nonce.
+    (
+        "80 00 00 00 ff 09" + COOKIE.hex() + NONCE.hex(),
+        Header(PacketType.CONTROL, 0, 0, 0, 255),
+        PathResponseBody(COOKIE, NONCE),
         b"",
     ),
     # CLOSE: SEQ 0xABD, no ACK -> aa f4 00 00 ff; code 04, nonce, reason 00 (NORMAL).
@@ -155,7 +177,11 @@ def encode_body(body: ControlBody) -> bytes:
         return encode_close(*body)
     if isinstance(body, ResetBody):
         return encode_reset(body.echo, body.tags)
-    return encode_keepalive()
+    if isinstance(body, PathChallengeBody):
+        return encode_path_challenge(body.token)
+    if isinstance(body, PathResponseBody):
+        return encode_path_response(body.token, body.nonce)
+    return encode_keepalive(body.nonce)
 
 
 def test_codes_and_constants_are_pinned() -> None:
@@ -168,6 +194,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "REJECT": 5,
         "COOKIE": 6,
         "RESET": 7,
+        "PATH_CHALLENGE": 8,
+        "PATH_RESPONSE": 9,
     }
     assert {r.name: int(r) for r in CloseReason} == {
         "NORMAL": 0,
@@ -182,12 +210,15 @@ def test_codes_and_constants_are_pinned() -> None:
         "SUITE_UNSUPPORTED": 9,
         "REPLACED": 10,
         "KEY_EXHAUSTED": 11,
+        "IN_USE": 12,
+        "TAKEN_OVER": 13,
     }
     assert int(OpenFlags.NONE) == 0
     assert {f.name: int(f) for f in OpenFlags if f.name} == {
         "SEPARATE_ACKS": 1,
         "KEYED": 2,
         "ENCRYPTED": 4,
+        "TAKEOVER": 8,
     }
     assert {s.name: int(s) for s in CipherSuite} == {
         "NONE": 0,
@@ -195,7 +226,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "CHACHA20_POLY1305": 2,
     }
     assert (OPEN_BODY_SIZE, OPEN_ACK_BODY_SIZE, COOKIE_BODY_SIZE) == (48, 40, 34)
-    assert (CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, TAG_SIZE) == (18, 1, 16)
+    assert (CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, TAG_SIZE) == (18, 17, 16)
+    assert (PATH_CHALLENGE_BODY_SIZE, PATH_RESPONSE_BODY_SIZE) == (17, 33)
 
 
 def test_no_answer_to_an_unvalidated_open_is_larger_than_the_open() -> None:
@@ -280,8 +312,16 @@ def test_close_round_trip(code: ControlCode, nonce: bytes, reason: int) -> None:
 
 
 def test_keepalive_round_trip() -> None:
-    assert encode_keepalive() == b"\x03"
-    assert decode_control(b"\x03") == KeepaliveBody(ControlCode.KEEPALIVE)
+    assert encode_keepalive(NONCE) == b"\x03" + NONCE
+    assert decode_control(b"\x03" + NONCE) == KeepaliveBody(ControlCode.KEEPALIVE, NONCE)
+
+
+def test_path_messages_round_trip() -> None:
+    assert decode_control(encode_path_challenge(COOKIE)) == PathChallengeBody(COOKIE)
+    assert decode_control(encode_path_response(COOKIE, NONCE)) == PathResponseBody(COOKIE, NONCE)
+    # A challenge is never larger than the smallest session datagram that can trigger one (an
+    # unkeyed KEEPALIVE): it cannot amplify.
+    assert PATH_CHALLENGE_BODY_SIZE <= KEEPALIVE_BODY_SIZE
 
 
 def assert_bad_control(body: bytes) -> None:
@@ -294,7 +334,7 @@ def test_empty_body_is_rejected() -> None:
     assert_bad_control(b"")
 
 
-@pytest.mark.parametrize("code", [0, *range(8, 256)])
+@pytest.mark.parametrize("code", [0, *range(10, 256)])
 def test_unknown_code_is_rejected(code: int) -> None:
     assert_bad_control(bytes([code]))
     assert_bad_control(bytes([code]) + bytes(12))
@@ -343,9 +383,9 @@ DOC_EXAMPLES = [
         encode_header(PacketType.ACK, 0x0ABD, 0x0124, 0b111111, encode_hold(1.5e-3)),
     ),
     (
-        "aa f4 49 01 00 03",
+        "aa f4 49 01 00 03" + " 00 11 22 33 44 55 66 77 88 99 aa bb cc dd ee ff",
         encode_header(PacketType.CONTROL, 0x0ABD, 0x0124, 0b000001, encode_hold(0.0))
-        + encode_keepalive(),
+        + encode_keepalive(NONCE),
     ),
 ] + [
     (

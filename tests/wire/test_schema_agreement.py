@@ -23,6 +23,8 @@ from tdtp.wire import (
     OpenAckBody,
     OpenBody,
     OpenFlags,
+    PathChallengeBody,
+    PathResponseBody,
     ResetBody,
     decode_control,
     decode_header,
@@ -32,6 +34,8 @@ from tdtp.wire import (
     encode_keepalive,
     encode_open,
     encode_open_ack,
+    encode_path_challenge,
+    encode_path_response,
     encode_reset,
     schema,
 )
@@ -182,12 +186,28 @@ def test_reset_body_agreement(echo: bytes, tags: list[bytes]) -> None:
     assert decode_control(fast) == ResetBody(echo, tuple(tags))
 
 
-def test_keepalive_body_agreement() -> None:
-    fast = encode_keepalive()
-    assert len(fast) == KEEPALIVE_BODY_SIZE == 1
-    assert schema_control_bytes(ControlCode.KEEPALIVE, None) == fast
-    assert schema.ControlBody.parse(fast).code == ControlCode.KEEPALIVE
-    assert decode_control(fast) == KeepaliveBody(ControlCode.KEEPALIVE)
+@given(b16)
+def test_keepalive_body_agreement(nonce: bytes) -> None:
+    fast = encode_keepalive(nonce)
+    assert len(fast) == KEEPALIVE_BODY_SIZE == 17
+    assert schema_control_bytes(ControlCode.KEEPALIVE, {"nonce": nonce}) == fast
+    parsed = schema.ControlBody.parse(fast)
+    assert parsed.code == ControlCode.KEEPALIVE
+    assert parsed.body.nonce == nonce
+    assert decode_control(fast) == KeepaliveBody(ControlCode.KEEPALIVE, nonce)
+
+
+@given(b16, b16)
+def test_path_bodies_agreement(token: bytes, nonce: bytes) -> None:
+    challenge = encode_path_challenge(token)
+    assert schema_control_bytes(ControlCode.PATH_CHALLENGE, {"token": token}) == challenge
+    assert decode_control(challenge) == PathChallengeBody(token)
+    response = encode_path_response(token, nonce)
+    fields = {"token": token, "nonce": nonce}
+    assert schema_control_bytes(ControlCode.PATH_RESPONSE, fields) == response
+    parsed = schema.ControlBody.parse(response)
+    assert (parsed.body.token, parsed.body.nonce) == (token, nonce)
+    assert decode_control(response) == PathResponseBody(token, nonce)
 
 
 @given(st.binary(min_size=OPEN_BODY_SIZE - 1, max_size=OPEN_BODY_SIZE - 1), st.binary(max_size=16))

@@ -1,4 +1,4 @@
-"""The inputs of tdtp-v2-endpoint.json: what each script feeds an endpoint (generate.py records the
+"""The inputs of tdtp-v3-endpoint.json: what each script feeds an endpoint (generate.py records the
 expected outcomes by running tdtp). Every drop reason of PROTOCOL.md section 5.5 appears."""
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def _opening(start: float = 0.0) -> list[dict[str, Any]]:
         _step(
             start + 0.020,
             "master",
-            _hex(encode_header(2, MASTER_ISN, 0, 0, 255) + encode_keepalive()),
+            _hex(encode_header(2, MASTER_ISN, 0, 0, 255) + encode_keepalive(MASTER_NONCE)),
             note="the master's first packet of the session",
         ),
     ]
@@ -127,7 +127,17 @@ def slave_session() -> dict[str, Any]:
             note="acknowledges a packet the slave never sent",
         ),
         _step(0.032, "master", _hex(encode_header(2, s, 0, 0, 255) + b"\x09")),
-        _step(0.033, "master", _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive() + b"\x00")),
+        _step(
+            0.033,
+            "master",
+            _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(MASTER_NONCE) + b"\x00"),
+        ),
+        _step(
+            0.0335,
+            "master",
+            _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(OTHER_NONCE)),
+            note="a KEEPALIVE with another nonce: a blind forgery, no sign of life",
+        ),
         _step(
             0.034,
             "master",
@@ -191,7 +201,12 @@ def slave_before_the_open() -> dict[str, Any]:
             exact=True,
         ),
         _step(0.001, "master", _hex(encode_header(1, s, 0, 0, 255))),
-        _step(0.002, "master", _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive())),
+        _step(
+            0.002,
+            "master",
+            _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(MASTER_NONCE)),
+            note="a KEEPALIVE is 22 bytes since version 3: with no session, answered with a RESET",
+        ),
         _step(
             0.003,
             "master",
@@ -340,10 +355,10 @@ def keyed_master_session() -> dict[str, Any]:
             "slave",
             _hex(
                 encode_header(2, SLAVE_ISN, 0, 0, 255)
-                + encode_open_ack(OpenAckBody(3, 6, 1, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
+                + encode_open_ack(OpenAckBody(4, 6, 1, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
                 + bytes(16)
             ),
-            note="version 3",
+            note="version 4",
         ),
         _step(0.006, "slave", open_ack(0, forge=True)),
         _step(0.007, "slave", open_ack(0), exact=True),

@@ -52,6 +52,8 @@ from tdtp.wire import (  # noqa: E402
     encode_keepalive,
     encode_open,
     encode_open_ack,
+    encode_path_challenge,
+    encode_path_response,
     encode_reset,
     expand_seq,
 )
@@ -351,7 +353,9 @@ def control_vectors() -> dict[str, Any]:
             + bytes(16),
         ),
         ("COOKIE (7.2)", encode_cookie(MASTER_NONCE, COOKIE_BYTES)),
-        ("KEEPALIVE", encode_keepalive()),
+        ("KEEPALIVE (the master's nonce)", encode_keepalive(MASTER_NONCE)),
+        ("PATH_CHALLENGE (the cookie's format)", encode_path_challenge(COOKIE_BYTES)),
+        ("PATH_RESPONSE", encode_path_response(COOKIE_BYTES, MASTER_NONCE)),
         ("CLOSE NORMAL", encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
         ("CLOSE with an unknown reason 200", encode_close(ControlCode.CLOSE, MASTER_NONCE, 200)),
         ("REJECT BUSY", encode_close(ControlCode.REJECT, MASTER_NONCE, CloseReason.BUSY)),
@@ -397,7 +401,13 @@ def control_vectors() -> dict[str, Any]:
             ],
         ),
         ("COOKIE one byte long", encode_cookie(MASTER_NONCE, bytes(16)) + b"\x00"),
-        ("KEEPALIVE with a body", b"\x03\x00"),
+        ("KEEPALIVE without its nonce", b"\x03"),
+        ("KEEPALIVE one byte long", encode_keepalive(MASTER_NONCE) + b"\x00"),
+        ("PATH_CHALLENGE one byte short", encode_path_challenge(COOKIE_BYTES)[:-1]),
+        (
+            "PATH_RESPONSE without the nonce",
+            encode_path_challenge(COOKIE_BYTES)[:1].replace(b"\x08", b"\x09") + COOKIE_BYTES,
+        ),
         ("CLOSE without its reason", encode_close(ControlCode.CLOSE, MASTER_NONCE, 0)[:-1]),
         ("REJECT one byte long", encode_close(ControlCode.REJECT, MASTER_NONCE, 0) + b"\x00"),
     ]
@@ -784,7 +794,7 @@ def keyed_vectors() -> dict[str, Any]:
     prefixes = [
         ("DATA", encode_header(0, 0x0ABC, 0x0123, 0x2A, 31), b"hello"),
         ("ACK", encode_header(1, 0x0ABD, 0x0124, 0x3F, 110), b""),
-        ("KEEPALIVE", encode_header(2, 0x0ABD, 0x0124, 0x01, 0) + b"\x03", b""),
+        ("KEEPALIVE", encode_header(2, 0x0ABD, 0x0124, 0x01, 0) + b"\x03", MASTER_NONCE),
         (
             "CLOSE",
             encode_header(2, 0x0ABD, 0, 0, 255) + b"\x04",

@@ -7,7 +7,8 @@
 --
 -- What it decodes: the 5-byte base header (TYPE, SEQ, ACK, SACK, HOLD with the hold time in
 -- microseconds, and which peer packets the ACK/SACK fields report received or absent), DATA
--- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, RESET), and
+-- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, RESET,
+-- PATH_CHALLENGE, PATH_RESPONSE), and
 -- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
 -- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
 -- expert info (Analyze > Expert Information; tshark: -z expert).
@@ -25,12 +26,14 @@ local TYPE_NAMES = { [0] = "DATA", [1] = "ACK", [2] = "CONTROL", [3] = "reserved
 local CODE_NAMES = {
     [1] = "OPEN", [2] = "OPEN_ACK", [3] = "KEEPALIVE", [4] = "CLOSE", [5] = "REJECT", [6] = "COOKIE",
     [7] = "RESET",
+    [8] = "PATH_CHALLENGE", [9] = "PATH_RESPONSE",
 }
 local SUITE_NAMES = { [0] = "none", [1] = "AES-128-GCM", [2] = "ChaCha20-Poly1305" }
 local REASON_NAMES = {
     [0] = "NORMAL", [1] = "IDLE_TIMEOUT", [2] = "PROTOCOL_ERROR", [3] = "VERSION_UNSUPPORTED",
     [4] = "REFUSED", [5] = "BUSY", [6] = "KEY_REQUIRED", [7] = "KEY_UNKNOWN",
     [8] = "PAYLOAD_TOO_SMALL", [9] = "SUITE_UNSUPPORTED", [10] = "REPLACED", [11] = "KEY_EXHAUSTED",
+    [12] = "IN_USE", [13] = "TAKEN_OVER",
 }
 local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknowledgement" }
 
@@ -41,7 +44,8 @@ local VERSION = 3
 local RESET_ECHO = 16
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
-    [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 6, 24 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
+    [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
+    [8] = { 22 }, [9] = { 38 },
 }
 
 local f = tdtp.fields
@@ -62,13 +66,15 @@ f.flags = ProtoField.uint8("tdtp.flags", "Flags", base.HEX)
 f.flag_separate = ProtoField.bool("tdtp.flags.separate_acks", "SEPARATE_ACKS", 8, nil, 0x01)
 f.flag_keyed = ProtoField.bool("tdtp.flags.keyed", "KEYED", 8, nil, 0x02)
 f.flag_encrypted = ProtoField.bool("tdtp.flags.encrypted", "ENCRYPTED", 8, nil, 0x04)
-f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0xF8)
+f.flag_takeover = ProtoField.bool("tdtp.flags.takeover", "TAKEOVER", 8, nil, 0x08)
+f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0xF0)
 f.suite = ProtoField.uint8("tdtp.suite", "Cipher suite", base.DEC, SUITE_NAMES)
 f.max_payload = ProtoField.uint16("tdtp.max_payload", "Max payload", base.DEC)
 f.attempt = ProtoField.uint16("tdtp.attempt", "Attempt", base.DEC)
 f.nonce = ProtoField.bytes("tdtp.nonce", "Nonce")
 f.key_id = ProtoField.bytes("tdtp.key_id", "Key id")
 f.cookie = ProtoField.bytes("tdtp.cookie", "Cookie")
+f.path_token = ProtoField.bytes("tdtp.path_token", "Path token")
 f.open_ack_pn = ProtoField.uint16("tdtp.open_ack.pn", "Packet number", base.DEC)
 f.slave_nonce = ProtoField.bytes("tdtp.slave_nonce", "Slave nonce")
 f.reason = ProtoField.uint8("tdtp.reason", "Reason", base.DEC, REASON_NAMES)
@@ -231,9 +237,10 @@ local function add_flags(tree, tvb, offset)
     item:add(f.flag_separate, tvb(offset, 1))
     item:add(f.flag_keyed, tvb(offset, 1))
     item:add(f.flag_encrypted, tvb(offset, 1))
+    item:add(f.flag_takeover, tvb(offset, 1))
     item:add(f.flag_reserved, tvb(offset, 1))
     local flags = tvb(offset, 1):uint()
-    if flags >= 8 then item:add_proto_expert_info(e.reserved_flags) end
+    if flags >= 16 then item:add_proto_expert_info(e.reserved_flags) end
     return flags, item
 end
 
@@ -357,6 +364,16 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         end
         return string.format("RESET tags=%d", tags)
     end
+    -- Path validation (unkeyed sessions): always in the clear.
+    if code == 8 or code == 9 then
+        if length ~= CONTROL_SIZES[code][1] then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (wrong length)"
+        end
+        tree:add(f.path_token, tvb(HEADER + 1, 16))
+        if code == 9 then tree:add(f.nonce, tvb(HEADER + 17, 16)) end
+        return name
+    end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then
         if length < HEADER + 1 + PN + TAG then
@@ -371,7 +388,11 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         return string.format("%s pn=%d", name, pn)
     end
     if code == 3 then
-        if length ~= CONTROL_SIZES[3][1] then tree:add_proto_expert_info(e.bad_control) end
+        if length ~= CONTROL_SIZES[3][1] then
+            tree:add_proto_expert_info(e.bad_control)
+        else
+            tree:add(f.nonce, tvb(HEADER + 1, 16))
+        end
         return "KEEPALIVE"
     end
     return close_fields(tree, tvb, length, "CLOSE")
@@ -392,7 +413,8 @@ function tdtp.dissector(tvb, pinfo, tree)
     local handshake = false
     if ptype == 2 and length > HEADER then
         local code = tvb(HEADER, 1):uint()
-        handshake = code == 1 or code == 2 or code == 5 or code == 6 or code == 7
+        handshake = code == 1 or code == 2 or code == 5 or code == 6 or code == 7 or code == 8
+            or code == 9
     end
     if not handshake then root:add(f.keyed, keyed):set_generated() end
     if ptype == 3 then
