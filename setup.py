@@ -32,6 +32,7 @@ COMPILED = [
     "tdtp/session/stats.py",
     "tdtp/session/sent_log.py",
     "tdtp/session/receive_window.py",
+    "tdtp/session/reorder_buffer.py",
     "tdtp/session/rtt.py",
     "tdtp/session/loss_rate.py",
     "tdtp/session/handshake.py",

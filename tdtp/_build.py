@@ -44,6 +44,7 @@ COMPILED_MODULES: Final = (
     "tdtp.session.stats",
     "tdtp.session.sent_log",
     "tdtp.session.receive_window",
+    "tdtp.session.reorder_buffer",
     "tdtp.session.rtt",
     "tdtp.session.loss_rate",
     "tdtp.session.handshake",

@@ -48,6 +48,7 @@ from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
+from tdtp.session.reorder_buffer import ReorderBuffer
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
 from tdtp.session.state import State
@@ -166,6 +167,8 @@ class Connection(ConnectionView):
         self._max_payload = config.max_payload
         self._deliver_late = config.deliver_late
         self._deliver_duplicates = config.deliver_duplicates
+        # Samples that arrived after a gap, waiting for it (None: delivered as they arrive).
+        self._reorder: ReorderBuffer | None = None
         self._close_event: ConnectionClosed | None = None
 
     # ------------------------------------------------------------------ caller API
@@ -489,6 +492,7 @@ class Connection(ConnectionView):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)
             return
         arrival = self._acks.on_arrival(window, seq, now)
+        reorder = self._reorder
         if arrival is not Arrival.NEW:
             if arrival is Arrival.STALE:
                 self._heard(now)
@@ -496,7 +500,12 @@ class Connection(ConnectionView):
                 return
             if arrival is Arrival.LATE:
                 stats.reordered += 1
-                if not self._deliver_late:
+                if reorder is not None:
+                    reorder.on_late(window.last_seq, now)
+                    stats.reorder_wait = reorder.wait
+                    if window.last_seq < reorder.next_seq:
+                        reorder = None  # its gap was given up before it came: late after all
+                if reorder is None and not self._deliver_late:
                     self._heard(now)
                     stats.count_drop(DropReason.LATE)
                     return
@@ -504,6 +513,11 @@ class Connection(ConnectionView):
                 self._heard(now)
                 stats.count_drop(DropReason.DUPLICATE)
                 return
+            else:
+                reorder = None  # a duplicate the application asked for goes up as it came
+        elif reorder is not None and window.last_gap:
+            full = window.last_seq
+            reorder.on_gap(full - window.last_gap, full, now)
         received = stats.received
         received.datagrams += 1
         received.bytes += size + self._overhead
@@ -515,13 +529,39 @@ class Connection(ConnectionView):
         liveness.last_receive = now
         if liveness.silent_since is not None:
             self._on_peer_resumed(now)
-        stats.samples_delivered += 1
+        if reorder is not None:
+            if reorder.accept(window.last_seq, data[HEADER_SIZE:], now):
+                self._deliver(data[HEADER_SIZE:], window.last_seq, now, now)
+            else:
+                self._hint.value = -math.inf  # held: the wait has a deadline
+            if reorder.held:
+                self._release_reordered(reorder, now)
+            return
+        self._deliver(data[HEADER_SIZE:], window.last_seq, now, now)
+
+    def _deliver(self, payload: bytes, seq: int, arrival: float, now: float) -> None:
+        """Hand a sample to the application (``arrival`` earlier than ``now`` if it waited)."""
+        self._stats.samples_delivered += 1
         rtt = self._recovery.rtt
-        self._events.push_data(
-            new_data_received(
-                data[HEADER_SIZE:], window.last_seq, rtt.srtt / 2 if rtt.has_sample else None, now
-            )
-        )
+        age = rtt.srtt / 2 + (now - arrival) if rtt.has_sample else None
+        self._events.push_data(new_data_received(payload, seq, age, now))
+
+    def _release_reordered(self, reorder: ReorderBuffer, now: float) -> None:
+        """Deliver what the reorder wait no longer holds back."""
+        for seq, payload, arrival in reorder.release(now):
+            self._deliver(payload, seq, arrival, now)
+        stats = self._stats
+        stats.reorder_held = reorder.held_total
+        stats.reorder_wait = reorder.wait
+
+    def _open_reorder(self, initial_seq: int) -> None:
+        """The peer's data starts at ``initial_seq``: deliver it in order, through a reorder wait,
+        unless the application asked for arrival order or for no wait."""
+        config = self.config
+        if config.deliver_late or config.max_reorder_wait <= 0.0:
+            self._reorder = None
+        else:
+            self._reorder = ReorderBuffer(initial_seq, config.max_reorder_wait)
 
     def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
@@ -629,6 +669,7 @@ class Connection(ConnectionView):
         )
         self._sender.limit = min(self.config.max_payload, body.max_payload)
         acks.open(admitted.initial_seq)
+        self._open_reorder(admitted.initial_seq)
         self._install_protection()
         self._stats.count_handshake(admitted.size, handshake.tag_size)
         self._heard(now)
@@ -653,6 +694,7 @@ class Connection(ConnectionView):
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
         self._acks.open(initial_seq)
+        self._open_reorder(initial_seq)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
@@ -707,6 +749,11 @@ class Connection(ConnectionView):
         loss_deadline = self._recovery.loss_deadline()
         if loss_deadline is not None and loss_deadline < deadline:
             deadline = loss_deadline
+        reorder = self._reorder
+        if reorder is not None:
+            reorder_deadline = reorder.deadline()
+            if reorder_deadline is not None and reorder_deadline < deadline:
+                deadline = reorder_deadline
         controller_deadline = self._controller.get_timer()
         hint.controller_seen = controller_deadline
         if controller_deadline is not None and controller_deadline < deadline:
@@ -743,6 +790,9 @@ class Connection(ConnectionView):
             self._push_watchdog_event(PeerSilent(liveness.last_receive, now))
             self._controller.on_peer_silent(now=now)
         self._recovery.detect_losses(now)
+        reorder = self._reorder
+        if reorder is not None and reorder.held:
+            self._release_reordered(reorder, now)
         controller_deadline = self._controller.get_timer()
         if controller_deadline is not None and now >= controller_deadline:
             self._controller.on_timer(now=now)
