@@ -248,6 +248,11 @@ class TeleopController(RateController):
         self._schedule = PacingSchedule()
         self._p = 0.0
         self._mean_size = 0.0  # moving average of datagram sizes, bytes
+        # The TCP-friendly ceiling: the rate it cut (restored as the ceiling rises again), and the
+        # rate in use at the first loss event (the ceiling's floor until the second one).
+        self._capped_from: float | None = None
+        self._loss_events = 0
+        self._first_loss_rate = 0.0
         # Base RTT: the minimum over two half-windows (the older one expires as a whole).
         self._base_now = math.inf
         self._base_old = math.inf
@@ -398,7 +403,7 @@ class TeleopController(RateController):
             if end < self._iv_end:
                 self._iv_end = end
         if not math.isnan(loss_event_rate):
-            self._p = min(max(loss_event_rate, 0.0), 1.0)
+            self._set_p(loss_event_rate)
         if rtt_sample is not None and rtt_sample > 0.0:
             self._on_rtt_sample(now, rtt_sample)
         self._iv_acked += max(acked, 0)
@@ -413,8 +418,9 @@ class TeleopController(RateController):
         if _positive_finite(srtt):
             self._srtt = srtt
         if not math.isnan(loss_event_rate):
-            self._p = min(max(loss_event_rate, 0.0), 1.0)
+            self._set_p(loss_event_rate)
         self._loss_since_drain = True
+        self._loss_events += 1
         target = self._target()
         # As the last complete interval measured the queue (a part of one has too few samples to
         # see through jitter): standing above half the target, or grown by a quarter of it.
@@ -485,6 +491,7 @@ class TeleopController(RateController):
             if not self._blackout:
                 self._rate_before_blackout = self._rate
             self._blackout = True
+            self._capped_from = None
             self._set_rate(now, self._rate * 0.5**missed)
             self._nf_deadline = now + self._no_feedback_timeout()
             self._start_interval(now)
@@ -555,6 +562,7 @@ class TeleopController(RateController):
                 self._reason = LIMIT_QUEUE_DELAY
         elif queue <= 0.5 * target or queue <= previous:
             if self._p > cfg.heavy_loss:
+                self._capped_from = None
                 self._set_rate(now, self._rate * (1.0 - 0.5 * self._p))
                 self._last_decrease = now
                 self._reason = LIMIT_LOSS
@@ -571,6 +579,7 @@ class TeleopController(RateController):
             self._next_drain = now + cfg.drain_every
             self._loss_since_drain = False
             self._draining_from = self._rate
+            self._capped_from = None
             self._set_rate(now, self._rate_in_use() * cfg.drain_fraction)
             self._iv_end = now + 2.0 * self._nominal_interval()
 
@@ -612,7 +621,12 @@ class TeleopController(RateController):
 
     def _ceiling(self) -> float:
         """What a TCP with ``tcp_segment``-byte segments carries at this p and srtt, in bytes per
-        second, divided by this flow's bytes per packet on the wire."""
+        second, divided by this flow's bytes per packet on the wire.
+
+        Until the second loss event it is never below the rate in use at the first: p then rests
+        on one interval that began at an arbitrary point (the connection's start), so a loss in the
+        first few packets would read as p = 1/3. RFC 5348 (6.3.1) synthesises that first interval
+        from the receive rate for the same reason."""
         p = self._p
         if p <= 0.0:
             return math.inf
@@ -620,15 +634,40 @@ class TeleopController(RateController):
         srtt = self._srtt
         tcp_bytes = cfg.tcp_segment * padhye_rate(srtt, p, 4.0 * srtt)
         size = self._mean_size if self._mean_size > 0.0 else float(cfg.tcp_segment)
-        return tcp_bytes / (size + cfg.ip_overhead)
+        ceiling = tcp_bytes / (size + cfg.ip_overhead)
+        if self._loss_events < 2 and ceiling < self._first_loss_rate:
+            return self._first_loss_rate
+        return ceiling
+
+    def _set_p(self, loss_event_rate: float) -> None:
+        p = min(max(loss_event_rate, 0.0), 1.0)
+        if p > 0.0 and self._p <= 0.0 and self._first_loss_rate <= 0.0:
+            self._first_loss_rate = self._rate_in_use()  # the ceiling's floor for now
+        self._p = p
 
     def _apply_ceiling(self, now: float) -> None:
+        """Hold the rate under the ceiling; as p falls (the open loss interval grows) and the
+        ceiling rises, give back what the ceiling took, at once (TFRC follows its equation up the
+        same way): the ceiling is a bound on the rate, not a congestion signal."""
         ceiling = min(self._cfg.max_rate, self._ceiling())
-        if self._rate > ceiling:
+        rate = self._rate
+        if rate > ceiling:
+            capped = self._capped_from
+            self._capped_from = rate if capped is None or rate > capped else capped
             self._set_rate(now, ceiling)
+        else:
+            capped = self._capped_from
+            if capped is not None and ceiling > rate:
+                if ceiling >= capped:
+                    self._capped_from = None
+                    self._set_rate(now, capped)
+                else:
+                    self._set_rate(now, ceiling)
 
     def _decrease(self, now: float, rate: float) -> None:
-        """A decrease for congestion: remember where from, so that recovery aims back at it."""
+        """A decrease for congestion: remember where from, so that recovery aims back at it (not
+        at a rate the ceiling had cut: the path has spoken since)."""
+        self._capped_from = None
         self._rate_before_decrease = self._rate
         self._set_rate(now, rate)
 
