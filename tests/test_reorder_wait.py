@@ -31,7 +31,9 @@ def _learn(buffer: ReorderBuffer, displacement: float, now: float) -> float:
     return now
 
 
-def test_in_order_samples_are_delivered_at_once_and_gaps_are_losses_until_reordering_is_seen() -> None:
+def test_in_order_samples_are_delivered_at_once_and_gaps_are_losses_until_reordering_is_seen() -> (
+    None
+):
     buffer = ReorderBuffer(100, max_wait=0.02)
     assert buffer.accept(100, b"x", 0.0) and buffer.accept(101, b"x", 0.001)
     buffer.on_gap(102, 105, 0.002)
@@ -115,9 +117,7 @@ def test_any_arrival_order_delivers_each_sample_at_most_once_in_order(
     """Sample k leaves at k ms and arrives ``delay`` later unless lost: whatever the network does,
     the application sees increasing sequence numbers, nothing twice, nothing lost that arrived in
     time, and never more than SPAN held."""
-    arrivals = sorted(
-        (k * 0.001 + delay, k) for k, (delay, lost) in enumerate(path) if not lost
-    )
+    arrivals = sorted((k * 0.001 + delay, k) for k, (delay, lost) in enumerate(path) if not lost)
     buffer = ReorderBuffer(0, max_wait=max_wait)
     highest = -1
     delivered: list[int] = []
