@@ -56,6 +56,7 @@ COMPILED = [
     "tdtp/control/tfrc.py",
     "tdtp/control/trinomial.py",
     "tdtp/control/registry.py",
+    "tdtp/control/send_meter.py",
     "tdtp/aio/loop_timers.py",
     "tdtp/aio/endpoint.py",
 ]

@@ -68,6 +68,7 @@ COMPILED_MODULES: Final = (
     "tdtp.control.tfrc",
     "tdtp.control.trinomial",
     "tdtp.control.registry",
+    "tdtp.control.send_meter",
     "tdtp.aio.loop_timers",
     "tdtp.aio.endpoint",
 )

@@ -40,6 +40,7 @@ from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
 from tdtp.control.equations import padhye_rate
+from tdtp.control.send_meter import GAP_GAIN, SendMeter
 
 __all__ = [
     "LIMIT_APPLICATION",
@@ -53,8 +54,6 @@ __all__ = [
     "TeleopController",
 ]
 
-GAP_GAIN: Final = 0.125
-"""Gain of the moving averages of departure gaps and of the share of paced departures (as trinomial's)."""
 
 MIN_SAMPLES: Final = 16
 """RTT samples a control interval needs before it judges the queue: the smallest of fewer would
@@ -277,9 +276,7 @@ class TeleopController(RateController):
         self._last_decrease = -math.inf
         self._reason = LIMIT_APPLICATION
         # The application-limited guard.
-        self._last_send: float | None = None
-        self._gap_avg: float | None = None
-        self._paced_avg = 0.0
+        self._sending = SendMeter()
         # Blackout and outage.
         self._nf_deadline: float | None = None
         self._blackout = False
@@ -326,7 +323,7 @@ class TeleopController(RateController):
             return LIMIT_BLACKOUT
         if self._rate >= self._ceiling() * (1.0 - 1e-9):
             return LIMIT_TCP_FRIENDLY
-        if self._paced_avg < 0.5:
+        if self._sending.app_limited:
             return LIMIT_APPLICATION
         if self._reason == LIMIT_QUEUE_DELAY:
             return f"{LIMIT_QUEUE_DELAY} {self._queue_delay * 1e3:.1f} ms"
@@ -372,12 +369,7 @@ class TeleopController(RateController):
 
     def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
         self._advance(now)
-        if self._last_send is not None:
-            gap = now - self._last_send
-            avg = self._gap_avg
-            self._gap_avg = gap if avg is None else avg + GAP_GAIN * (gap - avg)
-        self._paced_avg += GAP_GAIN * ((1.0 if paced else 0.0) - self._paced_avg)
-        self._last_send = now
+        self._sending.on_departure(now, paced)
         mean = self._mean_size
         self._mean_size = float(size) if mean == 0.0 else mean + GAP_GAIN * (size - mean)
         if self._nf_deadline is None:
@@ -589,8 +581,8 @@ class TeleopController(RateController):
         gain = cfg.ramp_gain if ramp else cfg.probe_gain
         rate = self._rate
         ceiling = min(cfg.max_rate, self._ceiling())
-        if self._paced_avg < 0.5:
-            ceiling = min(ceiling, max(rate, cfg.app_headroom * self._send_rate()))
+        if self._sending.app_limited:
+            ceiling = min(ceiling, max(rate, cfg.app_headroom * self._sending.send_rate()))
         if ceiling > rate * (1.0 + 1e-9):
             # Below the rate a decrease started from, close half the distance per interval (the
             # path carried it a moment ago); beyond it, probe.
@@ -600,24 +592,18 @@ class TeleopController(RateController):
             step = max(grow, 0.5 * (self._rate_before_decrease - rate))
             self._set_rate(now, min(rate + step, ceiling))
             self._increases += 1
-            if self._paced_avg >= 0.5:
+            if not self._sending.app_limited:
                 self._reason = LIMIT_PROBING
 
     def _rate_in_use(self) -> float:
         """The allowed rate, or what the application sends when it sets the pace (trinomial's
         ``decrease_in_use``: a decrease slows the sender down from what it sends)."""
         rate = self._rate
-        if self._paced_avg < 0.5:
-            sending = self._send_rate()
+        if self._sending.app_limited:
+            sending = self._sending.send_rate()
             if sending > 0.0:
                 rate = min(rate, sending)
         return rate
-
-    def _send_rate(self) -> float:
-        gap = self._gap_avg
-        if gap is None:
-            return 0.0
-        return 1.0 / gap if gap > 0.0 else math.inf
 
     def _ceiling(self) -> float:
         """What a TCP with ``tcp_segment``-byte segments carries at this p and srtt, in bytes per
