@@ -548,7 +548,7 @@ class TeleopController(RateController):
                 base = self._rate_in_use()
                 if delivered > 0.0:
                     base = min(base, delivered)
-                self._decrease(now, base * cfg.delay_decrease)
+                self._decrease(now, base * cfg.delay_decrease, carried=base)
                 self._delay_decreases += 1
                 self._last_decrease = now
                 self._reason = LIMIT_QUEUE_DELAY
@@ -650,11 +650,13 @@ class TeleopController(RateController):
                 else:
                     self._set_rate(now, ceiling)
 
-    def _decrease(self, now: float, rate: float) -> None:
+    def _decrease(self, now: float, rate: float, carried: float | None = None) -> None:
         """A decrease for congestion: remember where from, so that recovery aims back at it (not
-        at a rate the ceiling had cut: the path has spoken since)."""
+        at a rate the ceiling had cut: the path has spoken since). ``carried``: what the path
+        delivered while the queue built, when known; recovery aims no higher (after the start-up's
+        doubling the allowed rate can be twice what the path ever carried)."""
         self._capped_from = None
-        self._rate_before_decrease = self._rate
+        self._rate_before_decrease = self._rate if carried is None else min(self._rate, carried)
         self._set_rate(now, rate)
 
     def _set_rate(self, now: float, rate: float) -> None:
