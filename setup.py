@@ -46,6 +46,7 @@ COMPILED = [
     "tdtp/session/path.py",
     "tdtp/session/state.py",
     "tdtp/session/view.py",
+    "tdtp/session/sample_age.py",
     "tdtp/protection/replay_window.py",
     "tdtp/protection/packet_protection.py",
     "tdtp/control/base.py",

@@ -58,6 +58,7 @@ COMPILED_MODULES: Final = (
     "tdtp.session.path",
     "tdtp.session.state",
     "tdtp.session.view",
+    "tdtp.session.sample_age",
     "tdtp.protection.replay_window",
     "tdtp.protection.packet_protection",
     "tdtp.control.base",

@@ -96,6 +96,7 @@ async def _demo(
                     interval,
                     slave_side.latency.take_window(),
                     silence_note(slave, "slave"),
+                    receiver=slave.stats,
                 )
             )
             lines.append(
@@ -105,6 +106,7 @@ async def _demo(
                     interval,
                     master_side.latency.take_window(),
                     silence_note(master, "master"),
+                    receiver=master.stats,
                 )
             )
             bands = [

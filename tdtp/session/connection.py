@@ -49,6 +49,7 @@ from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.reset_guard import ResetGuard
+from tdtp.session.sample_age import SampleAgeHistogram
 from tdtp.session.sender import SampleSender
 from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats, DropReason
@@ -167,6 +168,11 @@ class Connection(ConnectionView):
         self._deliver_late = config.deliver_late
         self._deliver_duplicates = config.deliver_duplicates
         self._close_event: ConnectionClosed | None = None
+        # Sample age (PROTOCOL.md 3.6): the ages delivered, and the opening's round trip, which is
+        # all the receiving end of a one-way stream ever measures.
+        self._ages = SampleAgeHistogram()
+        self._opening_sent_at = math.nan  # our last OPEN (master) or OPEN_ACK (slave)
+        self._opening_rtt: float | None = None
 
     # ------------------------------------------------------------------ caller API
 
@@ -359,6 +365,7 @@ class Connection(ConnectionView):
         size = len(data)
         if self._handshake.confirming:
             # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
+            self._opening_round_trip(now)
             self._establish(now)
         # The header, decoded in place (wire/header.py's layout) rather than into a Header tuple.
         b1 = data[1]
@@ -485,9 +492,12 @@ class Connection(ConnectionView):
         if not payload_size:
             stats.count_drop(DropReason.EMPTY_DATA)  # senders MUST NOT send one (section 4.1)
             return
-        if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
-            stats.count_drop(DropReason.OPTIMISTIC_ACK)
-            return
+        echo: float | None = None
+        if hold != HOLD_NO_ACK:
+            if not self._on_feedback(ack, sack, hold, now):
+                stats.count_drop(DropReason.OPTIMISTIC_ACK)
+                return
+            echo = self._recovery.echo
         arrival = self._acks.on_arrival(window, seq, now)
         if arrival is not Arrival.NEW:
             if arrival is Arrival.STALE:
@@ -517,10 +527,23 @@ class Connection(ConnectionView):
             self._on_peer_resumed(now)
         stats.samples_delivered += 1
         rtt = self._recovery.rtt
+        if rtt.has_sample:
+            estimate: float | None = rtt.srtt / 2
+        else:
+            opening = self._opening_rtt
+            estimate = None if opening is None else opening / 2
+        sent_at: float | None = None
+        if echo is not None:
+            # Timed by its own header: the middle of the round trip (PROTOCOL.md 3.6).
+            age: float | None = echo / 2
+            sent_at = now - echo / 2
+            stats.samples_timed += 1
+        else:
+            age = estimate
+        if age is not None:
+            self._ages.add(age)
         self._events.push_data(
-            new_data_received(
-                data[HEADER_SIZE:], window.last_seq, rtt.srtt / 2 if rtt.has_sample else None, now
-            )
+            new_data_received(data[HEADER_SIZE:], window.last_seq, estimate, now, sent_at)
         )
 
     def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:
@@ -595,6 +618,7 @@ class Connection(ConnectionView):
                 self._open_session(verdict, addr, now)
             elif verdict is Reaction.ANSWER_AGAIN:
                 self._queue_open_ack()
+                self._opening_sent_at = now
             elif verdict is Reaction.REPLACED:
                 self._terminate(
                     CloseCause.REPLACED, "the master opened a new connection from the same address"
@@ -637,6 +661,7 @@ class Connection(ConnectionView):
         handshake.open_deadline = now + self.config.open_timeout
         self._liveness.last_send = now
         self._queue_open_ack()
+        self._opening_sent_at = now
 
     def _on_opened(self, initial_seq: int, now: float) -> None:
         """A master's OPEN_ACK (already counted): the session opens, unless the slave's payloads
@@ -653,12 +678,20 @@ class Connection(ConnectionView):
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
         self._acks.open(initial_seq)
+        self._opening_round_trip(now)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
         # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
         liveness = self._liveness
         liveness.last_send = now - 2.0 * liveness.keepalive
+
+    def _opening_round_trip(self, now: float) -> None:
+        """The opening's round trip: our last OPEN (OPEN_ACK) to the OPEN_ACK (the master's first
+        packet). If an earlier copy was answered it reads short, as TCP's handshake sample can."""
+        sent_at = self._opening_sent_at
+        if not math.isnan(sent_at) and now >= sent_at:
+            self._opening_rtt = now - sent_at
 
     def _install_protection(self) -> None:
         """A keyed session's keys, derived at the open, protect every datagram from now on."""
@@ -800,6 +833,7 @@ class Connection(ConnectionView):
         self._outbox.emit_control(
             out, datagram, self._peer_address(), now, handshake.tag_size, True
         )
+        self._opening_sent_at = now
 
     # ------------------------------------------------------------------ helpers
 

@@ -58,6 +58,13 @@ def test_demo_json_reports_both_directions(extra: tuple[str, ...]) -> None:
         # (and, with separate ACKs, its ACKs for the other direction).
         assert direction["header_bytes"] % 5 == 0
         assert direction["header_bytes"] >= 5 * direction["packets_sent"]
+        # The receiver's sample ages (PROTOCOL.md 3.6): there, ordered, and timed only when the
+        # samples carry acknowledgements (never with separate ACKs).
+        age = direction["sample_age_ms"]
+        assert 0.0 < age["p50"] <= age["p99"]
+        assert 0 <= direction["samples_timed"] <= direction["samples_delivered"]
+        if "--separate-acks" in extra:
+            assert direction["samples_timed"] == 0
     separate = "--separate-acks" in extra
     acks_back = summary["master_to_slave"]["ack_packets_sent_back"]  # type: ignore[index]
     # Separate ACKs: one per data packet the slave received. Piggybacked: at most the one or two
