@@ -11,17 +11,20 @@ round trip costs) and ``--netem``. Both sides offer the demo's haptic signal at 
 ``--seconds`` after a one-second start-up that is not counted: the master an operator's hand
 (:func:`tdtp.teleop.haptic_sample.operator_motion`: reach, press and slide along a wall, retreat,
 with tremor), the slave the wall's force on the position it last received
-(:func:`~tdtp.teleop.haptic_sample.slave_feedback`). Four modes:
+(:func:`~tdtp.teleop.haptic_sample.slave_feedback`). Five modes:
 
 - ``tdtp``: every sample a packet, ACKs piggybacked (the default);
 - ``tdtp+deadband``: a :class:`~tdtp.teleop.deadband.DeadbandSender` with Weber fraction ``--k`` on
   each side (position and force, the demo's floors of 0.5 mm and 0.05 N, heartbeat 100 ms): ACKs
   ride on the reverse samples when there are any, and go stand-alone otherwise;
+- ``tdtp+deadband, ack_delay 2 ms``: the same, both sides configured to send a stand-alone ACK
+  after 2 ms instead of 20 ms (``ConnectionConfig.ack_delay``; how the stand-alone ACKs of a sparse
+  stream trade packets for feedback delay);
 - ``separate``: ``AckMode.SEPARATE``, Trinomial's one ACK per data packet (the paper's comparison);
 - ``separate+deadband``: the same with the deadband.
 
 Per direction (``M->S``: what the master sends, its data and the ACKs it returns for the slave's):
-packets/s by kind and wire bytes/s with 28 bytes of IPv4 + UDP per datagram; the share of offered
+packets/s by kind (data, stand-alone ACKs, and control packets: in the window, KEEPALIVEs) and wire bytes/s with 28 bytes of IPv4 + UDP per datagram; the share of offered
 samples sent; **ACK coverage**, the share of the data packets sent that the sender saw acknowledged;
 the **feedback delay**, from sending a data packet to the first acknowledgement at or above it
 (acknowledged or reported absent: when the sender learns its fate), p50/p99; **RTT freshness**, the
@@ -69,7 +72,8 @@ PROBE = 0.01  # RTT freshness is read every 10 ms
 LOOPBACK = "delay 50us"
 DEFAULT_NETEM = "delay 20ms 5ms loss 2%"
 QUICK_SECONDS = 2.0
-MODES = ("tdtp", "tdtp+deadband", "separate", "separate+deadband")
+MODES = ("tdtp", "tdtp+deadband", "tdtp+deadband, ack_delay 2 ms", "separate", "separate+deadband")
+FAST_ACK_DELAY = 0.002
 WAYS = ("M->S", "S->M")
 
 
@@ -119,12 +123,15 @@ def _counters(conn: Connection) -> dict[str, int]:
 def run(mode: str, profile: str, *, seed: int, seconds: float, k: float) -> dict[str, Json]:
     """One session in virtual time; per direction, the figures of the module docstring."""
     separate = mode.startswith("separate")
-    config = ConnectionConfig(ack_mode=AckMode.SEPARATE if separate else AckMode.BIDIRECTIONAL)
+    config = ConnectionConfig(
+        ack_mode=AckMode.SEPARATE if separate else AckMode.BIDIRECTIONAL,
+        ack_delay=FAST_ACK_DELAY if mode.endswith("2 ms") else ConnectionConfig().ack_delay,
+    )
     spec = parse_netem(profile)
     rng = random.Random(seed)
 
     def band(floor: float) -> DeadbandSender | None:
-        if not mode.endswith("deadband"):
+        if "deadband" not in mode:
             return None
         return DeadbandSender(groups=[(0, 1, 2)], config=DeadbandConfig(k=k, min_threshold=floor))
 
@@ -299,6 +306,7 @@ def _percentile(values: list[float], q: float) -> float:
 COLUMNS = (
     ("data_per_s", "data/s", 0),
     ("ack_per_s", "ACK/s", 0),
+    ("control_per_s", "KEEPALIVE/s", 0),
     ("packets_per_s", "datagrams/s", 0),
     ("wire_kbit_s", "wire kbit/s", 1),
     ("sent_share", "sent/offered", 3),
