@@ -666,6 +666,7 @@ class Connection(ConnectionView):
     def _on_opened(self, initial_seq: int, now: float) -> None:
         """A master's OPEN_ACK (already counted): the session opens, unless the slave's payloads
         are too small for us."""
+        self._opening_round_trip(now)
         self._install_protection()
         peer_max_payload = self._handshake.peer_max_payload
         if peer_max_payload < self.config.min_peer_payload:
@@ -678,7 +679,6 @@ class Connection(ConnectionView):
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
         self._acks.open(initial_seq)
-        self._opening_round_trip(now)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
