@@ -380,3 +380,32 @@ def test_datagram_layer() -> None:
     assert set(report["details"]["runs"]) <= set(variants)
     if "c-limit-both" in report["details"]["runs"]:  # a C compiler was there
         assert any("x raw uvloop" in (r["ratio_label"] or "") for r in report["rows"])
+
+
+def test_deadband_cost() -> None:
+    report = _run("deadband_cost.py")
+    _assert_rows(report, 10)  # five modes on two paths
+    for results in report["details"]["results"].values():
+        assert {"tdtp", "tdtp+deadband", "separate", "separate+deadband"} <= set(results)
+        for runs in results.values():
+            for way in ("M->S", "S->M"):
+                figures = runs[0][way]
+                assert figures["data_per_s"] > 0
+                assert 0.0 < figures["sent_share"] <= 1.0
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [(["--seconds", "0"], "--seconds"), (["--k", "-1"], "--k"), (["--netem", "delay"], "--netem")],
+)
+def test_deadband_cost_misuse_is_one_line_and_status_2(argv: list[str], option: str) -> None:
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / "deadband_cost.py"), *argv],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and option in lines[0], done.stderr

@@ -163,7 +163,13 @@ def test_rtt_follows_the_path_and_excludes_the_hold_time() -> None:
     last = pair.slave.received[-1]
     assert last.estimated_age == pytest.approx(0.040, abs=0.0002)  # half the RTT: no shared clock
     assert last.age_at(last.received_at + 0.5) == pytest.approx(0.540, abs=0.0002)
-    assert pair.slave.received[0].estimated_age is None  # before any RTT sample: unknown
+    # Timed by its own header (PROTOCOL.md 3.6): half the round trip, 40 ms, where the true one-way
+    # delay is 30 ms. No two-way estimate can see an asymmetric path.
+    assert last.sent_at is not None
+    assert last.age == pytest.approx(0.040, abs=0.0002)
+    # Before any RTT sample: half the opening's round trip (the slave's OPEN_ACK out, the master's
+    # first packet back).
+    assert pair.slave.received[0].estimated_age == pytest.approx(0.040)
 
 
 # 400,000 packets through the pure-Python build take ~40 s on an idle core and over two minutes on a

@@ -22,7 +22,7 @@ from tdtp.session.events import (
 EVENTS = [
     ConnectionEstablished(("127.0.0.1", 9000)),
     DataReceived(b"sample", 7, 0.002, 12.5),
-    new_data_received(b"sample", 7, 0.002, 12.5),
+    new_data_received(b"sample", 7, 0.002, 12.5, None),
     ConnectionClosed(CloseCause.IDLE_TIMEOUT, "nothing heard for 30 s"),
     PeerSilent(1.0, 1.1),
     PeerResumed(1.0, 2.5),
@@ -41,6 +41,6 @@ def test_an_event_pickles_copies_and_stays_frozen(event: object) -> None:
 
 
 def test_the_fast_constructor_builds_the_same_sample() -> None:
-    fast = new_data_received(b"x", 1, None, 2.0)
+    fast = new_data_received(b"x", 1, None, 2.0, None)
     assert fast == DataReceived(b"x", 1, None, 2.0)
     assert repr(fast) == repr(DataReceived(b"x", 1, None, 2.0))

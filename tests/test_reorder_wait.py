@@ -60,8 +60,8 @@ def test_a_measured_displacement_sets_the_wait_and_a_filled_gap_releases_in_orde
     buffer.on_late(4, now + 0.004)
     assert buffer.accept(4, b"4", now + 0.004)
     released = buffer.release(now + 0.004)
-    assert [seq for seq, _, _ in released] == [5, 6]
-    assert [arrival for _, _, arrival in released] == [now, now + 0.001]
+    assert [seq for seq, *_ in released] == [5, 6]
+    assert [arrival for _, _, arrival, _ in released] == [now, now + 0.001]
     assert buffer.given_up == 1 and not buffer.held
 
 
@@ -73,7 +73,7 @@ def test_a_gap_is_given_up_when_its_wait_runs_out_and_its_sample_is_then_late() 
     deadline = buffer.deadline()
     assert deadline is not None
     assert buffer.release(deadline - 1e-6) == []
-    assert buffer.release(deadline) == [(4, b"4", now)]
+    assert buffer.release(deadline) == [(4, b"4", now, None)]
     assert buffer.given_up == 2
     assert not buffer.accept(3, b"3", deadline + 0.001) and buffer.next_seq > 3
 
@@ -101,7 +101,7 @@ def test_a_sample_far_ahead_gives_up_the_oldest_gaps_so_the_buffer_stays_bounded
     buffer.on_gap(5, far, now)
     assert not buffer.accept(far, b"far", now)
     released = buffer.release(now)  # well before any deadline
-    assert [seq for seq, _, _ in released] == [4]
+    assert [seq for seq, *_ in released] == [4]
     # Only the gaps the span still reaches are awaited.
     assert len(buffer.held) == 1 and buffer.next_seq == far - SPAN + 1
 
@@ -125,7 +125,7 @@ def test_any_arrival_order_delivers_each_sample_at_most_once_in_order(
     for now, seq in arrivals:
         deadline = buffer.deadline()
         if deadline is not None and deadline <= now:
-            delivered.extend(s for s, _, _ in buffer.release(deadline))
+            delivered.extend(s for s, *_ in buffer.release(deadline))
         if seq > highest:
             buffer.on_gap(highest + 1, seq, now)
             highest = seq
@@ -135,10 +135,10 @@ def test_any_arrival_order_delivers_each_sample_at_most_once_in_order(
             delivered.append(seq)
         elif seq < buffer.next_seq:
             late += 1
-        delivered.extend(s for s, _, _ in buffer.release(now))
+        delivered.extend(s for s, *_ in buffer.release(now))
         assert len(buffer.held) <= SPAN
         assert 0.0 <= buffer.wait <= max_wait
-    delivered.extend(s for s, _, _ in buffer.release(math.inf))
+    delivered.extend(s for s, *_ in buffer.release(math.inf))
     assert delivered == sorted(set(delivered))
     assert len(delivered) + late == len(arrivals)
 

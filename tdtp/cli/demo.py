@@ -96,6 +96,7 @@ async def _demo(
                     interval,
                     slave_side.latency.take_window(),
                     silence_note(slave, "slave"),
+                    receiver=slave.stats,
                 )
             )
             lines.append(
@@ -105,6 +106,7 @@ async def _demo(
                     interval,
                     master_side.latency.take_window(),
                     silence_note(master, "master"),
+                    receiver=master.stats,
                 )
             )
             bands = [
@@ -169,12 +171,14 @@ def demo_table(summary: dict[str, Any]) -> str:
     for key, label in (("master_to_slave", "M->S"), ("slave_to_master", "S->M")):
         d = summary[key]
         latency = d.get("latency_ms") or {}
+        age = d.get("sample_age_ms") or {}
         rows.append(
             f"{label}: offered {d['samples_offered']}, sent {d['packets_sent']}, "
             f"received {d['packets_received']} ({d['delivery_ratio'] * 100:.2f} %), "
             f"lost {d['losses']}, {d['mean_rate']:.1f} pkt/s, srtt {d['srtt_ms']:.3f} ms, "
             f"latency p50 {latency.get('p50', math.nan):.3f} ms p99 "
-            f"{latency.get('p99', math.nan):.3f} ms, header bytes {d['header_bytes']}, "
+            f"{latency.get('p99', math.nan):.3f} ms, age p50 {age.get('p50', math.nan):.3f} ms p99 "
+            f"{age.get('p99', math.nan):.3f} ms, header bytes {d['header_bytes']}, "
             f"ACK packets {d['ack_packets_sent_back']}"
         )
     return "\n".join(rows)

@@ -53,6 +53,14 @@ class LatencyRecorder:
         }
 
 
+def age_text(receiver: ConnectionStats) -> str | None:
+    """``"age p50 20.1 ms p99 24.3 ms"``: the receiving end's sample ages so far (PROTOCOL.md 3.6),
+    or ``None`` before it has an estimate."""
+    if not receiver.samples_delivered or receiver.sample_age_p50 <= 0.0:
+        return None
+    return f"age p50 {receiver.sample_age_p50 * 1e3:6.2f} ms p99 {receiver.sample_age_p99 * 1e3:6.2f} ms"
+
+
 @dataclass(slots=True)
 class DirectionMeter:
     """Turns cumulative counters into per-interval figures for the live display."""
@@ -70,8 +78,10 @@ class DirectionMeter:
         interval: float,
         latency: list[float] | None,
         note: str | None = None,
+        receiver: ConnectionStats | None = None,
     ) -> str:
-        """One line of figures for the last ``interval``; ``note`` (e.g. the watchdog's) is appended."""
+        """One line of figures for the last ``interval``; the sample age the ``receiver`` estimates
+        and ``note`` (e.g. the watchdog's) are appended."""
         received = received_total - self.last_received
         lost = sender.packets_lost - self.last_lost
         sent = sender.sent.data_packets - self.last_sent
@@ -99,6 +109,9 @@ class DirectionMeter:
                 f"latency p50 {percentile(latency, 0.5) * 1e3:6.3f} ms"
                 f" p99 {percentile(latency, 0.99) * 1e3:6.3f} ms"
             )
+        age = age_text(receiver) if receiver is not None else None
+        if age:
+            parts.append(age)
         if note:
             parts.append(note)
         return "  ".join(parts)
@@ -110,8 +123,10 @@ def receive_line(
     meter: DirectionMeter,
     interval: float,
     latency: LatencyRecorder,
+    receiver: ConnectionStats | None = None,
 ) -> str:
-    """A direction seen only from its receiving end (the sender is another process)."""
+    """A direction seen only from its receiving end (the sender is another process), with the
+    sample age the ``receiver`` estimates."""
     received = received_total - meter.last_received
     meter.last_received = received_total
     window = latency.take_window()
@@ -121,6 +136,9 @@ def receive_line(
             f"  latency p50 {percentile(window, 0.5) * 1e3:6.3f} ms"
             f" p99 {percentile(window, 0.99) * 1e3:6.3f} ms"
         )
+    age = age_text(receiver) if receiver is not None else None
+    if age:
+        text += "  " + age
     return text
 
 

@@ -66,7 +66,9 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
             lines = [
                 f"t={monotonic() - start:6.1f} s",
                 meter.line(ep.stats, ep.stats.packets_acked, interval, None),
-                receive_line("S->M", side.received, reverse_meter, interval, side.latency),
+                receive_line(
+                    "S->M", side.received, reverse_meter, interval, side.latency, ep.stats
+                ),
             ]
             note = silence_note(ep, "master")
             if note is not None:

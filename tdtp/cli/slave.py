@@ -20,6 +20,7 @@ from tdtp.cli.keys import (
 )
 from tdtp.cli.live_stats import (
     LiveDisplay,
+    age_text,
 )
 from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
 from tdtp.cli.outcome import Outcome, Side, close_info
@@ -189,6 +190,9 @@ def _show_slave(
             f"  sent {stats.sent.data_packets}  srtt {stats.srtt * 1e3:.3f} ms"
             f"  lost {stats.packets_lost}  allowed {stats.rate:.0f}/s"
         )
+        age = age_text(stats)
+        if age is not None:
+            line += "  " + age
         note = silence_note(ep, "slave")
         if note is not None:
             line += "  " + note

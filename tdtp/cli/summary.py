@@ -54,6 +54,8 @@ _RECEIVER_KEYS = (
     "drops_at_receiver",
     "ack_packets_sent_back",
     "mean_rate",
+    "sample_age_ms",
+    "samples_timed",
 )
 
 
@@ -110,6 +112,13 @@ def receiver_view(stats: ConnectionStats, duration: float) -> dict[str, Any]:
         "drops_at_receiver": dict(sorted(stats.drops.items())),
         "ack_packets_sent_back": stats.sent.ack_packets,
         "mean_rate": round(received / duration, 2) if duration > 0 else 0.0,
+        # The transport's own estimate (PROTOCOL.md 3.6), beside the payload-timed latency_ms.
+        "sample_age_ms": (
+            {"p50": _ms(stats.sample_age_p50), "p99": _ms(stats.sample_age_p99)}
+            if stats.samples_delivered
+            else None
+        ),
+        "samples_timed": stats.samples_timed,
     }
 
 
@@ -199,6 +208,9 @@ def direction_line(label: str, report: dict[str, Any]) -> str:
         latency = report.get("latency_ms")
         if latency:
             parts.append(f"latency p50 {latency['p50']:.3f} ms p99 {latency['p99']:.3f} ms")
+        age = report.get("sample_age_ms")
+        if age:
+            parts.append(f"age p50 {age['p50']:.3f} ms p99 {age['p99']:.3f} ms")
     return f"{label}: " + ", ".join(parts)
 
 

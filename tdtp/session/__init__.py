@@ -7,6 +7,9 @@
 * :mod:`tdtp.session.sent_log`, :mod:`tdtp.session.receive_window`: the sender's record of what left and
   the receiver's record of what arrived, from which the piggybacked acknowledgements are built and read;
 * :mod:`tdtp.session.rtt`, :mod:`tdtp.session.loss_rate`: the RTT estimator and the loss-event rate;
+* :mod:`tdtp.session.sample_age`: the delivered samples' ages, in a fixed log histogram;
+* :mod:`tdtp.session.delivery`, :mod:`tdtp.session.reorder_buffer`: what reaches the application, in
+  sequence order through the adaptive reorder wait, with its send time or estimated age;
 * the pieces of a connection that own state, each in its module: :mod:`~tdtp.session.handshake` (the
   opening), :mod:`~tdtp.session.liveness` (keep-alive, watchdog and idle clocks),
   :mod:`~tdtp.session.recovery` (loss recovery), :mod:`~tdtp.session.ack_scheduler` (the ACKs owed),

@@ -31,6 +31,7 @@ from tdtp.errors import ArgumentTypeError, ConnectionClosedError, ConnectionStat
 from tdtp.protection.keys import KeyInput, KeysInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session.ack_scheduler import AckScheduler
+from tdtp.session.delivery import SampleDelivery
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import (
     Address,
@@ -40,7 +41,6 @@ from tdtp.session.events import (
     Event,
     PeerResumed,
     PeerSilent,
-    new_data_received,
 )
 from tdtp.session.handshake import Handshake, Reaction, close_reason_text
 from tdtp.session.liveness import Liveness
@@ -48,7 +48,6 @@ from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
-from tdtp.session.reorder_buffer import ReorderBuffer
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
 from tdtp.session.state import State
@@ -167,9 +166,13 @@ class Connection(ConnectionView):
         self._max_payload = config.max_payload
         self._deliver_late = config.deliver_late
         self._deliver_duplicates = config.deliver_duplicates
-        # Samples that arrived after a gap, waiting for it (None: delivered as they arrive).
-        self._reorder: ReorderBuffer | None = None
         self._close_event: ConnectionClosed | None = None
+        # In order through the reorder wait, timed (PROTOCOL.md 3.6, 5.5).
+        self._delivery = delivery = SampleDelivery(
+            config, events=self._events, stats=stats, rtt=recovery.rtt
+        )
+        self._ages = delivery.ages
+        self._opening_sent_at = math.nan  # our last OPEN (master) or OPEN_ACK (slave)
 
     # ------------------------------------------------------------------ caller API
 
@@ -362,6 +365,7 @@ class Connection(ConnectionView):
         size = len(data)
         if self._handshake.confirming:
             # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
+            self._opening_round_trip(now)
             self._establish(now)
         # The header, decoded in place (wire/header.py's layout) rather than into a Header tuple.
         b1 = data[1]
@@ -488,11 +492,14 @@ class Connection(ConnectionView):
         if not payload_size:
             stats.count_drop(DropReason.EMPTY_DATA)  # senders MUST NOT send one (section 4.1)
             return
-        if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
-            stats.count_drop(DropReason.OPTIMISTIC_ACK)
-            return
+        echo: float | None = None
+        if hold != HOLD_NO_ACK:
+            if not self._on_feedback(ack, sack, hold, now):
+                stats.count_drop(DropReason.OPTIMISTIC_ACK)
+                return
+            echo = self._recovery.echo
         arrival = self._acks.on_arrival(window, seq, now)
-        reorder = self._reorder
+        reorder = self._delivery.reorder
         if arrival is not Arrival.NEW:
             if arrival is Arrival.STALE:
                 self._heard(now)
@@ -529,39 +536,9 @@ class Connection(ConnectionView):
         liveness.last_receive = now
         if liveness.silent_since is not None:
             self._on_peer_resumed(now)
-        if reorder is not None:
-            if reorder.accept(window.last_seq, data[HEADER_SIZE:], now):
-                self._deliver(data[HEADER_SIZE:], window.last_seq, now, now)
-            else:
-                self._hint.value = -math.inf  # held: the wait has a deadline
-            if reorder.held:
-                self._release_reordered(reorder, now)
-            return
-        self._deliver(data[HEADER_SIZE:], window.last_seq, now, now)
-
-    def _deliver(self, payload: bytes, seq: int, arrival: float, now: float) -> None:
-        """Hand a sample to the application (``arrival`` earlier than ``now`` if it waited)."""
-        self._stats.samples_delivered += 1
-        rtt = self._recovery.rtt
-        age = rtt.srtt / 2 + (now - arrival) if rtt.has_sample else None
-        self._events.push_data(new_data_received(payload, seq, age, now))
-
-    def _release_reordered(self, reorder: ReorderBuffer, now: float) -> None:
-        """Deliver what the reorder wait no longer holds back."""
-        for seq, payload, arrival in reorder.release(now):
-            self._deliver(payload, seq, arrival, now)
-        stats = self._stats
-        stats.reorder_held = reorder.held_total
-        stats.reorder_wait = reorder.wait
-
-    def _open_reorder(self, initial_seq: int) -> None:
-        """The peer's data starts at ``initial_seq``: deliver it in order, through a reorder wait,
-        unless the application asked for arrival order or for no wait."""
-        config = self.config
-        if config.deliver_late or config.max_reorder_wait <= 0.0:
-            self._reorder = None
-        else:
-            self._reorder = ReorderBuffer(initial_seq, config.max_reorder_wait)
+        sent_at = None if echo is None else now - echo / 2
+        if self._delivery.arrive(data[HEADER_SIZE:], window.last_seq, now, sent_at):
+            self._hint.value = -math.inf  # held: the reorder wait has a deadline
 
     def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
@@ -635,6 +612,7 @@ class Connection(ConnectionView):
                 self._open_session(verdict, addr, now)
             elif verdict is Reaction.ANSWER_AGAIN:
                 self._queue_open_ack()
+                self._opening_sent_at = now
             elif verdict is Reaction.REPLACED:
                 self._terminate(
                     CloseCause.REPLACED, "the master opened a new connection from the same address"
@@ -669,7 +647,7 @@ class Connection(ConnectionView):
         )
         self._sender.limit = min(self.config.max_payload, body.max_payload)
         acks.open(admitted.initial_seq)
-        self._open_reorder(admitted.initial_seq)
+        self._delivery.open(admitted.initial_seq)
         self._install_protection()
         self._stats.count_handshake(admitted.size, handshake.tag_size)
         self._heard(now)
@@ -678,10 +656,12 @@ class Connection(ConnectionView):
         handshake.open_deadline = now + self.config.open_timeout
         self._liveness.last_send = now
         self._queue_open_ack()
+        self._opening_sent_at = now
 
     def _on_opened(self, initial_seq: int, now: float) -> None:
         """A master's OPEN_ACK (already counted): the session opens, unless the slave's payloads
         are too small for us."""
+        self._opening_round_trip(now)
         self._install_protection()
         peer_max_payload = self._handshake.peer_max_payload
         if peer_max_payload < self.config.min_peer_payload:
@@ -694,13 +674,20 @@ class Connection(ConnectionView):
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
         self._acks.open(initial_seq)
-        self._open_reorder(initial_seq)
+        self._delivery.open(initial_seq)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
         # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
         liveness = self._liveness
         liveness.last_send = now - 2.0 * liveness.keepalive
+
+    def _opening_round_trip(self, now: float) -> None:
+        """The opening's round trip: our last OPEN (OPEN_ACK) to the OPEN_ACK (the master's first
+        packet). If an earlier copy was answered it reads short, as TCP's handshake sample can."""
+        sent_at = self._opening_sent_at
+        if not math.isnan(sent_at) and now >= sent_at:
+            self._delivery.opening_rtt = now - sent_at
 
     def _install_protection(self) -> None:
         """A keyed session's keys, derived at the open, protect every datagram from now on."""
@@ -749,11 +736,9 @@ class Connection(ConnectionView):
         loss_deadline = self._recovery.loss_deadline()
         if loss_deadline is not None and loss_deadline < deadline:
             deadline = loss_deadline
-        reorder = self._reorder
-        if reorder is not None:
-            reorder_deadline = reorder.deadline()
-            if reorder_deadline is not None and reorder_deadline < deadline:
-                deadline = reorder_deadline
+        reorder_deadline = self._delivery.deadline()
+        if reorder_deadline is not None and reorder_deadline < deadline:
+            deadline = reorder_deadline
         controller_deadline = self._controller.get_timer()
         hint.controller_seen = controller_deadline
         if controller_deadline is not None and controller_deadline < deadline:
@@ -790,9 +775,7 @@ class Connection(ConnectionView):
             self._push_watchdog_event(PeerSilent(liveness.last_receive, now))
             self._controller.on_peer_silent(now=now)
         self._recovery.detect_losses(now)
-        reorder = self._reorder
-        if reorder is not None and reorder.held:
-            self._release_reordered(reorder, now)
+        self._delivery.release(now)
         controller_deadline = self._controller.get_timer()
         if controller_deadline is not None and now >= controller_deadline:
             self._controller.on_timer(now=now)
@@ -850,6 +833,7 @@ class Connection(ConnectionView):
         self._outbox.emit_control(
             out, datagram, self._peer_address(), now, handshake.tag_size, True
         )
+        self._opening_sent_at = now
 
     # ------------------------------------------------------------------ helpers
 

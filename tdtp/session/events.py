@@ -58,57 +58,80 @@ class DataReceived:
     """One supermedia sample from the peer.
 
     **How old is it?** TDTP carries no timestamp (the header is 5 bytes), and the two ends' clocks are
-    not synchronised, so the transport cannot know a sample's own age. It knows two things: when the
-    sample arrived (:attr:`received_at`, on this side's clock) and the round-trip time of the path.
-    :attr:`estimated_age` is half the smoothed RTT at arrival, the one-way delay if the path is
-    symmetric; :meth:`age_at` adds the time the sample has waited since it arrived. Where the exact
-    age matters, put a timestamp in the payload and synchronise the clocks (PTP, NTP), as the
-    ``tdtp demo`` samples do.
+    not synchronised. But a sample whose header acknowledges one of our own packets is timed by it
+    (docs/PROTOCOL.md section 3.6): we know when we sent that packet, and HOLD says how long the peer
+    held it before this sample left, so the sample and our packet make one round trip ``R`` that
+    lies wholly between our send and this arrival. Its send time, on our clock, is
+    :attr:`sent_at`: the arrival minus ``R / 2``, wrong by at most ``(R - min_rtt) / 2`` on a path
+    whose two directions have the same base delay. :attr:`age` is its age at arrival. A sample
+    without a usable acknowledgement (the peer has received nothing of ours, or held it for over
+    31.7 ms, or a separate-ACK session) has no :attr:`sent_at`; its :attr:`age` is then the path's
+    :attr:`estimated_age`. :meth:`age_at` adds the time the sample has waited since it arrived.
+    Where the exact age matters, put a timestamp in the payload and synchronise the clocks (PTP,
+    NTP), as the ``tdtp demo`` samples do.
     """
 
     payload: bytes
     seq: int
     """The sample's full (unwrapped) sequence number on this connection."""
     estimated_age: float | None
-    """Estimated age in seconds when it arrived: half the smoothed RTT (the path is assumed
-    symmetric). ``None`` before the first RTT sample, when nothing can be estimated."""
+    """The path's estimate of a sample's age when it arrived: half the smoothed RTT (the path is
+    assumed symmetric), or half the opening handshake's round trip while this side has no RTT
+    sample (the receiving end of a one-way stream never gets one). ``None`` before either exists."""
     received_at: float
     """The ``now`` it arrived at."""
+    sent_at: float | None = None
+    """When the peer sent it, on this side's clock (the clock of ``received_at``), from the
+    acknowledgement its own header carries; ``None`` when the header carries none that times it."""
+
+    @property
+    def age(self) -> float | None:
+        """Its age in seconds when it arrived: ``received_at - sent_at`` when the sample is timed,
+        else :attr:`estimated_age`."""
+        sent_at = self.sent_at
+        return self.estimated_age if sent_at is None else self.received_at - sent_at
 
     def age_at(self, now: float) -> float | None:
         """The estimated age at ``now`` (same clock as ``received_at``, e.g. :func:`tdtp.monotonic`):
-        :attr:`estimated_age` plus the time since arrival; ``None`` when no estimate exists yet."""
-        estimate = self.estimated_age
-        return None if estimate is None else estimate + (now - self.received_at)
+        :attr:`age` plus the time since arrival; ``None`` when no estimate exists yet."""
+        age = self.age
+        return None if age is None else age + (now - self.received_at)
 
 
-def _constructor() -> Callable[[bytes, int, float | None, float], DataReceived]:
+def _constructor() -> Callable[[bytes, int, float | None, float, float | None], DataReceived]:
     """A :class:`DataReceived` without the frozen dataclass's ``__init__``, which sets each field
     through ``object.__setattr__``: the same object (equal, hashed and printed alike) for a fraction
     of the cost, set through the slots' own descriptors. One per sample received, in both builds
     (the class stays a plain Python class when compiled, so that it remains a frozen dataclass)."""
     new = object.__new__
-    slots = vars(DataReceived)  # the member descriptors of the four slots
+    slots = vars(DataReceived)  # the member descriptors of the five slots
     set_payload = slots["payload"].__set__
     set_seq = slots["seq"].__set__
     set_age = slots["estimated_age"].__set__
     set_received_at = slots["received_at"].__set__
+    set_sent_at = slots["sent_at"].__set__
 
     def construct(
-        payload: bytes, seq: int, estimated_age: float | None, received_at: float
+        payload: bytes,
+        seq: int,
+        estimated_age: float | None,
+        received_at: float,
+        sent_at: float | None,
     ) -> DataReceived:
         event: DataReceived = new(DataReceived)
         set_payload(event, payload)
         set_seq(event, seq)
         set_age(event, estimated_age)
         set_received_at(event, received_at)
+        set_sent_at(event, sent_at)
         return event
 
     return construct
 
 
 new_data_received: Final = _constructor()
-"""``DataReceived(payload, seq, estimated_age, received_at)``, the connection's per-sample way."""
+"""``DataReceived(payload, seq, estimated_age, received_at, sent_at)``, the connection's per-sample
+way."""
 
 
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one

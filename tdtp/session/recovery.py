@@ -59,6 +59,10 @@ class LossRecovery:
         self._ack_delay = config.ack_delay
         self.loss_delay = self._compute_loss_delay()
         """How long a packet reported absent may still turn up, as of the last RTT sample."""
+        self.echo: float | None = None
+        """The round trip timed by the last acknowledgement handed in: from our send of the packet
+        it names to its arrival here, less the peer's HOLD; ``None`` if it cannot tell (HOLD 254, or
+        a packet no longer on record)."""
         self._hint = hint
         self._lost: list[LostPacket] = []  # reused: filled by the sent log, emptied by _on_losses
         self._controller = controller
@@ -81,6 +85,14 @@ class LossRecovery:
         full = sent.expand_ack(ack, hold, now, rtt.srtt)
         if full is None:
             return -1
+        # The round trip our packet and this datagram made together (PROTOCOL.md 3.6), before the
+        # acknowledgement retires the packet's record.
+        echo: float | None = None
+        if hold is not None:
+            send_time = sent.send_time(full)
+            if send_time is not None:
+                echo = max(now - send_time - hold, 0.0)
+        self.echo = echo
         newly = sent.acknowledge(full, sack, hold, now)
         stats = self._stats
         if sent.spurious:

@@ -60,8 +60,9 @@ class ReorderBuffer:
         self.max_wait = max_wait
         self.wait = 0.0
         """The reorder wait in force (s): 0 until reordering is seen."""
-        self.held: dict[int, tuple[bytes, float]] = {}
-        """Samples waiting for a gap below them: sequence number -> (payload, arrival)."""
+        self.held: dict[int, tuple[bytes, float, float | None]] = {}
+        """Samples waiting for a gap below them: sequence number -> (payload, arrival, the send
+        time its header gave, if any)."""
         self.held_total = 0
         """Samples delivered after a wait (they arrived after a gap)."""
         self.given_up = 0
@@ -102,9 +103,10 @@ class ReorderBuffer:
         largest = max(self._bucket_max, self._previous_max) * MARGIN
         self.wait = largest if largest < self.max_wait else self.max_wait
 
-    def accept(self, seq: int, payload: bytes, now: float) -> bool:
+    def accept(self, seq: int, payload: bytes, now: float, sent_at: float | None = None) -> bool:
         """A sample not seen before. True: deliver it now (then :meth:`release` may have more);
-        False: it is held, or (``seq < next_seq``) it is late and the caller drops it."""
+        False: it is held (with ``sent_at``, handed back by :meth:`release`), or (``seq <
+        next_seq``) it is late and the caller drops it."""
         nxt = self.next_seq
         if seq == nxt:
             self.next_seq = nxt + 1
@@ -120,7 +122,7 @@ class ReorderBuffer:
         held = self.held
         if not held or seq > self._newest:
             self._newest = seq
-        held[seq] = (payload, now)
+        held[seq] = (payload, now, sent_at)
         return False
 
     def deadline(self) -> float | None:
@@ -129,11 +131,12 @@ class ReorderBuffer:
             return None
         return self._opened[self.next_seq & _SLOT] + self.wait
 
-    def release(self, now: float) -> list[tuple[int, bytes, float]]:
-        """Held samples now deliverable, oldest first, as (sequence number, payload, arrival): those
+    def release(self, now: float) -> list[tuple[int, bytes, float, float | None]]:
+        """Held samples now deliverable, oldest first, as (sequence number, payload, arrival,
+        sent_at): those
         whose gaps have filled, and those behind gaps whose wait has run out (or that fall out of
         :data:`SPAN` behind the newest held)."""
-        out: list[tuple[int, bytes, float]] = []
+        out: list[tuple[int, bytes, float, float | None]] = []
         held = self.held
         if not held:
             return out
@@ -143,7 +146,7 @@ class ReorderBuffer:
         while held:
             entry = held.pop(nxt, None)
             if entry is not None:
-                out.append((nxt, entry[0], entry[1]))
+                out.append((nxt, entry[0], entry[1], entry[2]))
                 self.held_total += 1
                 nxt += 1
                 continue

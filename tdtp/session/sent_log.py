@@ -149,6 +149,10 @@ class SentPacketLog:
             candidate += SEQ_MODULUS
         return best
 
+    def send_time(self, seq: int) -> float | None:
+        """When packet ``seq`` was sent, if it is still on record (or is the largest acknowledged)."""
+        return self._send_time(seq)
+
     def _send_time(self, seq: int) -> float | None:
         index = seq - self._base
         if 0 <= index < len(self._records):

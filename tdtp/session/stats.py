@@ -100,6 +100,14 @@ class ConnectionStats:
     """Times the socket's send buffer backed up and data was held back until it drained."""
     samples_delivered: int = 0
     """Payloads handed to the application as :class:`~tdtp.session.events.DataReceived`."""
+    samples_timed: int = 0
+    """Of ``samples_delivered``: samples whose own header timed them (an acknowledgement of one of
+    our packets held under 31.7 ms): their ``DataReceived.sent_at`` is set (PROTOCOL.md 3.6)."""
+    sample_age_p50: float = 0.0
+    """Median age at arrival of the samples delivered, in seconds (``DataReceived.age``: timed ones
+    from their own header, the others half the RTT); 0 before any. Refreshed on access."""
+    sample_age_p99: float = 0.0
+    """99th percentile of the same ages (from a fixed histogram: within 1 %)."""
     samples_skipped: int = 0
     """Delivered samples a latest-value reader never saw: a newer one had arrived by the time it
     read (``ep.latest()``, ``async for sample in ep``). Superseded at the receiver."""

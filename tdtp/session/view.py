@@ -17,6 +17,7 @@ from tdtp.session.events import Address, ConnectionClosed
 from tdtp.session.handshake import Handshake
 from tdtp.session.liveness import Liveness
 from tdtp.session.recovery import LossRecovery
+from tdtp.session.sample_age import SampleAgeHistogram
 from tdtp.session.sender import SampleSender
 from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats
@@ -40,6 +41,7 @@ class ConnectionView:
     _sender: SampleSender
     _events: EventQueue
     _close_event: ConnectionClosed | None
+    _ages: SampleAgeHistogram
 
     # ------------------------------------------------------------------ introspection
 
@@ -151,6 +153,9 @@ class ConnectionView:
         """Live counters; the derived figures (srtt, p, rate) are refreshed on each access."""
         stats = self._stats
         self._recovery.refresh(stats)
+        ages = self._ages
+        stats.sample_age_p50 = ages.quantile(0.5)
+        stats.sample_age_p99 = ages.quantile(0.99)
         stats.rate = self._controller.rate
         stats.rate_limit = self._controller.rate_limit
         return stats

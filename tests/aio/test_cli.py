@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -58,6 +59,13 @@ def test_demo_json_reports_both_directions(extra: tuple[str, ...]) -> None:
         # (and, with separate ACKs, its ACKs for the other direction).
         assert direction["header_bytes"] % 5 == 0
         assert direction["header_bytes"] >= 5 * direction["packets_sent"]
+        # The receiver's sample ages (PROTOCOL.md 3.6): there, ordered, and timed only when the
+        # samples carry acknowledgements (never with separate ACKs).
+        age = direction["sample_age_ms"]
+        assert 0.0 < age["p50"] <= age["p99"]
+        assert 0 <= direction["samples_timed"] <= direction["samples_delivered"]
+        if "--separate-acks" in extra:
+            assert direction["samples_timed"] == 0
     separate = "--separate-acks" in extra
     acks_back = summary["master_to_slave"]["ack_packets_sent_back"]  # type: ignore[index]
     # Separate ACKs: one per data packet the slave received. Piggybacked: at most the one or two
@@ -112,7 +120,7 @@ def test_master_and_slave_json_tell_each_direction_from_their_end(tmp_path: Path
     port = _free_udp_port()
     slave = subprocess.Popen(
         [sys.executable, "-m", "tdtp", "slave", "--host", "127.0.0.1", "--port", str(port),
-         "--duration", "3", "--json", "--pcap", str(tmp_path / "slave.pcap")],
+         "--json", "--pcap", str(tmp_path / "slave.pcap")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
@@ -122,11 +130,14 @@ def test_master_and_slave_json_tell_each_direction_from_their_end(tmp_path: Path
              "--json"],
             capture_output=True, text=True, timeout=60, check=False,
         )  # fmt: skip
+        # Stopped once the master is done (Ctrl-C: it prints its summary), not after a fixed
+        # duration that a slow start of the master could outlast.
+        slave.send_signal(signal.SIGINT)
         slave_out, slave_err = slave.communicate(timeout=60)
     finally:
         slave.kill()
     assert master_run.returncode == 0, master_run.stderr
-    assert slave.returncode == 0, slave_err
+    assert slave.returncode == 130, slave_err  # Ctrl-C's status, after its summary
     master, served = json.loads(master_run.stdout), json.loads(slave_out)
     out, back = master["master_to_slave"], master["slave_to_master"]
     assert out["observed_at"] == back["observed_at"] == ["master"]

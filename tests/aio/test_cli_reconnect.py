@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 from test_cli import _free_udp_port, _wait_until_listening
 
@@ -23,9 +24,20 @@ def _slave(port: int, *extra: str) -> subprocess.Popen[str]:
     )  # fmt: skip
 
 
-def test_the_cli_master_reconnects_to_a_restarted_slave() -> None:
+def _wait_for_traffic(capture: Path, patience: float = 60.0) -> None:
+    """Until the slave's capture holds a buffer's worth of datagrams (the master's session is up
+    and samples flow): a fixed sleep would depend on how fast the machine starts a process."""
+    deadline = time.monotonic() + patience
+    while time.monotonic() < deadline:
+        if capture.exists() and capture.stat().st_size > 8192:
+            return
+        time.sleep(0.05)
+    raise AssertionError("no session traffic reached the first slave")
+
+
+def test_the_cli_master_reconnects_to_a_restarted_slave(tmp_path: Path) -> None:
     port = _free_udp_port()
-    first = _slave(port)
+    first = _slave(port, "--pcap", str(tmp_path / "first.pcap"))
     second: subprocess.Popen[str] | None = None
     master: subprocess.Popen[str] | None = None
     try:
@@ -35,7 +47,7 @@ def test_the_cli_master_reconnects_to_a_restarted_slave() -> None:
              "--json"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
-        time.sleep(2.0)
+        _wait_for_traffic(tmp_path / "first.pcap")
         first.kill()  # no CLOSE: the process is gone
         first.communicate(timeout=30)
         time.sleep(0.5)

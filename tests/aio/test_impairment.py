@@ -119,3 +119,8 @@ def test_demo_reports_the_emulated_loss_and_delay() -> None:
         # and on a busy machine at least one of thousands of samples sees an idle scheduler.
         assert 40.0 <= direction["min_rtt_ms"] <= 45.0
         assert direction["srtt_ms"] >= 40.0
+        # A sample's age is half a round trip that crossed both emulated delays: never under
+        # 20 ms (less the histogram's 1 %), whatever the machine's speed.
+        age = direction["sample_age_ms"]
+        assert 19.7 <= age["p50"] <= age["p99"]
+        assert direction["samples_timed"] > 0

@@ -1,0 +1,105 @@
+"""What reaches the application of the peer's samples: in order through the reorder wait, with an age.
+
+The connection classifies each data packet (new, late, duplicate, stale) and counts it; this piece
+decides when the sample goes up and with what figures: the reorder wait (:mod:`reorder_buffer`) holds
+samples that arrived after a gap, and every sample delivered carries its send time when its own header
+timed it and an estimated age otherwise (docs/PROTOCOL.md 3.6), both measured at delivery (a sample
+that waited is older by its wait). The ages go into a bounded histogram for ``stats``.
+"""
+
+from __future__ import annotations
+
+from tdtp.config import ConnectionConfig
+from tdtp.session.event_queue import EventQueue
+from tdtp.session.events import new_data_received
+from tdtp.session.reorder_buffer import ReorderBuffer
+from tdtp.session.rtt import RttEstimator
+from tdtp.session.sample_age import SampleAgeHistogram
+from tdtp.session.stats import ConnectionStats
+
+
+class SampleDelivery:
+    """Hands the peer's samples to the event queue, in order and timed."""
+
+    __slots__ = ("_config", "_events", "_rtt", "_stats", "ages", "opening_rtt", "reorder")
+
+    def __init__(
+        self,
+        config: ConnectionConfig,
+        *,
+        events: EventQueue,
+        stats: ConnectionStats,
+        rtt: RttEstimator,
+    ) -> None:
+        self._config = config
+        self._events = events
+        self._stats = stats
+        self._rtt = rtt
+        self.reorder: ReorderBuffer | None = None
+        """Samples that arrived after a gap, waiting for it (``None``: delivered as they arrive)."""
+        self.ages = SampleAgeHistogram()
+        self.opening_rtt: float | None = None
+        """The opening's round trip: all the receiving end of a one-way stream ever measures."""
+
+    def open(self, initial_seq: int) -> None:
+        """The peer's data starts at ``initial_seq``: deliver it in order, through a reorder wait,
+        unless the application asked for arrival order or for no wait."""
+        config = self._config
+        if config.deliver_late or config.max_reorder_wait <= 0.0:
+            self.reorder = None
+        else:
+            self.reorder = ReorderBuffer(initial_seq, config.max_reorder_wait)
+
+    def arrive(self, payload: bytes, seq: int, now: float, sent_at: float | None) -> bool:
+        """A sample taken in: deliver it, or hold it for a gap below it. True if it was held
+        (the caller's timer may have moved)."""
+        reorder = self.reorder
+        if reorder is None:
+            self.deliver(payload, seq, now, now, sent_at)
+            return False
+        held = not reorder.accept(seq, payload, now, sent_at)
+        if not held:
+            self.deliver(payload, seq, now, now, sent_at)
+        if reorder.held:
+            self.release(now)
+        return held
+
+    def release(self, now: float) -> None:
+        """Deliver what the reorder wait no longer holds back."""
+        reorder = self.reorder
+        if reorder is None:
+            return
+        for seq, payload, arrival, sent_at in reorder.release(now):
+            self.deliver(payload, seq, arrival, now, sent_at)
+        stats = self._stats
+        stats.reorder_held = reorder.held_total
+        stats.reorder_wait = reorder.wait
+
+    def deadline(self) -> float | None:
+        reorder = self.reorder
+        return None if reorder is None else reorder.deadline()
+
+    def deliver(
+        self, payload: bytes, seq: int, arrival: float, now: float, sent_at: float | None
+    ) -> None:
+        """Hand a sample to the application (``arrival`` earlier than ``now`` if it waited;
+        ``sent_at`` when its header timed it)."""
+        stats = self._stats
+        stats.samples_delivered += 1
+        rtt = self._rtt
+        if rtt.has_sample:
+            estimate: float | None = rtt.srtt / 2
+        else:
+            opening = self.opening_rtt
+            estimate = None if opening is None else opening / 2
+        if estimate is not None:
+            estimate += now - arrival  # the reorder wait it spent
+        if sent_at is not None:
+            # Timed by its own header: the middle of the round trip (PROTOCOL.md 3.6).
+            age: float | None = now - sent_at
+            stats.samples_timed += 1
+        else:
+            age = estimate
+        if age is not None:
+            self.ages.add(age)
+        self._events.push_data(new_data_received(payload, seq, estimate, now, sent_at))

@@ -1,0 +1,72 @@
+"""The age of delivered samples: a fixed-size log histogram for the median and the 99th percentile.
+
+A connection delivers a thousand samples a second or more for hours, so it cannot keep their ages in a
+list. :class:`SampleAgeHistogram` counts them in :data:`BINS` logarithmic bins instead: bin ``i``
+holds ages in ``[FLOOR * GROWTH**i, FLOOR * GROWTH**(i + 1))``, 10 µs to about 90 s in steps of 2 %,
+the first bin also everything shorter and the last everything longer. A quantile is read as the
+geometric middle of the bin it falls in, so it is within 1 % of the nearest-rank quantile of the exact
+ages (over the whole covered range). Memory is one list of ``BINS`` integers whatever the run length;
+adding an age costs one logarithm.
+
+Where the ages come from is :mod:`tdtp.session.connection`'s business (docs/PROTOCOL.md section 3.6).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+FLOOR: Final = 1e-5
+"""Seconds: the lower edge of the first bin (ages below it are counted there)."""
+GROWTH: Final = 1.02
+"""Each bin is 2 % wider than the one before it."""
+BINS: Final = 810
+"""Bins: ``FLOOR * GROWTH**BINS`` is about 90 s, beyond any age a live session sees."""
+_LOG_GROWTH: Final = math.log(GROWTH)
+_LOG_FLOOR: Final = math.log(FLOOR)
+_MIDDLE: Final = math.sqrt(GROWTH)
+
+
+class SampleAgeHistogram:
+    """Counts of sample ages in logarithmic bins; :meth:`quantile` reads them back."""
+
+    __slots__ = ("_bins", "_high", "_low", "count")
+
+    def __init__(self) -> None:
+        self._bins = [0] * BINS
+        self._low = BINS  # the lowest and highest bins in use: a quantile walks only those
+        self._high = -1
+        self.count = 0
+        """Ages added so far."""
+
+    def add(self, age: float) -> None:
+        """Count one age in seconds (zero, negative or NaN ages land in the first bin)."""
+        index = 0
+        if age > FLOOR:
+            index = int((math.log(age) - _LOG_FLOOR) / _LOG_GROWTH)
+            if index >= BINS:
+                index = BINS - 1
+        self._bins[index] += 1
+        self.count += 1
+        if index < self._low:
+            self._low = index
+        if index > self._high:
+            self._high = index
+
+    def quantile(self, fraction: float) -> float:
+        """The nearest-rank quantile (``fraction`` in 0..1) as its bin's geometric middle, in
+        seconds; 0.0 before any age was added."""
+        count = self.count
+        if not count:
+            return 0.0
+        rank = max(1, math.ceil(fraction * count))
+        bins = self._bins
+        seen = 0
+        index = self._low
+        high = self._high
+        while index < high:
+            seen += bins[index]
+            if seen >= rank:
+                break
+            index += 1
+        return FLOOR * math.exp(index * _LOG_GROWTH) * _MIDDLE
