@@ -31,6 +31,7 @@ from tdtp.errors import ArgumentTypeError, ConnectionClosedError, ConnectionStat
 from tdtp.protection.keys import KeyInput, KeysInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session.ack_scheduler import AckScheduler
+from tdtp.session.control_channel import ControlChannel
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import (
     Address,
@@ -56,6 +57,8 @@ from tdtp.session.timer_hint import TimerHint
 from tdtp.session.view import ConnectionView
 from tdtp.wire.control import (
     HANDSHAKE_CODES,
+    MESSAGE_CODES,
+    MESSAGE_PREFIX_SIZE,
     OPEN_BODY_SIZE,
     PATH_CODES,
     CloseBody,
@@ -133,7 +136,13 @@ class Connection(ConnectionView):
         self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
         # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
         self._size_limit = (
-            HEADER_SIZE + max(config.max_payload, _LARGEST_CONTROL) + PROTECTION_OVERHEAD
+            HEADER_SIZE
+            + max(
+                config.max_payload,
+                _LARGEST_CONTROL,
+                MESSAGE_PREFIX_SIZE + config.control_max_message,
+            )
+            + PROTECTION_OVERHEAD
         )
         self._controller = controller = create_controller(
             config.controller, config.controller_config
@@ -161,7 +170,10 @@ class Connection(ConnectionView):
             liveness=liveness,
             hint=hint,
         )
-        self._events = EventQueue(config.max_pending_events, stats)
+        self._events = events = EventQueue(config.max_pending_events, stats)
+        self._channel = ControlChannel(
+            config, stats=stats, outbox=outbox, events=events, recovery=recovery, hint=hint
+        )
         # The settings the per-packet paths read, copied out of the (plain Python) config once.
         self._max_payload = config.max_payload
         self._deliver_late = config.deliver_late
@@ -195,17 +207,8 @@ class Connection(ConnectionView):
         """Offer the newest sample (bytes, bytearray or memoryview). It replaces any sample still
         waiting for the pacer or for the socket (which is counted as superseded): stale supermedia
         data is never queued or retransmitted."""
-        state = self._state
-        if state is not State.ESTABLISHED:
-            if state is State.CLOSED:
-                event = self._close_event
-                why = "" if event is None else f" ({event.cause.value}: {event.detail})"
-                raise ConnectionClosedError(
-                    f"the connection is closed{why}; open a new one to send again", event
-                )
-            raise ConnectionStateError(
-                f"cannot send while {state.value}: wait for the ConnectionEstablished event"
-            )
+        if self._state is not State.ESTABLISHED:
+            self._sender_check()
         self._sender.offer(payload, now)
 
     def send_direct(
@@ -241,6 +244,31 @@ class Connection(ConnectionView):
         self._terminate(
             CloseCause.KEY_EXHAUSTED,
             "the session protected as many packets as its keys may; open a new connection",
+        )
+
+    def send_control(self, message: bytes | bytearray | memoryview, *, now: float) -> None:
+        """Queue a message on the reliable control channel (:mod:`tdtp.session.control_channel`):
+        delivered exactly once, in order, as the peer's ``ControlReceived``. Raises as :meth:`send`
+        does, and ``ControlQueueFullError`` or ``ControlChannelFailedError``."""
+        if self._state is not State.ESTABLISHED:
+            self._sender_check()
+        self._channel.send(message, now)
+
+    def control_held(self, count: int) -> None:
+        """A driver's count of delivered control messages its application has not read yet (they
+        count against the receive bound, ``control_window``)."""
+        self._channel.app_unread = count
+
+    def _sender_check(self) -> None:
+        state = self._state
+        if state is State.CLOSED:
+            event = self._close_event
+            why = "" if event is None else f" ({event.cause.value}: {event.detail})"
+            raise ConnectionClosedError(
+                f"the connection is closed{why}; open a new one to send again", event
+            )
+        raise ConnectionStateError(
+            f"cannot send while {state.value}: wait for the ConnectionEstablished event"
         )
 
     def pause_sending(self) -> None:
@@ -371,6 +399,8 @@ class Connection(ConnectionView):
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
+        elif size > HEADER_SIZE and data[HEADER_SIZE] in MESSAGE_CODES:
+            self._on_message(data, size, now)
         else:
             self._on_session_control(data, size, ack, sack, hold, now)
 
@@ -547,6 +577,21 @@ class Connection(ConnectionView):
             hint.check_controller()
         return newly >= 0
 
+    def _on_message(self, data: bytes, size: int, now: float) -> None:
+        """MESSAGE or MESSAGE_ACK: the reliable control channel (PROTOCOL.md 5.10)."""
+        stats = self._stats
+        if self._state is not State.ESTABLISHED:
+            stats.count_drop(DropReason.NOT_ESTABLISHED)
+            return
+        refused = self._channel.receive(data, now)
+        if refused is not None:
+            if refused is not DropReason.BAD_CONTROL and refused is not DropReason.OVERSIZED:
+                self._heard(now)  # well formed and (keyed) authentic: the peer is alive
+            stats.count_drop(refused)
+            return
+        self._accept(size, size - HEADER_SIZE, now)
+        stats.received.control_packets += 1
+
     def _on_session_control(
         self, data: bytes, size: int, ack: int, sack: int, hold: int, now: float
     ) -> None:
@@ -629,6 +674,7 @@ class Connection(ConnectionView):
         )
         self._sender.limit = min(self.config.max_payload, body.max_payload)
         acks.open(admitted.initial_seq)
+        self._channel.open(self._recovery.sent.next_seq, admitted.initial_seq)
         self._install_protection()
         self._stats.count_handshake(admitted.size, handshake.tag_size)
         self._heard(now)
@@ -653,6 +699,7 @@ class Connection(ConnectionView):
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
         self._acks.open(initial_seq)
+        self._channel.open(self._recovery.sent.next_seq, initial_seq)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
@@ -704,6 +751,7 @@ class Connection(ConnectionView):
             deadline = self._liveness.watchdog_deadline()
         else:
             deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
+            deadline = self._channel.deadline(deadline)
         loss_deadline = self._recovery.loss_deadline()
         if loss_deadline is not None and loss_deadline < deadline:
             deadline = loss_deadline
@@ -743,6 +791,7 @@ class Connection(ConnectionView):
             self._push_watchdog_event(PeerSilent(liveness.last_receive, now))
             self._controller.on_peer_silent(now=now)
         self._recovery.detect_losses(now)
+        self._channel.expire(now)
         controller_deadline = self._controller.get_timer()
         if controller_deadline is not None and now >= controller_deadline:
             self._controller.on_timer(now=now)
@@ -781,6 +830,8 @@ class Connection(ConnectionView):
         acks.emit_held(out, outbox, sent.next_seq, peer, now)  # before the sample: the jump rule
         self._sender.take_due(out, peer, now)
         acks.emit_due(out, outbox, sent.next_seq, peer, now)
+        if not self._path.limited:  # messages wait for a new path's validation (5.8)
+            self._channel.emit(out, sent.next_seq, peer, now)
         if self._liveness.keepalive_due(now):
             window = acks.window
             assert window is not None

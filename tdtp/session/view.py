@@ -12,6 +12,7 @@ from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.base import RateController
 from tdtp.protection.keys import PresharedKey
 from tdtp.session.ack_scheduler import AckScheduler
+from tdtp.session.control_channel import ControlChannel
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import Address, ConnectionClosed
 from tdtp.session.handshake import Handshake
@@ -39,6 +40,7 @@ class ConnectionView:
     _acks: AckScheduler
     _sender: SampleSender
     _events: EventQueue
+    _channel: ControlChannel
     _close_event: ConnectionClosed | None
 
     # ------------------------------------------------------------------ introspection
@@ -134,6 +136,11 @@ class ConnectionView:
     def pending_events(self) -> int:
         """Events waiting for :meth:`next_event`."""
         return self._events.count()
+
+    @property
+    def control_unacked(self) -> int:
+        """Control messages of ours the peer has not acknowledged yet (queued or in flight)."""
+        return self._channel.unacked
 
     @property
     def transmit_errors(self) -> int:
