@@ -73,6 +73,8 @@ _MESSAGE_ACK_PREFIX: Final = bytes((ControlCode.MESSAGE_ACK,))
 _NUMBERS: Final = struct.Struct(">HH")
 _ACK_FIELD: Final = struct.Struct(">H")
 _HALF: Final = 1 << 15
+_ONE_TOKEN: Final = 1.0 - 1e-9  # a token refilled up to rounding counts as one
+_TOKEN_SLACK: Final = 1e-9  # so that the refill deadline is never the instant that found it short
 
 
 def expand_message_number(value: int, expected: int) -> int:
@@ -282,7 +284,7 @@ class ControlChannel:
         header = encode_header(_CONTROL, data_seq, 0, 0, HOLD_NO_ACK) + _MESSAGE_PREFIX
         timed_out = False
         for index, message in enumerate(self._unacked):
-            if self._tokens < 1.0 or (backoff and index):
+            if self._tokens < _ONE_TOKEN or (backoff and index):
                 break  # out of tokens; or backed off: only the oldest message goes (a probe)
             if message.transmissions:
                 if now < message.sent_at + interval:
@@ -336,8 +338,8 @@ class ControlChannel:
                         due = min(due, now)
                         break
                     due = min(due, message.sent_at + interval)
-            if due < math.inf and self._tokens < 1.0:
-                due = max(due, self._tokens_at + (1.0 - self._tokens) / self._rate)
+            if due < math.inf and self._tokens < _ONE_TOKEN:
+                due = max(due, self._tokens_at + (1.0 - self._tokens) / self._rate + _TOKEN_SLACK)
         self._due = due
         if due < self._hint.value:
             self._hint.value = due
