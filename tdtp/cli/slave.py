@@ -199,6 +199,12 @@ def _show_slave(
             f"  sent {stats.sent.data_packets}  srtt {stats.srtt * 1e3:.3f} ms"
             f"  lost {stats.packets_lost}  allowed {stats.rate:.0f}/s"
         )
+        counter = side.control if side is not None else None
+        if counter is not None:
+            line += (
+                f"  control: received {counter.delivered} (out of order {counter.out_of_order}),"
+                f" sent {counter.sent}"
+            )
         note = silence_note(ep, "slave")
         if note is not None:
             line += "  " + note
