@@ -23,6 +23,7 @@ from tdtp import (
 from tdtp.aio.api import connect, listen
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.ticker import Ticker
+from tdtp.cli.main import main
 
 NETEM = "delay 20ms 5ms loss 5%"
 
@@ -149,12 +150,15 @@ def test_the_demo_checks_its_control_counters() -> None:
         assert control["given_up"] == 0
 
 
+@pytest.mark.parametrize("command", ["demo", "slave", "master"])
 @pytest.mark.parametrize("value", ["-5", "0", "5000", "nan", "inf", "fast"])
-def test_a_bad_control_rate_is_one_line_and_status_2(value: str) -> None:
-    result = subprocess.run(
-        [sys.executable, "-m", "tdtp", "demo", f"--control-rate={value}"],
-        check=False, capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
-    assert result.returncode == 2
-    assert "--control-rate" in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1
+def test_a_bad_control_rate_is_one_line_and_status_2(
+    command: str, value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    extra = {"demo": [], "slave": ["--port", "0"], "master": ["127.0.0.1:9"]}[command]
+    with pytest.raises(SystemExit) as exited:
+        main([command, *extra, f"--control-rate={value}"])
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    assert "--control-rate" in err
+    assert len(err.strip().splitlines()) == 1
