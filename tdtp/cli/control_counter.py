@@ -1,11 +1,13 @@
 """``--control-rate HZ``: a counter on the reliable control channel, checked on arrival.
 
-Each side sends the next value of a counter (8 bytes, big-endian) as a control message HZ times a
-second beside its samples, and checks that the peer's counter arrives without a gap, a repeat or a
+Each side sends the next value of a counter (8 bytes, big-endian, then its send time on the monotonic
+clock as a double) as a control message HZ times a second beside its samples, and checks that the peer's counter arrives without a gap, a repeat or a
 swap: ``out_of_order`` counts every arrival that is not the previous value plus one, so it must stay 0
 however the network loses, duplicates or reorders datagrams. A tick that finds the channel's window
 full (``control_window`` messages not yet acknowledged, e.g. during an outage) sends nothing and is
-counted as ``blocked``; the counter is not advanced, so a blocked tick is no gap.
+counted as ``blocked``; the counter is not advanced, so a blocked tick is no gap. On one host (the
+demo) the receiver also records each message's delivery latency, from ``send_control`` to the
+application, retransmissions and waiting for an earlier lost message included.
 """
 
 from __future__ import annotations
@@ -14,12 +16,13 @@ import asyncio
 import contextlib
 import math
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Final
 
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.ticker import Ticker
 from tdtp.aio.timer import monotonic
+from tdtp.cli.live_stats import LatencyRecorder
 from tdtp.errors import (
     ConnectionStateError,
     ControlChannelFailedError,
@@ -34,7 +37,9 @@ CONTROL_SETTLE_PATIENCE: Final = 5.0
 """Longest a run waits, after sending stopped, for its last control messages to be acknowledged
 (a retransmission backs off to at most a second apart)."""
 
-_COUNTER: Final = struct.Struct(">Q")
+_COUNTER: Final = struct.Struct(">Qd")  # the counter, its send time (monotonic seconds)
+MAX_CONTROL_LATENCY: Final = 60.0
+"""Delivery latencies above this are not recorded (the clocks of two hosts are not comparable)."""
 
 
 @dataclass
@@ -50,6 +55,8 @@ class ControlCounter:
     expected: int = 0
     given_up: int = 0
     """Own messages the channel gave up on (``control_timeout``)."""
+    latency: LatencyRecorder = field(default_factory=LatencyRecorder)
+    """Delivery latencies of the peer's messages (meaningful when both ends share a clock)."""
 
     def on_control(self, event: ControlReceived | ControlExpired) -> None:
         if isinstance(event, ControlExpired):
@@ -57,7 +64,9 @@ class ControlCounter:
             return
         self.delivered += 1
         payload = event.payload
-        value = _COUNTER.unpack(payload)[0] if len(payload) == _COUNTER.size else -1
+        value, sent_at = _COUNTER.unpack(payload) if len(payload) == _COUNTER.size else (-1, -1.0)
+        if 0.0 <= event.received_at - sent_at < MAX_CONTROL_LATENCY:
+            self.latency.add(event.received_at - sent_at)
         if event.index == 0 and value >= 0:
             self.expected = value  # a new session (a reconnected master) goes on from its count
         if value != self.expected:
@@ -65,7 +74,7 @@ class ControlCounter:
         self.expected = value + 1
 
     def next_message(self) -> bytes:
-        return _COUNTER.pack(self.sent)
+        return _COUNTER.pack(self.sent, monotonic())
 
 
 async def control_loop(ep: Endpoint, counter: ControlCounter, rate: float, until: float) -> None:
@@ -108,6 +117,7 @@ def control_report(
         "blocked": sender.blocked if sender is not None else None,
         "given_up": sender.given_up if sender is not None else None,
         "retransmits": stats.control_retransmits if stats is not None else None,
+        "latency_ms": receiver.latency.summary_ms() if receiver is not None else None,
     }
 
 
