@@ -20,6 +20,8 @@ from tdtp.wire import (
     Header,
     KeepaliveBody,
     MalformedPacketError,
+    MessageAckBody,
+    MessageBody,
     OpenAckBody,
     OpenBody,
     OpenFlags,
@@ -31,6 +33,8 @@ from tdtp.wire import (
     encode_header,
     encode_hold,
     encode_keepalive,
+    encode_message,
+    encode_message_ack,
     encode_open,
     encode_open_ack,
 )
@@ -183,6 +187,10 @@ def encode_body(body: ControlBody) -> bytes:
         return encode_path_challenge(body.token)
     if isinstance(body, PathResponseBody):
         return encode_path_response(body.token, body.nonce)
+    if isinstance(body, MessageBody):
+        return encode_message(body.seq, body.ack, body.data)
+    if isinstance(body, MessageAckBody):
+        return encode_message_ack(body.ack)
     return encode_keepalive(body.nonce)
 
 
@@ -368,7 +376,7 @@ def test_arbitrary_bytes_decode_or_raise_bad_control(body: bytes) -> None:
     tag = b""
     if isinstance(decoded, OpenBody | OpenAckBody) and decoded.flags & OpenFlags.KEYED:
         tag = body[-TAG_SIZE:]
-    if isinstance(decoded, ResetBody):
+    if isinstance(decoded, ResetBody | MessageBody):  # of variable length
         assert encode_body(decoded) == body
         return
     assert len(body) == UNKEYED_SIZES[decoded.code] + len(tag)
