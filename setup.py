@@ -32,6 +32,7 @@ COMPILED = [
     "tdtp/session/stats.py",
     "tdtp/session/sent_log.py",
     "tdtp/session/receive_window.py",
+    "tdtp/session/reorder_buffer.py",
     "tdtp/session/rtt.py",
     "tdtp/session/loss_rate.py",
     "tdtp/session/handshake.py",
@@ -56,6 +57,7 @@ COMPILED = [
     "tdtp/control/tfrc.py",
     "tdtp/control/trinomial.py",
     "tdtp/control/registry.py",
+    "tdtp/control/send_meter.py",
     "tdtp/aio/loop_timers.py",
     "tdtp/aio/endpoint.py",
 ]

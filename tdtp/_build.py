@@ -44,6 +44,7 @@ COMPILED_MODULES: Final = (
     "tdtp.session.stats",
     "tdtp.session.sent_log",
     "tdtp.session.receive_window",
+    "tdtp.session.reorder_buffer",
     "tdtp.session.rtt",
     "tdtp.session.loss_rate",
     "tdtp.session.handshake",
@@ -68,6 +69,7 @@ COMPILED_MODULES: Final = (
     "tdtp.control.tfrc",
     "tdtp.control.trinomial",
     "tdtp.control.registry",
+    "tdtp.control.send_meter",
     "tdtp.aio.loop_timers",
     "tdtp.aio.endpoint",
 )

@@ -31,6 +31,8 @@ MAX_CONTROL_WINDOW = 4096
 """The largest ``control_window``: far below the 32768 that 16-bit message numbers can tell apart."""
 
 KEEPALIVE_PER_SILENCE = 3
+MAX_REORDER_WAIT = 1.0
+"""The longest reorder wait a connection accepts (s): beyond it a sample is no longer real-time."""
 """With ``keepalive_interval`` left to its default, a quiet peer sends this many keep-alives per
 ``silence_timeout``: one lost keep-alive never makes a healthy peer look silent."""
 
@@ -156,8 +158,16 @@ class ConnectionConfig:
     """A packet is lost once a packet this many sequence numbers later is acknowledged, until the
     connection has seen reordering; from then on only the time-based reorder window declares losses
     (RFC 8985, docs/PROTOCOL.md section 5.4)."""
+    max_reorder_wait: float = 0.02
+    """Samples reach the application in sequence order: one that arrives after a gap waits, at most
+    this long (seconds), for the gap to fill by reordering before the gap is given up as lost. The
+    wait in force adapts to the reordering measured on the path and is zero while there is none, so
+    a path that does not reorder adds no delay (docs/PROTOCOL.md section 5.5). ``0``: no wait; a sample
+    that arrives after a newer one is dropped as late (the newest value only, the least delay)."""
     deliver_late: bool = False
-    """Deliver packets that arrive after a newer one (reordered). Stale samples are dropped by default."""
+    """Deliver every sample as it arrives, including those that arrive after a newer one, with no
+    reorder wait (``max_reorder_wait`` is then unused). Off by default: the application would see its
+    signal step backwards."""
     deliver_duplicates: bool = False
     """Deliver a second copy of a packet. Dropped by default."""
     max_pending_events: int = 4096
@@ -239,6 +249,13 @@ class ConnectionConfig:
         if self.keepalive_interval is not None:
             _positive_finite("keepalive_interval", self.keepalive_interval)
         _positive_finite("initial_rtt", self.initial_rtt)
+        _require(
+            isinstance(self.max_reorder_wait, int | float)
+            and not isinstance(self.max_reorder_wait, bool)
+            and 0.0 <= self.max_reorder_wait <= MAX_REORDER_WAIT,
+            f"max_reorder_wait must be a number of seconds in 0..{MAX_REORDER_WAIT:g} (0 = drop "
+            f"samples that arrive after a newer one), got {self.max_reorder_wait!r}",
+        )
         _require(
             self.silence_timeout < self.idle_timeout,
             f"silence_timeout ({self.silence_timeout} s) must be shorter than idle_timeout "

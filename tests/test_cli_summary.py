@@ -89,3 +89,24 @@ def test_an_idle_connection_reports_zeros_not_errors() -> None:
     )
     assert report["loss_ratio"] == 0.0 and report["mean_rate"] == 0.0
     assert report["delivery_ratio"] is None
+
+
+def test_a_reordering_path_reports_the_samples_held_in_order_and_the_wait() -> None:
+    unlimited = ConnectionConfig(controller="fixed", controller_config=FixedConfig(rate=1e9))
+    shuffled = Direction(extra_delay=lambda i: 0.003 if i % 20 == 7 else 0.0)
+    pair = Pair(unlimited, unlimited, ms=shuffled)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(1.0)
+    pair.drain()
+    report = direction_report(
+        sender=pair.master.conn.stats,
+        receiver=pair.slave.conn.stats,
+        observed_at=["master", "slave"],
+        duration=1.0,
+        latency=None,
+    )
+    assert report["reordered"] > 40 and report["reorder_held"] >= report["reordered"] - 1
+    assert report["reorder_wait_ms"] == 2.5  # 1.25 x the 2 ms its gap stayed open
+    assert report["drops_at_receiver"]["late"] == 1  # before the wait had measured anything
+    assert report["samples_delivered"] == report["packets_received"]  # a late one is a drop

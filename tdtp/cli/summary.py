@@ -49,6 +49,8 @@ _RECEIVER_KEYS = (
     "samples_delivered",
     "gaps",
     "reordered",
+    "reorder_held",
+    "reorder_wait_ms",
     "drops_at_receiver",
     "ack_packets_sent_back",
     "mean_rate",
@@ -103,6 +105,8 @@ def receiver_view(stats: ConnectionStats, duration: float) -> dict[str, Any]:
         "samples_delivered": stats.samples_delivered,
         "gaps": stats.peer_gaps,
         "reordered": stats.reordered,
+        "reorder_held": stats.reorder_held,
+        "reorder_wait_ms": round(stats.reorder_wait * 1e3, 3),
         "drops_at_receiver": dict(sorted(stats.drops.items())),
         "ack_packets_sent_back": stats.sent.ack_packets,
         "mean_rate": round(received / duration, 2) if duration > 0 else 0.0,
@@ -186,6 +190,11 @@ def direction_line(label: str, report: dict[str, Any]) -> str:
         parts.append(
             f"received {report['packets_received']} ({report['mean_rate']:.1f}/s), "
             f"gaps {report['gaps']}, reordered {report['reordered']}"
+            + (
+                f" (held in order up to {report['reorder_wait_ms']:.1f} ms)"
+                if report.get("reorder_held")
+                else ""
+            )
         )
         latency = report.get("latency_ms")
         if latency:

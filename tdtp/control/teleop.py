@@ -40,6 +40,7 @@ from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
 from tdtp.control.equations import padhye_rate
+from tdtp.control.send_meter import GAP_GAIN, SendMeter
 
 __all__ = [
     "LIMIT_APPLICATION",
@@ -53,8 +54,6 @@ __all__ = [
     "TeleopController",
 ]
 
-GAP_GAIN: Final = 0.125
-"""Gain of the moving averages of departure gaps and of the share of paced departures (as trinomial's)."""
 
 MIN_SAMPLES: Final = 16
 """RTT samples a control interval needs before it judges the queue: the smallest of fewer would
@@ -248,6 +247,11 @@ class TeleopController(RateController):
         self._schedule = PacingSchedule()
         self._p = 0.0
         self._mean_size = 0.0  # moving average of datagram sizes, bytes
+        # The TCP-friendly ceiling: the rate it cut (restored as the ceiling rises again), and the
+        # rate in use at the first loss event (the ceiling's floor until the second one).
+        self._capped_from: float | None = None
+        self._loss_events = 0
+        self._first_loss_rate = 0.0
         # Base RTT: the minimum over two half-windows (the older one expires as a whole).
         self._base_now = math.inf
         self._base_old = math.inf
@@ -272,9 +276,7 @@ class TeleopController(RateController):
         self._last_decrease = -math.inf
         self._reason = LIMIT_APPLICATION
         # The application-limited guard.
-        self._last_send: float | None = None
-        self._gap_avg: float | None = None
-        self._paced_avg = 0.0
+        self._sending = SendMeter()
         # Blackout and outage.
         self._nf_deadline: float | None = None
         self._blackout = False
@@ -321,7 +323,7 @@ class TeleopController(RateController):
             return LIMIT_BLACKOUT
         if self._rate >= self._ceiling() * (1.0 - 1e-9):
             return LIMIT_TCP_FRIENDLY
-        if self._paced_avg < 0.5:
+        if self._sending.app_limited:
             return LIMIT_APPLICATION
         if self._reason == LIMIT_QUEUE_DELAY:
             return f"{LIMIT_QUEUE_DELAY} {self._queue_delay * 1e3:.1f} ms"
@@ -367,12 +369,7 @@ class TeleopController(RateController):
 
     def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
         self._advance(now)
-        if self._last_send is not None:
-            gap = now - self._last_send
-            avg = self._gap_avg
-            self._gap_avg = gap if avg is None else avg + GAP_GAIN * (gap - avg)
-        self._paced_avg += GAP_GAIN * ((1.0 if paced else 0.0) - self._paced_avg)
-        self._last_send = now
+        self._sending.on_departure(now, paced)
         mean = self._mean_size
         self._mean_size = float(size) if mean == 0.0 else mean + GAP_GAIN * (size - mean)
         if self._nf_deadline is None:
@@ -398,7 +395,7 @@ class TeleopController(RateController):
             if end < self._iv_end:
                 self._iv_end = end
         if not math.isnan(loss_event_rate):
-            self._p = min(max(loss_event_rate, 0.0), 1.0)
+            self._set_p(loss_event_rate)
         if rtt_sample is not None and rtt_sample > 0.0:
             self._on_rtt_sample(now, rtt_sample)
         self._iv_acked += max(acked, 0)
@@ -413,8 +410,9 @@ class TeleopController(RateController):
         if _positive_finite(srtt):
             self._srtt = srtt
         if not math.isnan(loss_event_rate):
-            self._p = min(max(loss_event_rate, 0.0), 1.0)
+            self._set_p(loss_event_rate)
         self._loss_since_drain = True
+        self._loss_events += 1
         target = self._target()
         # As the last complete interval measured the queue (a part of one has too few samples to
         # see through jitter): standing above half the target, or grown by a quarter of it.
@@ -485,6 +483,7 @@ class TeleopController(RateController):
             if not self._blackout:
                 self._rate_before_blackout = self._rate
             self._blackout = True
+            self._capped_from = None
             self._set_rate(now, self._rate * 0.5**missed)
             self._nf_deadline = now + self._no_feedback_timeout()
             self._start_interval(now)
@@ -549,12 +548,13 @@ class TeleopController(RateController):
                 base = self._rate_in_use()
                 if delivered > 0.0:
                     base = min(base, delivered)
-                self._decrease(now, base * cfg.delay_decrease)
+                self._decrease(now, base * cfg.delay_decrease, carried=base)
                 self._delay_decreases += 1
                 self._last_decrease = now
                 self._reason = LIMIT_QUEUE_DELAY
         elif queue <= 0.5 * target or queue <= previous:
             if self._p > cfg.heavy_loss:
+                self._capped_from = None
                 self._set_rate(now, self._rate * (1.0 - 0.5 * self._p))
                 self._last_decrease = now
                 self._reason = LIMIT_LOSS
@@ -571,6 +571,7 @@ class TeleopController(RateController):
             self._next_drain = now + cfg.drain_every
             self._loss_since_drain = False
             self._draining_from = self._rate
+            self._capped_from = None
             self._set_rate(now, self._rate_in_use() * cfg.drain_fraction)
             self._iv_end = now + 2.0 * self._nominal_interval()
 
@@ -580,8 +581,8 @@ class TeleopController(RateController):
         gain = cfg.ramp_gain if ramp else cfg.probe_gain
         rate = self._rate
         ceiling = min(cfg.max_rate, self._ceiling())
-        if self._paced_avg < 0.5:
-            ceiling = min(ceiling, max(rate, cfg.app_headroom * self._send_rate()))
+        if self._sending.app_limited:
+            ceiling = min(ceiling, max(rate, cfg.app_headroom * self._sending.send_rate()))
         if ceiling > rate * (1.0 + 1e-9):
             # Below the rate a decrease started from, close half the distance per interval (the
             # path carried it a moment ago); beyond it, probe.
@@ -591,28 +592,27 @@ class TeleopController(RateController):
             step = max(grow, 0.5 * (self._rate_before_decrease - rate))
             self._set_rate(now, min(rate + step, ceiling))
             self._increases += 1
-            if self._paced_avg >= 0.5:
+            if not self._sending.app_limited:
                 self._reason = LIMIT_PROBING
 
     def _rate_in_use(self) -> float:
         """The allowed rate, or what the application sends when it sets the pace (trinomial's
         ``decrease_in_use``: a decrease slows the sender down from what it sends)."""
         rate = self._rate
-        if self._paced_avg < 0.5:
-            sending = self._send_rate()
+        if self._sending.app_limited:
+            sending = self._sending.send_rate()
             if sending > 0.0:
                 rate = min(rate, sending)
         return rate
 
-    def _send_rate(self) -> float:
-        gap = self._gap_avg
-        if gap is None:
-            return 0.0
-        return 1.0 / gap if gap > 0.0 else math.inf
-
     def _ceiling(self) -> float:
         """What a TCP with ``tcp_segment``-byte segments carries at this p and srtt, in bytes per
-        second, divided by this flow's bytes per packet on the wire."""
+        second, divided by this flow's bytes per packet on the wire.
+
+        Until the second loss event it is never below the rate in use at the first: p then rests
+        on one interval that began at an arbitrary point (the connection's start), so a loss in the
+        first few packets would read as p = 1/3. RFC 5348 (6.3.1) synthesises that first interval
+        from the receive rate for the same reason."""
         p = self._p
         if p <= 0.0:
             return math.inf
@@ -620,16 +620,43 @@ class TeleopController(RateController):
         srtt = self._srtt
         tcp_bytes = cfg.tcp_segment * padhye_rate(srtt, p, 4.0 * srtt)
         size = self._mean_size if self._mean_size > 0.0 else float(cfg.tcp_segment)
-        return tcp_bytes / (size + cfg.ip_overhead)
+        ceiling = tcp_bytes / (size + cfg.ip_overhead)
+        if self._loss_events < 2 and ceiling < self._first_loss_rate:
+            return self._first_loss_rate
+        return ceiling
+
+    def _set_p(self, loss_event_rate: float) -> None:
+        p = min(max(loss_event_rate, 0.0), 1.0)
+        if p > 0.0 and self._p <= 0.0 and self._first_loss_rate <= 0.0:
+            self._first_loss_rate = self._rate_in_use()  # the ceiling's floor for now
+        self._p = p
 
     def _apply_ceiling(self, now: float) -> None:
+        """Hold the rate under the ceiling; as p falls (the open loss interval grows) and the
+        ceiling rises, give back what the ceiling took, at once (TFRC follows its equation up the
+        same way): the ceiling is a bound on the rate, not a congestion signal."""
         ceiling = min(self._cfg.max_rate, self._ceiling())
-        if self._rate > ceiling:
+        rate = self._rate
+        if rate > ceiling:
+            capped = self._capped_from
+            self._capped_from = rate if capped is None or rate > capped else capped
             self._set_rate(now, ceiling)
+        else:
+            capped = self._capped_from
+            if capped is not None and ceiling > rate:
+                if ceiling >= capped:
+                    self._capped_from = None
+                    self._set_rate(now, capped)
+                else:
+                    self._set_rate(now, ceiling)
 
-    def _decrease(self, now: float, rate: float) -> None:
-        """A decrease for congestion: remember where from, so that recovery aims back at it."""
-        self._rate_before_decrease = self._rate
+    def _decrease(self, now: float, rate: float, carried: float | None = None) -> None:
+        """A decrease for congestion: remember where from, so that recovery aims back at it (not
+        at a rate the ceiling had cut: the path has spoken since). ``carried``: what the path
+        delivered while the queue built, when known; recovery aims no higher (after the start-up's
+        doubling the allowed rate can be twice what the path ever carried)."""
+        self._capped_from = None
+        self._rate_before_decrease = self._rate if carried is None else min(self._rate, carried)
         self._set_rate(now, rate)
 
     def _set_rate(self, now: float, rate: float) -> None:

@@ -26,6 +26,7 @@ from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
 from tdtp.control.equations import padhye_rate, tcp_friendly_rate
+from tdtp.control.send_meter import SendMeter
 
 __all__ = [
     "RECOVERY_RTTS",
@@ -33,11 +34,6 @@ __all__ = [
     "TrinomialController",
     "recovery_intervals",
 ]
-
-
-GAP_GAIN: Final = 0.125
-"""Gain of the moving averages behind the application-limited guard: departure gaps and the share
-of departures the pacer held back (about the last eight packets)."""
 
 
 def _positive_finite(value: float) -> bool:
@@ -204,9 +200,7 @@ class TrinomialController(RateController):
         self._iv_w = math.inf
         self._iv_sent = 0
         self._last_hook = -math.inf  # the now of the last hook, when _advance last ran
-        self._last_send: float | None = None
-        self._gap_avg: float | None = None  # moving average of departure gaps
-        self._paced_avg = 0.0  # moving share of departures the pacer held back
+        self._sending = SendMeter()  # the application-limited guard's measurements
         self._iv_acks = 0
         self._iv_allowance = 0.0  # packets the allowed rate permitted since _iv_start...
         self._iv_mark = 0.0  # ...integrated up to this time
@@ -286,12 +280,7 @@ class TrinomialController(RateController):
 
     def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
         self._advance(now)
-        if self._last_send is not None:
-            gap = now - self._last_send
-            avg = self._gap_avg
-            self._gap_avg = gap if avg is None else avg + GAP_GAIN * (gap - avg)
-        self._paced_avg += GAP_GAIN * ((1.0 if paced else 0.0) - self._paced_avg)
-        self._last_send = now
+        self._sending.on_departure(now, paced)
         self._iv_sent += 1
         if self._nf_deadline is None:
             self._nf_deadline = now + self._no_feedback_timeout()
@@ -329,11 +318,11 @@ class TrinomialController(RateController):
         self._cap_lifted = False
         if now - self._last_decrease >= self._srtt:
             rate = self.rate
-            if self._cfg.decrease_in_use and self._paced_avg < 0.5:
+            if self._cfg.decrease_in_use and self._sending.app_limited:
                 # The application sets the pace (most packets left as soon as offered): the gap
                 # in use is the application's, not the unused allowance. (A paced sender's gap in
                 # use is the allowed one; its moving average would lag behind a recent increase.)
-                sending = self._send_rate()
+                sending = self._sending.send_rate()
                 if sending > 0.0:
                     rate = min(rate, sending)
             self._set_rate(now, rate * self._cfg.beta)  # eq. 10: IPG / beta
@@ -428,30 +417,16 @@ class TrinomialController(RateController):
         ):
             rate = self.rate
             ceiling = min(cfg.max_rate, self._cap())
-            if self._paced_avg < 0.5:
+            if self._sending.app_limited:
                 # Most recent packets left as soon as offered: the application sets the pace, so
                 # the allowance grows only to headroom x its rate. (A share, not any one packet:
                 # a jittery 1 kHz loop has the odd pair of samples 0.3 ms apart.)
-                ceiling = min(ceiling, max(rate, cfg.app_headroom * self._send_rate()))
+                ceiling = min(ceiling, max(rate, cfg.app_headroom * self._sending.send_rate()))
             if ceiling > rate * (1.0 + 1e-9):  # not for a rounding error in the measured rate
                 ipg, w = self.ipg, self._iv_w
                 self._set_rate(now, min(1.0 / (ipg * w / (ipg + w)), ceiling))  # eq. 9
                 self._increases += 1
         self._start_interval(now)
-
-    def _send_rate(self) -> float:
-        """The rate packets actually left at: the inverse of a moving average of departure gaps.
-
-        The average (gain 1/8, so about the last eight gaps) smooths the jitter of a real event loop,
-        where a periodic 1 kHz application's packets leave 0.2 ms or 1.8 ms apart as often as 1 ms: a
-        measurement over one short interval would read that as 5000 packets/s. A periodic
-        application reads as its own rate, a sender held back by the pacer as the allowed rate, and an
-        idle period, one long gap, pulls the estimate down as it should.
-        """
-        gap = self._gap_avg
-        if gap is None:
-            return 0.0
-        return 1.0 / gap if gap > 0.0 else math.inf
 
     def _cap(self) -> float:
         p = self._p

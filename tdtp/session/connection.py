@@ -27,11 +27,11 @@ from typing import Final
 from tdtp.admission.admission import Admission, AdmittedOpen
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.registry import create_controller
-from tdtp.errors import ArgumentTypeError, ConnectionClosedError, ConnectionStateError
+from tdtp.errors import ArgumentTypeError, ConnectionStateError
 from tdtp.protection.keys import KeyInput, KeysInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session.ack_scheduler import AckScheduler
-from tdtp.session.control_channel import ControlChannel
+from tdtp.session.control_channel import ALIVE, TAKEN, ControlChannel, largest_message_body
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import (
     Address,
@@ -49,16 +49,16 @@ from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
+from tdtp.session.reorder_buffer import ReorderBuffer
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
-from tdtp.session.state import State
+from tdtp.session.state import State, refusal
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
 from tdtp.session.view import ConnectionView
 from tdtp.wire.control import (
     HANDSHAKE_CODES,
     MESSAGE_CODES,
-    MESSAGE_PREFIX_SIZE,
     OPEN_BODY_SIZE,
     PATH_CODES,
     CloseBody,
@@ -135,15 +135,8 @@ class Connection(ConnectionView):
         self._opener: PacketOpener | None = None
         self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
         # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
-        self._size_limit = (
-            HEADER_SIZE
-            + max(
-                config.max_payload,
-                _LARGEST_CONTROL,
-                MESSAGE_PREFIX_SIZE + config.control_max_message,
-            )
-            + PROTECTION_OVERHEAD
-        )
+        body = max(config.max_payload, _LARGEST_CONTROL, largest_message_body(config))
+        self._size_limit = HEADER_SIZE + body + PROTECTION_OVERHEAD
         self._controller = controller = create_controller(
             config.controller, config.controller_config
         )
@@ -178,6 +171,8 @@ class Connection(ConnectionView):
         self._max_payload = config.max_payload
         self._deliver_late = config.deliver_late
         self._deliver_duplicates = config.deliver_duplicates
+        # Samples that arrived after a gap, waiting for it (None: delivered as they arrive).
+        self._reorder: ReorderBuffer | None = None
         self._close_event: ConnectionClosed | None = None
 
     # ------------------------------------------------------------------ caller API
@@ -208,7 +203,7 @@ class Connection(ConnectionView):
         waiting for the pacer or for the socket (which is counted as superseded): stale supermedia
         data is never queued or retransmitted."""
         if self._state is not State.ESTABLISHED:
-            self._sender_check()
+            raise refusal(self._state, self._close_event)
         self._sender.offer(payload, now)
 
     def send_direct(
@@ -247,29 +242,10 @@ class Connection(ConnectionView):
         )
 
     def send_control(self, message: bytes | bytearray | memoryview, *, now: float) -> None:
-        """Queue a message on the reliable control channel (:mod:`tdtp.session.control_channel`):
-        delivered exactly once, in order, as the peer's ``ControlReceived``. Raises as :meth:`send`
-        does, and ``ControlQueueFullError`` or ``ControlChannelFailedError``."""
+        """Queue a message on the reliable control channel (:mod:`tdtp.session.control_channel`)."""
         if self._state is not State.ESTABLISHED:
-            self._sender_check()
+            raise refusal(self._state, self._close_event)
         self._channel.send(message, now)
-
-    def control_held(self, count: int) -> None:
-        """A driver's count of delivered control messages its application has not read yet (they
-        count against the receive bound, ``control_window``)."""
-        self._channel.app_unread = count
-
-    def _sender_check(self) -> None:
-        state = self._state
-        if state is State.CLOSED:
-            event = self._close_event
-            why = "" if event is None else f" ({event.cause.value}: {event.detail})"
-            raise ConnectionClosedError(
-                f"the connection is closed{why}; open a new one to send again", event
-            )
-        raise ConnectionStateError(
-            f"cannot send while {state.value}: wait for the ConnectionEstablished event"
-        )
 
     def pause_sending(self) -> None:
         """The layer below cannot take datagrams now (the socket's send buffer is full).
@@ -399,8 +375,12 @@ class Connection(ConnectionView):
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
-        elif size > HEADER_SIZE and data[HEADER_SIZE] in MESSAGE_CODES:
-            self._on_message(data, size, now)
+        elif size > HEADER_SIZE and data[HEADER_SIZE] in MESSAGE_CODES:  # PROTOCOL.md 5.10
+            verdict = self._channel.receive(data, self._state is State.ESTABLISHED, now)
+            if verdict is TAKEN:
+                self._accept(size, size - HEADER_SIZE, now)
+            elif verdict is ALIVE:
+                self._heard(now)  # dropped, but well formed and (keyed) authentic
         else:
             self._on_session_control(data, size, ack, sack, hold, now)
 
@@ -519,6 +499,7 @@ class Connection(ConnectionView):
             stats.count_drop(DropReason.OPTIMISTIC_ACK)
             return
         arrival = self._acks.on_arrival(window, seq, now)
+        reorder = self._reorder
         if arrival is not Arrival.NEW:
             if arrival is Arrival.STALE:
                 self._heard(now)
@@ -526,7 +507,12 @@ class Connection(ConnectionView):
                 return
             if arrival is Arrival.LATE:
                 stats.reordered += 1
-                if not self._deliver_late:
+                if reorder is not None:
+                    reorder.on_late(window.last_seq, now)
+                    stats.reorder_wait = reorder.wait
+                    if window.last_seq < reorder.next_seq:
+                        reorder = None  # its gap was given up before it came: late after all
+                if reorder is None and not self._deliver_late:
                     self._heard(now)
                     stats.count_drop(DropReason.LATE)
                     return
@@ -534,6 +520,11 @@ class Connection(ConnectionView):
                 self._heard(now)
                 stats.count_drop(DropReason.DUPLICATE)
                 return
+            else:
+                reorder = None  # a duplicate the application asked for goes up as it came
+        elif reorder is not None and window.last_gap:
+            full = window.last_seq
+            reorder.on_gap(full - window.last_gap, full, now)
         received = stats.received
         received.datagrams += 1
         received.bytes += size + self._overhead
@@ -545,13 +536,39 @@ class Connection(ConnectionView):
         liveness.last_receive = now
         if liveness.silent_since is not None:
             self._on_peer_resumed(now)
-        stats.samples_delivered += 1
+        if reorder is not None:
+            if reorder.accept(window.last_seq, data[HEADER_SIZE:], now):
+                self._deliver(data[HEADER_SIZE:], window.last_seq, now, now)
+            else:
+                self._hint.value = -math.inf  # held: the wait has a deadline
+            if reorder.held:
+                self._release_reordered(reorder, now)
+            return
+        self._deliver(data[HEADER_SIZE:], window.last_seq, now, now)
+
+    def _deliver(self, payload: bytes, seq: int, arrival: float, now: float) -> None:
+        """Hand a sample to the application (``arrival`` earlier than ``now`` if it waited)."""
+        self._stats.samples_delivered += 1
         rtt = self._recovery.rtt
-        self._events.push_data(
-            new_data_received(
-                data[HEADER_SIZE:], window.last_seq, rtt.srtt / 2 if rtt.has_sample else None, now
-            )
-        )
+        age = rtt.srtt / 2 + (now - arrival) if rtt.has_sample else None
+        self._events.push_data(new_data_received(payload, seq, age, now))
+
+    def _release_reordered(self, reorder: ReorderBuffer, now: float) -> None:
+        """Deliver what the reorder wait no longer holds back."""
+        for seq, payload, arrival in reorder.release(now):
+            self._deliver(payload, seq, arrival, now)
+        stats = self._stats
+        stats.reorder_held = reorder.held_total
+        stats.reorder_wait = reorder.wait
+
+    def _open_reorder(self, initial_seq: int) -> None:
+        """The peer's data starts at ``initial_seq``: deliver it in order, through a reorder wait,
+        unless the application asked for arrival order or for no wait."""
+        config = self.config
+        if config.deliver_late or config.max_reorder_wait <= 0.0:
+            self._reorder = None
+        else:
+            self._reorder = ReorderBuffer(initial_seq, config.max_reorder_wait)
 
     def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
@@ -576,21 +593,6 @@ class Connection(ConnectionView):
                 hint.value = -math.inf  # a new rate may let the held sample go earlier
             hint.check_controller()
         return newly >= 0
-
-    def _on_message(self, data: bytes, size: int, now: float) -> None:
-        """MESSAGE or MESSAGE_ACK: the reliable control channel (PROTOCOL.md 5.10)."""
-        stats = self._stats
-        if self._state is not State.ESTABLISHED:
-            stats.count_drop(DropReason.NOT_ESTABLISHED)
-            return
-        refused = self._channel.receive(data, now)
-        if refused is not None:
-            if refused is not DropReason.BAD_CONTROL and refused is not DropReason.OVERSIZED:
-                self._heard(now)  # well formed and (keyed) authentic: the peer is alive
-            stats.count_drop(refused)
-            return
-        self._accept(size, size - HEADER_SIZE, now)
-        stats.received.control_packets += 1
 
     def _on_session_control(
         self, data: bytes, size: int, ack: int, sack: int, hold: int, now: float
@@ -675,6 +677,7 @@ class Connection(ConnectionView):
         self._sender.limit = min(self.config.max_payload, body.max_payload)
         acks.open(admitted.initial_seq)
         self._channel.open(self._recovery.sent.next_seq, admitted.initial_seq)
+        self._open_reorder(admitted.initial_seq)
         self._install_protection()
         self._stats.count_handshake(admitted.size, handshake.tag_size)
         self._heard(now)
@@ -700,6 +703,7 @@ class Connection(ConnectionView):
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
         self._acks.open(initial_seq)
         self._channel.open(self._recovery.sent.next_seq, initial_seq)
+        self._open_reorder(initial_seq)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
@@ -755,6 +759,11 @@ class Connection(ConnectionView):
         loss_deadline = self._recovery.loss_deadline()
         if loss_deadline is not None and loss_deadline < deadline:
             deadline = loss_deadline
+        reorder = self._reorder
+        if reorder is not None:
+            reorder_deadline = reorder.deadline()
+            if reorder_deadline is not None and reorder_deadline < deadline:
+                deadline = reorder_deadline
         controller_deadline = self._controller.get_timer()
         hint.controller_seen = controller_deadline
         if controller_deadline is not None and controller_deadline < deadline:
@@ -792,6 +801,9 @@ class Connection(ConnectionView):
             self._controller.on_peer_silent(now=now)
         self._recovery.detect_losses(now)
         self._channel.expire(now)
+        reorder = self._reorder
+        if reorder is not None and reorder.held:
+            self._release_reordered(reorder, now)
         controller_deadline = self._controller.get_timer()
         if controller_deadline is not None and now >= controller_deadline:
             self._controller.on_timer(now=now)
@@ -830,8 +842,7 @@ class Connection(ConnectionView):
         acks.emit_held(out, outbox, sent.next_seq, peer, now)  # before the sample: the jump rule
         self._sender.take_due(out, peer, now)
         acks.emit_due(out, outbox, sent.next_seq, peer, now)
-        if not self._path.limited:  # messages wait for a new path's validation (5.8)
-            self._channel.emit(out, sent.next_seq, peer, now)
+        self._channel.emit(out, sent.next_seq, peer, now, self._path.limited)
         if self._liveness.keepalive_due(now):
             window = acks.window
             assert window is not None

@@ -77,6 +77,19 @@ _ONE_TOKEN: Final = 1.0 - 1e-9  # a token refilled up to rounding counts as one
 _TOKEN_SLACK: Final = 1e-9  # so that the refill deadline is never the instant that found it short
 
 
+DROPPED: Final = 0
+"""What :meth:`ControlChannel.receive` found: dropped and counted, and no sign of life."""
+ALIVE: Final = 1
+"""Dropped and counted, but well formed and (keyed) authentic: a sign of life from the peer."""
+TAKEN: Final = 2
+"""Taken in."""
+
+
+def largest_message_body(config: ConnectionConfig) -> int:
+    """Bytes after the base header of the largest MESSAGE ``config`` accepts (protection aside)."""
+    return MESSAGE_PREFIX_SIZE + config.control_max_message
+
+
 def expand_message_number(value: int, expected: int) -> int:
     """The full message number whose low 16 bits are ``value``, nearest to ``expected`` (within
     -32768..+32767 of it; RFC 1982 serial arithmetic)."""
@@ -191,25 +204,44 @@ class ControlChannel:
 
     # ------------------------------------------------------------------ input
 
-    def receive(self, data: bytes, now: float) -> DropReason | None:
-        """A MESSAGE or MESSAGE_ACK (header and code byte included, protection removed): ``None``
-        if it is taken in, else why it is dropped (counted in ``control_dropped`` too)."""
+    def receive(self, data: bytes, established: bool, now: float) -> int:
+        """A MESSAGE or MESSAGE_ACK (header and code byte included, protection removed): TAKEN
+        (counted as a control packet received; the connection counts the rest), or dropped and
+        counted by reason in ``drops`` and ``control_dropped``, ALIVE if a sign of life all the
+        same, DROPPED if not."""
+        stats = self._stats
+        if not established:
+            stats.count_drop(DropReason.NOT_ESTABLISHED)
+            return DROPPED
+        refused = self._take(data, now)
+        if refused is None:
+            stats.received.control_packets += 1
+            return TAKEN
+        stats.count_drop(refused)
+        dropped = stats.control_dropped
+        dropped[refused.value] = dropped.get(refused.value, 0) + 1
+        if refused is DropReason.BAD_CONTROL or refused is DropReason.OVERSIZED:
+            return DROPPED
+        return ALIVE
+
+    def _take(self, data: bytes, now: float) -> DropReason | None:
+        """Why ``data`` is dropped, or ``None`` if it is taken in."""
         size = len(data)
         if data[HEADER_SIZE] != _MESSAGE:
             if size != HEADER_SIZE + MESSAGE_ACK_BODY_SIZE:
-                return self._refuse(DropReason.BAD_CONTROL)
+                return DropReason.BAD_CONTROL
             if not self._on_ack(_ACK_FIELD.unpack_from(data, HEADER_SIZE + 1)[0], now):
-                return self._refuse(DropReason.OPTIMISTIC_ACK)
+                return DropReason.OPTIMISTIC_ACK
             return None
         start = HEADER_SIZE + MESSAGE_PREFIX_SIZE
         length = size - start
         if length <= 0:
-            return self._refuse(DropReason.BAD_CONTROL)
+            return DropReason.BAD_CONTROL
         if length > self._max_message:
-            return self._refuse(DropReason.OVERSIZED)
+            return DropReason.OVERSIZED
         wire_seq, wire_ack = _NUMBERS.unpack_from(data, HEADER_SIZE + 1)
         if not self._on_ack(wire_ack, now):
-            return self._refuse(DropReason.OPTIMISTIC_ACK)
+            return DropReason.OPTIMISTIC_ACK
         # Whatever becomes of the message, the peer learns where we stand: a duplicate means our
         # acknowledgement was lost.
         if not self._ack_owed:
@@ -220,11 +252,11 @@ class ControlChannel:
         number = expand_message_number(wire_seq, expected)
         held = self._held
         if number < expected or number in held:
-            return self._refuse(DropReason.DUPLICATE)
+            return DropReason.DUPLICATE
         if number >= expected + self._window:
-            return self._refuse(DropReason.CONTROL_WINDOW)
+            return DropReason.CONTROL_WINDOW
         if len(held) + self._events.control_pending + self.app_unread >= self._window:
-            return self._refuse(DropReason.CONTROL_BACKLOG)
+            return DropReason.CONTROL_BACKLOG
         held[number] = data[start:]
         stats = self._stats
         events = self._events
@@ -235,12 +267,6 @@ class ControlChannel:
             expected += 1
         self._expected = expected
         return None
-
-    def _refuse(self, reason: DropReason) -> DropReason:
-        dropped = self._stats.control_dropped
-        key = reason.value
-        dropped[key] = dropped.get(key, 0) + 1
-        return reason
 
     def _on_ack(self, wire_ack: int, now: float) -> bool:
         """The peer's cumulative acknowledgement; False if it acknowledges a message never sent."""
@@ -261,9 +287,12 @@ class ControlChannel:
 
     # ------------------------------------------------------------------ output
 
-    def emit(self, out: Datagrams, data_seq: int, peer: Address, now: float) -> None:
+    def emit(self, out: Datagrams, data_seq: int, peer: Address, now: float, held: bool) -> None:
         """What is due at ``now``: new messages and retransmissions (within the rate cap), each
-        carrying our acknowledgement, or a MESSAGE_ACK alone if we owe one."""
+        carrying our acknowledgement, or a MESSAGE_ACK alone if we owe one. Nothing while ``held``
+        (a new path not validated yet: PROTOCOL.md 5.8)."""
+        if held:
+            return
         if now >= self._due:
             self._transmit(out, data_seq, peer, now)
         if self._ack_owed:

@@ -32,7 +32,8 @@ class DropReason(enum.Enum):
     DUPLICATE = "duplicate"
     """A second copy of a data packet (replayed or duplicated by the network)."""
     LATE = "late"
-    """Arrived after a newer data packet; a stale sample (still acknowledged)."""
+    """Arrived after a newer data packet and too late to be delivered in order: its gap was given up
+    (the reorder wait ran out, or there is none). Still acknowledged."""
     STALE = "stale"
     """Older than the 64-packet reordering window: cannot be told apart from a replay."""
     NOT_ESTABLISHED = "not_established"
@@ -132,7 +133,13 @@ class ConnectionStats:
     way, not lost (counted apart from ``packets_lost``; the rate controller never sees them)."""
     loss_events: int = 0
     reordered: int = 0
-    """Peer data packets that arrived after a newer one."""
+    """Peer data packets that arrived after a newer one (delivered in order if they came within the
+    reorder wait, else dropped as ``late``)."""
+    reorder_held: int = 0
+    """Samples delivered after a reorder wait: they arrived after a gap and were held, in order,
+    until it filled or its wait ran out (``ConnectionConfig.max_reorder_wait``)."""
+    reorder_wait: float = 0.0
+    """The reorder wait in force, seconds: adapted to the reordering measured, 0 while there is none."""
     peer_gaps: int = 0
     """Peer sequence numbers skipped at arrival (lost or not yet arrived), as this side saw them."""
     migrations: int = 0

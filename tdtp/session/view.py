@@ -137,6 +137,12 @@ class ConnectionView:
         """Events waiting for :meth:`next_event`."""
         return self._events.count()
 
+    def control_held(self, count: int) -> None:
+        """A driver's count of delivered control messages its application has not read yet: they
+        count against the control channel's receive bound (``control_window``). (The one call here
+        that changes anything; it only tells the channel.)"""
+        self._channel.app_unread = count
+
     @property
     def control_unacked(self) -> int:
         """Control messages of ours the peer has not acknowledged yet (queued or in flight)."""

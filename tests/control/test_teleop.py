@@ -127,6 +127,8 @@ def test_loss_with_a_growing_queue_cuts_the_rate() -> None:
 def test_the_tcp_friendly_ceiling_counts_bytes_on_the_wire() -> None:
     controller = TeleopController(TeleopConfig(initial_rate=5000.0))
     drive(controller, duration=0.2, rtt=flat(0.100), p=lambda _: 0.0, demand=5000.0)
+    for when in (0.21, 0.25):  # p is trusted from the second loss event (RFC 5348 6.3.1)
+        controller.on_loss_event(now=when, srtt=0.1, loss_event_rate=0.05)
     controller.on_ack(now=0.3, acked=1, rtt_sample=0.1, srtt=0.1, rttvar=0.0, loss_event_rate=0.05)
     tcp_packets = padhye_rate(0.1, 0.05, 0.4)  # what a TCP gets in 1460-byte segments
     expected = 1460 * tcp_packets / (SIZE + 28)
@@ -135,6 +137,40 @@ def test_the_tcp_friendly_ceiling_counts_bytes_on_the_wire() -> None:
     # About 11 times TCP's packet rate: the flow's bytes, headers counted, match TCP's.
     assert controller.rate / tcp_packets == pytest.approx(1460 / 133)
     assert controller.rate_limit == LIMIT_TCP_FRIENDLY
+
+
+def test_a_loss_among_the_first_packets_does_not_throttle_the_loop() -> None:
+    # The third packet is lost: p rests on a 3-packet first interval (1/3) until more arrive. The
+    # ceiling would be ~30 packets/s; until a second loss event it stays at the rate in use.
+    controller = TeleopController()
+    drive(
+        controller,
+        duration=0.5,
+        rtt=flat(0.040),
+        lose=lambda i: i == 3,
+        p=lambda t: 0.0 if t < 0.043 else 1 / 3 if t < 0.3 else 0.02,  # lost at 3 ms + 40 ms
+    )
+    assert controller.rate >= 1000.0  # (55/s here without the first-interval rule)
+    assert controller.rate_limit == LIMIT_APPLICATION
+
+
+def test_the_ceiling_gives_back_what_it_took_as_p_falls() -> None:
+    controller = TeleopController()
+    end = drive(controller, duration=1.0, rtt=flat(0.040))
+    before = controller.rate
+    for when in (end, end + 0.1):  # two loss events: p is trusted from now on
+        controller.on_loss_event(now=when, srtt=0.04, loss_event_rate=0.01)
+    assert controller.rate == before  # no queue in sight: random loss
+    controller.on_ack(
+        now=end + 0.2, acked=1, rtt_sample=0.04, srtt=0.04, rttvar=0.0, loss_event_rate=0.3
+    )
+    assert controller.rate < 0.1 * before
+    assert controller.rate_limit == LIMIT_TCP_FRIENDLY
+    # The open loss interval grows, p falls: the rate returns at once, not one probe at a time.
+    controller.on_ack(
+        now=end + 0.21, acked=1, rtt_sample=0.04, srtt=0.04, rttvar=0.0, loss_event_rate=0.001
+    )
+    assert controller.rate == before
 
 
 def test_the_opt_in_floor_holds_against_congestion() -> None:

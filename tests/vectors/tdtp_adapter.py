@@ -56,6 +56,9 @@ def make_config(config: dict[str, Any]) -> ConnectionConfig:
         deliver_late=config.get("deliver_late", False),
         deliver_duplicates=config.get("deliver_duplicates", False),
         control_window=config.get("control_window", 64),
+        # The reorder wait is the receiver's local choice (PROTOCOL.md 5.5): the scripts pin
+        # delivery without one, each new sample at once.
+        max_reorder_wait=config.get("max_reorder_wait", 0.0),
     )
 
 
