@@ -43,6 +43,7 @@ COMPILED = [
     "tdtp/session/outbox.py",
     "tdtp/session/ack_scheduler.py",
     "tdtp/session/sender.py",
+    "tdtp/session/control_channel.py",
     "tdtp/session/timer_hint.py",
     "tdtp/session/reset_guard.py",
     "tdtp/session/path.py",

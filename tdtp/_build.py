@@ -55,6 +55,7 @@ COMPILED_MODULES: Final = (
     "tdtp.session.outbox",
     "tdtp.session.ack_scheduler",
     "tdtp.session.sender",
+    "tdtp.session.control_channel",
     "tdtp.session.timer_hint",
     "tdtp.session.reset_guard",
     "tdtp.session.path",

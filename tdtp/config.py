@@ -24,6 +24,12 @@ ControllerName = Literal["teleop", "trinomial", "tfrc", "fixed"]
 """The built-in rate controllers. A controller added with
 :func:`tdtp.control.register_controller` is accepted too (type checkers then need a ``cast``)."""
 
+MAX_CONTROL_MESSAGE = 4096
+"""The largest ``control_max_message``: the control channel carries small messages (commands, mode
+changes), not bulk data; a message travels in one datagram, retransmitted whole."""
+MAX_CONTROL_WINDOW = 4096
+"""The largest ``control_window``: far below the 32768 that 16-bit message numbers can tell apart."""
+
 KEEPALIVE_PER_SILENCE = 3
 MAX_REORDER_WAIT = 1.0
 """The longest reorder wait a connection accepts (s): beyond it a sample is no longer real-time."""
@@ -168,6 +174,22 @@ class ConnectionConfig:
     """Events held for the application; when full the oldest data event is discarded and counted."""
     max_tracked_packets: int = 16384
     """Sent packets remembered while awaiting acknowledgement; the oldest is declared lost past this."""
+    control_max_message: int = 256
+    """The reliable control channel (``Connection.send_control``, docs/PROTOCOL.md 5.10): the
+    largest message, in bytes, this side sends or accepts (a longer one arriving is dropped as
+    ``oversized``). Not negotiated: set the same on both ends."""
+    control_window: int = 64
+    """Control messages not yet acknowledged by the peer that this side holds (queued or in
+    flight): one more raises :class:`~tdtp.errors.ControlQueueFullError`. Also the receive bound:
+    messages that arrived out of order plus those delivered but not yet read by the application."""
+    control_max_rate: float = 200.0
+    """Control MESSAGE datagrams per second this side may send, retransmissions included (a token
+    bucket with a burst of 8): the channel's own cap beside the rate controller's."""
+    control_timeout: float = 20.0
+    """A control message the peer has not acknowledged this many seconds after ``send_control``
+    is given up, with every message after it: a ``ControlExpired`` event, and the channel refuses
+    further messages. Longer than the outages a session rides out (10 s), shorter than
+    ``idle_timeout``'s default."""
     controller: ControllerName = "teleop"
     """Rate controller by registry name: ``teleop`` (the default: queue delay and loss, docs/CONTROL.md
     section 9), ``trinomial`` (the paper's), ``tfrc`` or ``fixed`` (or one registered with
@@ -258,6 +280,19 @@ class ConnectionConfig:
             isinstance(self.max_tracked_packets, int) and self.max_tracked_packets >= 64,
             f"max_tracked_packets must be an integer >= 64, got {self.max_tracked_packets!r}",
         )
+        _require(
+            isinstance(self.control_max_message, int)
+            and 1 <= self.control_max_message <= MAX_CONTROL_MESSAGE,
+            f"control_max_message must be an integer in 1..{MAX_CONTROL_MESSAGE} (bytes), "
+            f"got {self.control_max_message!r}",
+        )
+        _require(
+            isinstance(self.control_window, int) and 1 <= self.control_window <= MAX_CONTROL_WINDOW,
+            f"control_window must be an integer in 1..{MAX_CONTROL_WINDOW} (messages), "
+            f"got {self.control_window!r}",
+        )
+        _positive_finite("control_max_rate", self.control_max_rate, "per second")
+        _positive_finite("control_timeout", self.control_timeout)
         config_type = controller_config_type(self.controller)
         if config_type is None:
             raise InvalidArgumentError(

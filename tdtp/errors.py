@@ -60,6 +60,17 @@ class EmptyPayloadError(TdtpError, ValueError):
     """A sample must have at least one byte: TDTP never sends an empty DATA packet."""
 
 
+class ControlQueueFullError(TdtpError):
+    """The control channel already holds ``control_window`` messages the peer has not acknowledged;
+    send again once some are (the peer may be slow to read them, or unreachable for a while)."""
+
+
+class ControlChannelFailedError(ConnectionStateError):
+    """A control message went unacknowledged for ``control_timeout`` and was given up (the
+    ``ControlExpired`` event said which): in-order delivery cannot go on past it, so the channel
+    takes no more messages. Open a new connection for a fresh one."""
+
+
 class InvalidKeyError(TdtpError, ValueError):
     """Key material or a key argument is unusable: too short, malformed, or given to the wrong role."""
 

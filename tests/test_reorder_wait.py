@@ -205,3 +205,24 @@ def test_a_held_sample_reports_the_time_it_was_delivered_and_its_wait_in_its_age
 def test_max_reorder_wait_is_validated(value: object) -> None:
     with pytest.raises(ValueError, match="max_reorder_wait"):
         ConnectionConfig(max_reorder_wait=value)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("deliver_duplicates", [False, True])
+def test_a_duplicate_goes_up_as_it_came_only_when_asked_for(deliver_duplicates: bool) -> None:
+    from pair import MASTER_ADDR
+
+    path = Direction(keep_wire=True)
+    config = ConnectionConfig(deliver_duplicates=deliver_duplicates)
+    pair = Pair(UNLIMITED, config, ms=path)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(0.5)
+    stats = pair.slave.conn.stats
+    before = stats.samples_delivered
+    data = [d for d in path.wire if d[0] >> 6 == 0]  # DATA; the one 50 ms back has arrived
+    pair.inject(data[-50], to_slave=True, source=MASTER_ADDR)
+    if deliver_duplicates:
+        assert stats.samples_delivered == before + 1
+        assert pair.slave.received[-1].payload == data[-50][5:]
+    else:
+        assert stats.samples_delivered == before and stats.drops["duplicate"] == 1

@@ -63,6 +63,9 @@ FIELDS = [
     "tdtp.pn",
     "tdtp.sealed_len",
     "tdtp.tag",
+    "tdtp.message.seq",
+    "tdtp.message.ack",
+    "tdtp.message_len",
 ]
 HEURISTICS_FIRST = ("-o", "udp.try_heuristic_first:TRUE")
 UNKEYED = (("192.0.2.1", 40001), ("192.0.2.2", 47000))  # 47000: HCrt's port in Wireshark
@@ -109,6 +112,14 @@ def expected_fields(datagram: bytes, keyed: bool) -> dict[str, str]:
         return out
     if datagram[5] == 3:
         out["tdtp.nonce"] = datagram[6:22].hex()
+        return out
+    if datagram[5] == 10:  # MESSAGE: number, next expected, the message
+        out["tdtp.message.seq"] = str(int.from_bytes(datagram[6:8], "big"))
+        out["tdtp.message.ack"] = str(int.from_bytes(datagram[8:10], "big"))
+        out["tdtp.message_len"] = str(len(datagram) - 10)
+        return out
+    if datagram[5] == 11:  # MESSAGE_ACK
+        out["tdtp.message.ack"] = str(int.from_bytes(datagram[6:8], "big"))
         return out
     tag = b""
     body = decode_control(datagram[5:])
@@ -176,7 +187,10 @@ def _session(
     if refused:
         return pair
     pair.start_samples(1000, 1000)
+    pair.master.conn.send_control(b"mode 2", now=pair.now)  # a MESSAGE, answered by MESSAGE_ACK
     pair.run_for(0.03)
+    pair.slave.conn.send_control(b"ready", now=pair.now)
+    pair.master.conn.send_control(b"go", now=pair.now)
     pair.slave.rate = 0.0  # the reverse flow stops: stand-alone ACKs
     pair.run_for(0.03)
     pair.master.rate = 0.0
@@ -207,7 +221,9 @@ def _build(path: Path) -> tuple[dict[int, bool], dict[int, str]]:
         pair.inject(challenge, to_slave=False, source=SLAVE_ADDR)
         response = encode_path_response(token, pair.master.conn.master_nonce)
         pair.inject(encode_header(2, 0, 0, 0, 255) + response, to_slave=True, source=MASTER_ADDR)
-        inject(encode_header(2, 1, 0, 0, 255) + b"\x0a", "Unknown control code")
+        inject(encode_header(2, 1, 0, 0, 255) + b"\x0c", "Unknown control code")
+        inject(encode_header(2, 1, 0, 0, 255) + b"\x0a\x00\x01\x00\x02", "Malformed control")
+        inject(encode_header(2, 1, 0, 0, 255) + b"\x0b\x00", "Malformed control packet")
         inject(encode_header(2, 1, 0, 0, 255) + b"\x03\x00", "Malformed control packet")
         inject(encode_header(2, 0, 0, 0, 255) + b"\x07" + bytes(20), "Malformed control packet")
         open_body = OpenBody(PROTOCOL_VERSION, 0, 0, 0, 0, bytes(16), bytes(8), bytes(16))
@@ -255,7 +271,7 @@ def test_every_packet_type_field_by_field(tmp_path: Path) -> None:
     assert {("0", False), ("1", False), ("2", False), ("0", True), ("1", True), ("2", True)} <= (
         types_seen
     )
-    assert {"1", "2", "3", "4", "5", "6", "8", "9"} <= codes_seen
+    assert {"1", "2", "3", "4", "5", "6", "8", "9", "10", "11"} <= codes_seen
 
 
 def test_the_port_preference_claims_a_port_another_dissector_owns(tmp_path: Path) -> None:

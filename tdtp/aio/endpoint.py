@@ -18,6 +18,12 @@ The watchdog. :attr:`Endpoint.peer_silent`, :meth:`Endpoint.wait_silent`, :meth:
 and ``on_watchdog`` callbacks report the core's :class:`~tdtp.session.events.PeerSilent` and
 :class:`~tdtp.session.events.PeerResumed` events, so a slave can hold its machine while its master is silent.
 
+Control messages. :meth:`Endpoint.send_control` queues a message on the session's reliable control
+channel; the peer reads them, each exactly once and in order, with :meth:`Endpoint.recv_control`,
+``async for message in ep.control_messages()``, or a callback (:meth:`Endpoint.set_control_callback`).
+Unread messages count against the channel's receive bound (``control_window``): an application that
+stops reading makes the peer retransmit, then give up, instead of growing a queue here.
+
 Callbacks that raise. An exception from ``on_data`` or ``on_watchdog`` goes to the loop's exception
 handler (logged by default, as asyncio logs a failed callback) and the session goes on: its timer is
 re-armed and the next samples and events are delivered.
@@ -42,6 +48,8 @@ from tdtp.session.events import (
     CloseCause,
     ConnectionClosed,
     ConnectionEstablished,
+    ControlExpired,
+    ControlReceived,
     DataReceived,
     PeerResumed,
     PeerSilent,
@@ -50,6 +58,7 @@ from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats
 
 __all__ = [
+    "ControlCallback",
     "DataCallback",
     "Endpoint",
     "EndpointClosedError",
@@ -60,6 +69,7 @@ __all__ = [
 DataCallback = Callable[[DataReceived], None]
 WatchdogEvent = PeerSilent | PeerResumed
 WatchdogCallback = Callable[[WatchdogEvent], None]
+ControlCallback = Callable[[ControlReceived | ControlExpired], None]
 
 logger = logging.getLogger("tdtp")
 
@@ -112,6 +122,11 @@ class Endpoint:
         self._newest: DataReceived | None = None
         self._data_waiters: list[asyncio.Future[None]] = []
         self._watch_waiters: list[asyncio.Future[None]] = []
+        self._control: deque[ControlReceived] = deque()
+        self._control_waiters: list[asyncio.Future[None]] = []
+        self._on_control: ControlCallback | None = None
+        self.control_expired: ControlExpired | None = None
+        """The control channel gave up on unacknowledged messages (they are in it), else ``None``."""
         self._established: asyncio.Future[None] = loop.create_future()
         self._closed: asyncio.Future[ConnectionClosed] = loop.create_future()
         self._close_event: ConnectionClosed | None = None
@@ -222,6 +237,17 @@ class Endpoint:
         (synchronously, as the event happens: hold or release the machine there)."""
         self._on_watchdog = on_watchdog
 
+    def set_control_callback(self, on_control: ControlCallback | None) -> None:
+        """Hand every control message (:class:`~tdtp.ControlReceived`, in order) and a
+        :class:`~tdtp.ControlExpired` to ``on_control`` as they happen instead of queueing the
+        messages for :meth:`recv_control`; messages already queued go to it at once."""
+        self._on_control = on_control
+        if on_control is not None:
+            queue = self._control
+            while queue:
+                on_control(queue.popleft())
+            self._conn.control_held(0)
+
     # ------------------------------------------------------------------ sending
 
     def send(self, payload: bytes | bytearray | memoryview) -> None:
@@ -254,6 +280,38 @@ class Endpoint:
             return
         if not sent or conn.timer_hint < self._timer.deadline:
             self._flush(now)
+
+    def send_control(self, message: bytes | bytearray | memoryview) -> None:
+        """Queue a message on the reliable control channel: the peer gets it exactly once and in
+        order, however the network loses, duplicates or reorders it, and samples keep flowing
+        meanwhile. Raises as :meth:`send` does (the size limit is ``control_max_message``),
+        :class:`~tdtp.ControlQueueFullError` while ``control_window`` messages wait for their
+        acknowledgement, and :class:`~tdtp.ControlChannelFailedError` once one was given up."""
+        now = monotonic()
+        try:
+            self._conn.send_control(message, now=now)
+        except ConnectionClosedError as exc:
+            if exc.event is None:
+                raise
+            raise EndpointClosedError(exc.event) from None
+        self._flush(now)
+
+    async def recv_control(self) -> ControlReceived:
+        """The peer's next control message, in the order it sent them. Raises
+        :class:`EndpointClosedError` once the association is over and every message is read."""
+        queue = self._control
+        while True:
+            if queue:
+                message = queue.popleft()
+                self._conn.control_held(len(queue))
+                return message
+            if self._close_event is not None:
+                raise EndpointClosedError(self._close_event)
+            await self._wait(self._control_waiters)
+
+    def control_messages(self) -> AsyncIterator[ControlReceived]:
+        """``async for message in ep.control_messages()``: every control message, in order."""
+        return samples_until_closed(self.recv_control)
 
     # ------------------------------------------------------------------ reading
 
@@ -465,8 +523,27 @@ class Endpoint:
                 queue.append(event)
                 if self._data_waiters:
                     self._wake(self._data_waiters)
+            elif isinstance(event, ControlReceived | ControlExpired):
+                self._on_control_event(event)
             else:
                 self._on_other_event(event)
+
+    def _on_control_event(self, event: ControlReceived | ControlExpired) -> None:
+        if isinstance(event, ControlExpired):
+            self.control_expired = event
+            logger.warning("%s: %s", self._name(), event.detail)
+        on_control = self._on_control
+        if on_control is not None:
+            try:
+                on_control(event)
+            except Exception as exc:  # the application's error: reported, then on
+                self._callback_failed("on_control", exc)
+            return
+        if isinstance(event, ControlReceived):
+            self._control.append(event)
+            self._conn.control_held(len(self._control))
+            if self._control_waiters:
+                self._wake(self._control_waiters)
 
     def _call_watchdog(self, event: PeerSilent | PeerResumed) -> None:
         on_watchdog = self._on_watchdog
@@ -534,6 +611,7 @@ class Endpoint:
                 self._established.exception()  # mark retrieved: connect() reports it itself
             self._wake(self._data_waiters)
             self._wake(self._watch_waiters)
+            self._wake(self._control_waiters)
 
     # ------------------------------------------------------------------ reconnecting (a master)
 

@@ -7,14 +7,16 @@ compile asynchronous generators.
 from __future__ import annotations
 
 from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import TypeVar
 
 from tdtp.errors import EndpointClosedError
-from tdtp.session.events import DataReceived
+
+_Item = TypeVar("_Item")  # a sample (DataReceived) or a control message (ControlReceived)
 
 
 async def samples_until_closed(
-    read: Callable[[], Awaitable[DataReceived]],
-) -> AsyncIterator[DataReceived]:
+    read: Callable[[], Awaitable[_Item]],
+) -> AsyncIterator[_Item]:
     """Yield ``await read()`` until it raises :class:`~tdtp.errors.EndpointClosedError`."""
     while True:
         try:

@@ -10,6 +10,13 @@ from typing import Any
 from tdtp.aio.api import connect, listen
 from tdtp.aio.timer import monotonic
 from tdtp.capture.pcap import PcapWriter
+from tdtp.cli.control_counter import (
+    ControlCounter,
+    control_line,
+    control_loop,
+    control_report,
+    settle_control,
+)
 from tdtp.cli.keys import (
     SessionKeys,
 )
@@ -37,6 +44,8 @@ async def run_demo(args: argparse.Namespace, outcome: Outcome) -> None:
     keys: SessionKeys = args.session_keys
     master_side = Side("master", deadband=side_deadband(args, master=True))
     slave_side = Side("slave", deadband=side_deadband(args, master=False))
+    if args.control_rate is not None:
+        master_side.control, slave_side.control = ControlCounter(), ControlCounter()
     with open_capture(args, outcome) as capture:
         await _demo(args, outcome, config, keys, master_side, slave_side, capture)
 
@@ -76,6 +85,9 @@ async def _demo(
         ) as master,
     ):
         slave = await server.accept()
+        if master_side.control is not None and slave_side.control is not None:
+            master.set_control_callback(master_side.control.on_control)
+            slave.set_control_callback(slave_side.control.on_control)
         start = monotonic()
         until = start + duration
         elapsed: float | None = None
@@ -123,6 +135,10 @@ async def _demo(
                         for label, band in bands
                     )
                 )
+            mc, sc = master_side.control, slave_side.control
+            if mc is not None and sc is not None:
+                lines.append(control_line("M->S", mc, sc, master))
+                lines.append(control_line("S->M", sc, mc, slave))
             display.update(lines)
 
         def summarize() -> None:
@@ -150,18 +166,32 @@ async def _demo(
             if args.deadband is not None:
                 outcome.summary["master_to_slave"]["deadband"] = master_side.deadband_report("m")
                 outcome.summary["slave_to_master"]["deadband"] = slave_side.deadband_report("N")
+            mc, sc = master_side.control, slave_side.control
+            if mc is not None and sc is not None:
+                outcome.summary["master_to_slave"]["control_messages"] = control_report(
+                    mc, sc, master
+                )
+                outcome.summary["slave_to_master"]["control_messages"] = control_report(
+                    sc, mc, slave
+                )
 
         try:
-            sending = asyncio.gather(
+            loops = [
                 send_loop(master, master_side, args.rate, args.size, until, master=True),
                 send_loop(slave, slave_side, args.rate, args.size, until, master=False),
-            )
+            ]
+            for ep, side in ((master, master_side), (slave, slave_side)):
+                if side.control is not None:
+                    loops.append(control_loop(ep, side.control, args.control_rate, until))
+            sending = asyncio.gather(*loops)
             if display is None:
                 await sending
             else:
                 await _with_display(sending, every_second(until, show))
             elapsed = monotonic() - start  # the sending window: rates are per second of it
             await _settle(master, slave)  # let the last samples land before counting
+            if args.control_rate is not None:
+                await settle_control(master, slave)  # every control message acknowledged
         finally:
             summarize()
 

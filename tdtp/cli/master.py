@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import math
 
 from tdtp.aio.api import connect
@@ -10,6 +11,7 @@ from tdtp.aio.endpoint import format_address
 from tdtp.aio.reconnect import ReconnectPolicy
 from tdtp.aio.timer import monotonic
 from tdtp.capture.pcap import PcapWriter
+from tdtp.cli.control_counter import ControlCounter, control_loop, control_report
 from tdtp.cli.live_stats import (
     DirectionMeter,
     LiveDisplay,
@@ -39,6 +41,8 @@ async def run_master(args: argparse.Namespace, outcome: Outcome) -> None:
 async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWriter | None) -> None:
     host, port = args.address
     side = Side("master", deadband=side_deadband(args, master=True))
+    if args.control_rate is not None:
+        side.control = ControlCounter()
     ms_spec, _ = netem_directions(args)
     async with connect(
         host,
@@ -60,6 +64,8 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
         if display is not None:
             display.message(header_line(args, ep) + f", slave {format_address((host, port))}")
         ep.set_watchdog_callback(watchdog_logger(display, start, "master", "slave"))
+        if side.control is not None:
+            ep.set_control_callback(side.control.on_control)
 
         def show(interval: float) -> None:
             assert display is not None
@@ -76,10 +82,23 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
             note = reconnect_note(ep, start)
             if note is not None:
                 lines.append(note)
+            counter = side.control
+            if counter is not None:
+                lines.append(
+                    f"control: sent {counter.sent}, received {counter.delivered} (out of order "
+                    f"{counter.out_of_order}), retransmits {ep.stats.control_retransmits}"
+                )
             display.update(lines)
 
         try:
-            sending = send_loop(ep, side, args.rate, args.size, until, master=True)
+            sending = asyncio.gather(
+                send_loop(ep, side, args.rate, args.size, until, master=True),
+                *(
+                    [control_loop(ep, side.control, args.control_rate, until)]
+                    if side.control is not None
+                    else []
+                ),
+            )
             if display is None:
                 await sending
             else:
@@ -112,6 +131,14 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
             }
             if side.deadband is not None:
                 outcome.summary["master_to_slave"]["deadband"] = side.deadband_report("m")
+            if side.control is not None:
+                summary = outcome.summary
+                summary["master_to_slave"]["control_messages"] = control_report(
+                    side.control, None, ep
+                )
+                summary["slave_to_master"]["control_messages"] = control_report(
+                    None, side.control, None
+                )
             event = ep.close_event
             if event is not None and event.cause is not CloseCause.PEER_CLOSE:
                 outcome.status = EXIT_FAILED

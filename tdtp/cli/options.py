@@ -7,6 +7,7 @@ import argparse
 from collections.abc import Callable
 
 from tdtp import __version__
+from tdtp.cli.control_counter import MAX_CONTROL_RATE
 from tdtp.cli.keys import (
     add_key_arguments,
 )
@@ -28,6 +29,7 @@ MAX_RATE = 100_000.0
 MAX_SIZE = MAX_PAYLOAD
 """The largest --size: the largest payload a session may carry (a keyed one has room for its tag)."""
 DEFAULT_MAX_PAYLOAD = ConnectionConfig().max_payload
+DEFAULT_CONTROL_MAX_RATE = ConnectionConfig().control_max_rate
 
 
 class UsageError(Exception):
@@ -98,6 +100,16 @@ def _duration(text: str) -> float:
     return value
 
 
+def _control_rate(text: str) -> float:
+    value = _number(text)
+    if not (0.0 < value <= MAX_CONTROL_RATE):  # also refuses nan and inf
+        raise argparse.ArgumentTypeError(
+            f"must be a number of control messages per second above 0 and at most "
+            f"{MAX_CONTROL_RATE:g}, got {text}"
+        )
+    return value
+
+
 def _weber_fraction(text: str) -> float:
     value = _number(text)
     if not 0.0 < value < 10.0:
@@ -151,6 +163,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K",
         help="perceptual deadband: send a sample only when it changed by more than K times its "
         "magnitude (e.g. 0.1; the master's position, the slave's force; a heartbeat every 0.1 s)",
+    )
+    common.add_argument(
+        "--control-rate",
+        type=_control_rate,
+        metavar="HZ",
+        help="also send a counter HZ times a second on the reliable control channel and check "
+        "that the peer's arrives in order (control_messages in --json)",
     )
     common.add_argument(
         "--separate-acks",
@@ -309,6 +328,10 @@ def session_config(args: argparse.Namespace) -> ConnectionConfig:
             "(unkeyed, anyone could)"
         )
     controller_config: object | None = None
+    control_rate: float | None = getattr(args, "control_rate", None)
+    control_max_rate = DEFAULT_CONTROL_MAX_RATE
+    if control_rate is not None:  # room for retransmissions beside the counter
+        control_max_rate = max(control_max_rate, 2.0 * control_rate)
     if args.controller == "fixed":
         controller_config = FixedConfig(rate=args.rate)
     try:
@@ -324,6 +347,7 @@ def session_config(args: argparse.Namespace) -> ConnectionConfig:
             min_peer_payload=args.size,
             encrypt=not getattr(args, "no_encrypt", False),
             takeover=takeover,
+            control_max_rate=control_max_rate,
         )
     except InvalidArgumentError as exc:
         field = str(exc).split(" ", 1)[0]

@@ -10,6 +10,7 @@ from typing import Any
 
 from tdtp._build import build_info
 from tdtp.aio.endpoint import Endpoint
+from tdtp.cli.control_counter import ControlCounter
 from tdtp.cli.live_stats import (
     LatencyRecorder,
 )
@@ -40,6 +41,8 @@ class Side:
     deadband: DeadbandSender | None = None
     """``--deadband K``: which of this side's samples are worth sending (master: the position,
     slave: the force)."""
+    control: ControlCounter | None = None
+    """``--control-rate HZ``: this side's counter on the control channel."""
 
     def deadband_report(self, unit: str) -> dict[str, Any] | None:
         """The ``deadband`` entry of the direction this side sends, ``None`` without a deadband."""

@@ -14,6 +14,7 @@ from tdtp.aio.api import Server, listen
 from tdtp.aio.endpoint import Endpoint, format_address
 from tdtp.aio.timer import monotonic
 from tdtp.capture.pcap import PcapWriter
+from tdtp.cli.control_counter import ControlCounter, control_loop, control_report
 from tdtp.cli.keys import (
     SessionKeys,
     warn_if_exposed,
@@ -119,6 +120,9 @@ def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
     }
     if side is not None and side.deadband is not None:
         session["slave_to_master"]["deadband"] = side.deadband_report("N")
+    if side is not None and side.control is not None:
+        session["slave_to_master"]["control_messages"] = control_report(side.control, None, ep)
+        session["master_to_slave"]["control_messages"] = control_report(None, side.control, None)
     return session
 
 
@@ -139,6 +143,9 @@ async def _accept_loop(
             deadband=side_deadband(args, master=False),
         )
         sides[id(ep)] = (ep, side)
+        if args.control_rate is not None:
+            side.control = ControlCounter()
+            ep.set_control_callback(side.control.on_control)
         ep.set_data_callback(side.on_data)
         ep.set_watchdog_callback(
             watchdog_logger(display, start, "slave", f"master {format_address(ep.peer)}")
@@ -161,7 +168,10 @@ async def _serve_one(
     payloads are opaque unless they are the demo's samples) is reported once, on the display or
     stderr and in ``--json``, and ends this session only: the slave goes on serving the others."""
     try:
-        await send_loop(ep, side, args.rate, args.size, until, master=False)
+        loops = [send_loop(ep, side, args.rate, args.size, until, master=False)]
+        if side.control is not None:
+            loops.append(control_loop(ep, side.control, args.control_rate, until))
+        await asyncio.gather(*loops)
     except Exception as exc:
         side.task_error = f"{type(exc).__name__}: {exc}"
         message = f"session with {format_address(ep.peer)} failed: {side.task_error}"
@@ -193,6 +203,12 @@ def _show_slave(
         age = age_text(stats)
         if age is not None:
             line += "  " + age
+        counter = side.control if side is not None else None
+        if counter is not None:
+            line += (
+                f"  control: received {counter.delivered} (out of order {counter.out_of_order}),"
+                f" sent {counter.sent}"
+            )
         note = silence_note(ep, "slave")
         if note is not None:
             line += "  " + note

@@ -14,6 +14,7 @@
   opening), :mod:`~tdtp.session.liveness` (keep-alive, watchdog and idle clocks),
   :mod:`~tdtp.session.recovery` (loss recovery), :mod:`~tdtp.session.ack_scheduler` (the ACKs owed),
   :mod:`~tdtp.session.sender` (the sample waiting to leave), :mod:`~tdtp.session.outbox` (what leaves),
+  :mod:`~tdtp.session.control_channel` (the reliable, ordered control messages beside the samples),
   :mod:`~tdtp.session.event_queue` (the bounded event queue), :mod:`~tdtp.session.timer_hint`,
   :mod:`~tdtp.session.reset_guard` (a master's recent datagrams, which a RESET must echo),
   :mod:`~tdtp.session.path` (the peer's address: validated, or under the 3x amplification limit);

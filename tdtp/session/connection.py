@@ -27,10 +27,11 @@ from typing import Final
 from tdtp.admission.admission import Admission, AdmittedOpen
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.registry import create_controller
-from tdtp.errors import ArgumentTypeError, ConnectionClosedError, ConnectionStateError
+from tdtp.errors import ArgumentTypeError, ConnectionStateError
 from tdtp.protection.keys import KeyInput, KeysInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session.ack_scheduler import AckScheduler
+from tdtp.session.control_channel import ALIVE, TAKEN, ControlChannel, largest_message_body
 from tdtp.session.delivery import SampleDelivery
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import (
@@ -50,12 +51,13 @@ from tdtp.session.receive_window import Arrival
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
-from tdtp.session.state import State
+from tdtp.session.state import State, refusal
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
 from tdtp.session.view import ConnectionView
 from tdtp.wire.control import (
     HANDSHAKE_CODES,
+    MESSAGE_CODES,
     OPEN_BODY_SIZE,
     PATH_CODES,
     CloseBody,
@@ -132,9 +134,8 @@ class Connection(ConnectionView):
         self._opener: PacketOpener | None = None
         self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
         # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
-        self._size_limit = (
-            HEADER_SIZE + max(config.max_payload, _LARGEST_CONTROL) + PROTECTION_OVERHEAD
-        )
+        body = max(config.max_payload, _LARGEST_CONTROL, largest_message_body(config))
+        self._size_limit = HEADER_SIZE + body + PROTECTION_OVERHEAD
         self._controller = controller = create_controller(
             config.controller, config.controller_config
         )
@@ -161,7 +162,10 @@ class Connection(ConnectionView):
             liveness=liveness,
             hint=hint,
         )
-        self._events = EventQueue(config.max_pending_events, stats)
+        self._events = events = EventQueue(config.max_pending_events, stats)
+        self._channel = ControlChannel(
+            config, stats=stats, outbox=outbox, events=events, recovery=recovery, hint=hint
+        )
         # The settings the per-packet paths read, copied out of the (plain Python) config once.
         self._max_payload = config.max_payload
         self._deliver_late = config.deliver_late
@@ -201,17 +205,8 @@ class Connection(ConnectionView):
         """Offer the newest sample (bytes, bytearray or memoryview). It replaces any sample still
         waiting for the pacer or for the socket (which is counted as superseded): stale supermedia
         data is never queued or retransmitted."""
-        state = self._state
-        if state is not State.ESTABLISHED:
-            if state is State.CLOSED:
-                event = self._close_event
-                why = "" if event is None else f" ({event.cause.value}: {event.detail})"
-                raise ConnectionClosedError(
-                    f"the connection is closed{why}; open a new one to send again", event
-                )
-            raise ConnectionStateError(
-                f"cannot send while {state.value}: wait for the ConnectionEstablished event"
-            )
+        if self._state is not State.ESTABLISHED:
+            raise refusal(self._state, self._close_event)
         self._sender.offer(payload, now)
 
     def send_direct(
@@ -248,6 +243,12 @@ class Connection(ConnectionView):
             CloseCause.KEY_EXHAUSTED,
             "the session protected as many packets as its keys may; open a new connection",
         )
+
+    def send_control(self, message: bytes | bytearray | memoryview, *, now: float) -> None:
+        """Queue a message on the reliable control channel (:mod:`tdtp.session.control_channel`)."""
+        if self._state is not State.ESTABLISHED:
+            raise refusal(self._state, self._close_event)
+        self._channel.send(message, now)
 
     def pause_sending(self) -> None:
         """The layer below cannot take datagrams now (the socket's send buffer is full).
@@ -378,6 +379,12 @@ class Connection(ConnectionView):
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
+        elif size > HEADER_SIZE and data[HEADER_SIZE] in MESSAGE_CODES:  # PROTOCOL.md 5.10
+            verdict = self._channel.receive(data, self._state is State.ESTABLISHED, now)
+            if verdict is TAKEN:
+                self._accept(size, size - HEADER_SIZE, now)
+            elif verdict is ALIVE:
+                self._heard(now)  # dropped, but well formed and (keyed) authentic
         else:
             self._on_session_control(data, size, ack, sack, hold, now)
 
@@ -537,7 +544,9 @@ class Connection(ConnectionView):
         if liveness.silent_since is not None:
             self._on_peer_resumed(now)
         sent_at = None if echo is None else now - echo / 2
-        if self._delivery.arrive(data[HEADER_SIZE:], window.last_seq, now, sent_at):
+        if reorder is None:  # no wait, or a duplicate the application asked for: as it came
+            self._delivery.deliver(data[HEADER_SIZE:], window.last_seq, now, now, sent_at)
+        elif self._delivery.arrive(data[HEADER_SIZE:], window.last_seq, now, sent_at):
             self._hint.value = -math.inf  # held: the reorder wait has a deadline
 
     def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:
@@ -647,6 +656,7 @@ class Connection(ConnectionView):
         )
         self._sender.limit = min(self.config.max_payload, body.max_payload)
         acks.open(admitted.initial_seq)
+        self._channel.open(self._recovery.sent.next_seq, admitted.initial_seq)
         self._delivery.open(admitted.initial_seq)
         self._install_protection()
         self._stats.count_handshake(admitted.size, handshake.tag_size)
@@ -674,6 +684,7 @@ class Connection(ConnectionView):
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
         self._acks.open(initial_seq)
+        self._channel.open(self._recovery.sent.next_seq, initial_seq)
         self._delivery.open(initial_seq)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
@@ -733,6 +744,7 @@ class Connection(ConnectionView):
             deadline = self._liveness.watchdog_deadline()
         else:
             deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
+            deadline = self._channel.deadline(deadline)
         loss_deadline = self._recovery.loss_deadline()
         if loss_deadline is not None and loss_deadline < deadline:
             deadline = loss_deadline
@@ -775,6 +787,7 @@ class Connection(ConnectionView):
             self._push_watchdog_event(PeerSilent(liveness.last_receive, now))
             self._controller.on_peer_silent(now=now)
         self._recovery.detect_losses(now)
+        self._channel.expire(now)
         self._delivery.release(now)
         controller_deadline = self._controller.get_timer()
         if controller_deadline is not None and now >= controller_deadline:
@@ -814,6 +827,7 @@ class Connection(ConnectionView):
         acks.emit_held(out, outbox, sent.next_seq, peer, now)  # before the sample: the jump rule
         self._sender.take_due(out, peer, now)
         acks.emit_due(out, outbox, sent.next_seq, peer, now)
+        self._channel.emit(out, sent.next_seq, peer, now, self._path.limited)
         if self._liveness.keepalive_due(now):
             window = acks.window
             assert window is not None

@@ -4,14 +4,16 @@ A peer can fill it (every data packet is an event), so it is bounded by ``max_pe
 application does not keep up, stale supermedia data is worth least: the oldest :class:`DataReceived`
 goes first. Watchdog events (:class:`PeerSilent`, :class:`PeerResumed`) share the bound: with no data
 event left to drop, the oldest watchdog event goes. Lifecycle events (established, closed) are never
-dropped; there is at most one of each.
+dropped; there is at most one of each. Control messages (:class:`ControlReceived`) are never dropped
+either: they must arrive exactly once, so the control channel bounds them itself (it takes no more
+from the peer while ``control_window`` of them wait here or in the driver).
 """
 
 from __future__ import annotations
 
 from collections import deque
 
-from tdtp.session.events import DataReceived, Event, PeerResumed, PeerSilent
+from tdtp.session.events import ControlReceived, DataReceived, Event, PeerResumed, PeerSilent
 from tdtp.session.stats import ConnectionStats
 
 
@@ -22,6 +24,8 @@ class EventQueue:
         self._events: deque[Event] = deque()
         self._max_events = max_events
         self._data_pending = 0  # DataReceived events among them
+        self.control_pending = 0
+        """ControlReceived events among them (the control channel's receive bound counts them)."""
         self._stats = stats
 
     def count(self) -> int:
@@ -35,6 +39,8 @@ class EventQueue:
         event = events.popleft()
         if type(event) is DataReceived:
             self._data_pending -= 1
+        elif type(event) is ControlReceived:
+            self.control_pending -= 1
         return event
 
     def push_data(self, event: DataReceived) -> None:
@@ -44,6 +50,11 @@ class EventQueue:
             self._discard_oldest_data()
         events.append(event)
         self._data_pending += 1
+
+    def push_control(self, event: ControlReceived) -> None:
+        """A control message delivered: always kept (the channel bounds how many wait)."""
+        self._events.append(event)
+        self.control_pending += 1
 
     def push(self, event: Event) -> None:
         """A lifecycle event: always kept."""

@@ -170,4 +170,42 @@ class PeerResumed:
     """The ``now`` the first datagram after the silence arrived."""
 
 
-Event = ConnectionEstablished | DataReceived | ConnectionClosed | PeerSilent | PeerResumed
+@mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
+@dataclass(frozen=True, slots=True)
+class ControlReceived:
+    """One message of the peer's reliable control channel (``send_control`` on its side): each is
+    delivered exactly once, in the order it was sent, however the network lost, duplicated or
+    reordered it (docs/PROTOCOL.md section 5.10)."""
+
+    payload: bytes
+    index: int
+    """The message's place in the peer's sequence: 0 for its first control message, then 1, 2, ..."""
+    received_at: float
+    """The ``now`` it was delivered at (when the messages before it had all arrived)."""
+
+
+@mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
+@dataclass(frozen=True, slots=True)
+class ControlExpired:
+    """Control messages the peer never acknowledged within ``control_timeout`` were given up: the
+    oldest unacknowledged one and every one after it (in-order delivery cannot skip a message).
+    The peer may have received some of them (their acknowledgements may be what was lost); the
+    channel takes no more messages (``ControlChannelFailedError``)."""
+
+    first_index: int
+    """Our index (0 = our first control message) of the oldest message given up."""
+    payloads: tuple[bytes, ...]
+    """The messages given up, oldest first."""
+    detail: str
+    expired_at: float
+
+
+Event = (
+    ConnectionEstablished
+    | DataReceived
+    | ConnectionClosed
+    | PeerSilent
+    | PeerResumed
+    | ControlReceived
+    | ControlExpired
+)

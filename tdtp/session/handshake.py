@@ -42,6 +42,8 @@ from tdtp.wire.control import (
     ControlCode,
     CookieBody,
     KeepaliveBody,
+    MessageAckBody,
+    MessageBody,
     OpenAckBody,
     OpenBody,
     OpenFlags,
@@ -235,7 +237,14 @@ class Handshake:
             stats.count_drop(DropReason.BAD_CONTROL)
             return Reaction.IGNORED
         if isinstance(
-            body, OpenBody | KeepaliveBody | ResetBody | PathChallengeBody | PathResponseBody
+            body,
+            OpenBody
+            | KeepaliveBody
+            | ResetBody
+            | PathChallengeBody
+            | PathResponseBody
+            | MessageBody
+            | MessageAckBody,
         ):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
         elif body.nonce != self.master_nonce:

@@ -1,8 +1,14 @@
-"""Where a session is in its life: :class:`State`."""
+"""Where a session is in its life: :class:`State`, and the error for a call its state refuses."""
 
 from __future__ import annotations
 
 import enum
+from typing import TYPE_CHECKING
+
+from tdtp.errors import ConnectionClosedError, ConnectionStateError
+
+if TYPE_CHECKING:
+    from tdtp.session.events import ConnectionClosed
 
 
 class State(enum.Enum):
@@ -16,3 +22,16 @@ class State(enum.Enum):
     """A master whose OPEN is not answered yet."""
     ESTABLISHED = "established"
     CLOSED = "closed"
+
+
+def refusal(state: State, event: ConnectionClosed | None) -> ConnectionStateError:
+    """Why nothing can be sent in ``state`` (not ESTABLISHED): closed (``event`` says why), or not
+    open yet."""
+    if state is State.CLOSED:
+        why = "" if event is None else f" ({event.cause.value}: {event.detail})"
+        return ConnectionClosedError(
+            f"the connection is closed{why}; open a new one to send again", event
+        )
+    return ConnectionStateError(
+        f"cannot send while {state.value}: wait for the ConnectionEstablished event"
+    )

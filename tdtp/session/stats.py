@@ -56,6 +56,12 @@ class DropReason(enum.Enum):
     """Keyed session: the authentication tag did not verify (forged, corrupted, or another key)."""
     REPLAYED = "replayed"
     """Keyed session: a packet number already accepted, or too old to check (replayed)."""
+    CONTROL_WINDOW = "control_window"
+    """A control MESSAGE numbered beyond the receive window (``control_window`` past the next
+    message expected): more than a conforming peer may have outstanding."""
+    CONTROL_BACKLOG = "control_backlog"
+    """A control MESSAGE that found the receive bound full (messages held out of order plus those
+    delivered but not read by the application): not acknowledged, so the peer sends it again."""
     UNMATCHED_RESET = "unmatched_reset"
     """A RESET that echoes none of our recent datagrams, or (keyed) whose tags do not verify:
     forged, replayed, or too late."""
@@ -156,6 +162,22 @@ class ConnectionStats:
     """Bytes received from a new address before it was validated (the amplification budget's base)."""
     unvalidated_bytes_out: int = 0
     """Bytes sent to a new address before it was validated: at most 3 x ``unvalidated_bytes_in``."""
+    control_sent: int = 0
+    """Control messages the application passed to ``send_control`` (docs/PROTOCOL.md 5.10)."""
+    control_transmissions: int = 0
+    """MESSAGE datagrams sent: first transmissions and retransmissions."""
+    control_retransmits: int = 0
+    """Of ``control_transmissions``: a message sent again (its acknowledgement did not come in time)."""
+    control_acked: int = 0
+    """Own control messages the peer acknowledged."""
+    control_given_up: int = 0
+    """Own control messages given up after ``control_timeout`` (reported by ``ControlExpired``)."""
+    control_delivered: int = 0
+    """The peer's control messages delivered to the application (``ControlReceived``), in order."""
+    control_dropped: dict[str, int] = field(default_factory=dict)
+    """Peer control messages not delivered, by reason: ``duplicate`` (delivered or held already),
+    ``control_window``, ``control_backlog``, ``oversized``, ``bad_control`` and
+    ``optimistic_ack`` (each datagram is also in ``drops`` under the same reason)."""
     rtt_samples: int = 0
     srtt: float = 0.0
     rttvar: float = 0.0

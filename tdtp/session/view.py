@@ -12,6 +12,7 @@ from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.base import RateController
 from tdtp.protection.keys import PresharedKey
 from tdtp.session.ack_scheduler import AckScheduler
+from tdtp.session.control_channel import ControlChannel
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import Address, ConnectionClosed
 from tdtp.session.handshake import Handshake
@@ -40,6 +41,7 @@ class ConnectionView:
     _acks: AckScheduler
     _sender: SampleSender
     _events: EventQueue
+    _channel: ControlChannel
     _close_event: ConnectionClosed | None
     _ages: SampleAgeHistogram
 
@@ -136,6 +138,17 @@ class ConnectionView:
     def pending_events(self) -> int:
         """Events waiting for :meth:`next_event`."""
         return self._events.count()
+
+    def control_held(self, count: int) -> None:
+        """A driver's count of delivered control messages its application has not read yet: they
+        count against the control channel's receive bound (``control_window``). (The one call here
+        that changes anything; it only tells the channel.)"""
+        self._channel.app_unread = count
+
+    @property
+    def control_unacked(self) -> int:
+        """Control messages of ours the peer has not acknowledged yet (queued or in flight)."""
+        return self._channel.unacked
 
     @property
     def transmit_errors(self) -> int:

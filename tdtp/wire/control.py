@@ -16,7 +16,8 @@ Four kinds of control packet exist:
   authenticated datagram instead).
 * **RESET** (a restarted slave's "no session for you") is stateless and in the clear: an echo of the
   datagram that found no session and, keyed, tags under the slave's keys.
-* **Session control** (KEEPALIVE, CLOSE) uses the session's packet protection when keyed, exactly like
+* **Session control** (KEEPALIVE, CLOSE, and the reliable control channel's MESSAGE and MESSAGE_ACK)
+  uses the session's packet protection when keyed, exactly like
   DATA and ACK: ``header | code | PN | sealed body | tag`` (``tdtp.protection``). Unkeyed, it is
   ``header | code | body``.
 
@@ -74,6 +75,12 @@ class ControlCode(enum.IntEnum):
     PATH_RESPONSE = 9
     """master -> slave: the PATH_CHALLENGE's token and the master's nonce, from the master's current
     address."""
+    MESSAGE = 10
+    """either way: one message of the reliable control channel (its 16-bit number, the cumulative
+    acknowledgement of the peer's messages, the message), retransmitted until acknowledged."""
+    MESSAGE_ACK = 11
+    """either way: the cumulative acknowledgement of the peer's control messages alone, when no
+    MESSAGE of ours leaves to carry it."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -86,6 +93,10 @@ PATH_CODES: Final = frozenset(
     int(code) for code in (ControlCode.PATH_CHALLENGE, ControlCode.PATH_RESPONSE)
 )
 """Path validation (unkeyed sessions only; always in the clear)."""
+MESSAGE_CODES: Final = frozenset(
+    int(code) for code in (ControlCode.MESSAGE, ControlCode.MESSAGE_ACK)
+)
+"""The reliable control channel (docs/PROTOCOL.md section 5.10): session control, sealed when keyed."""
 
 
 class OpenFlags(enum.IntFlag):
@@ -246,6 +257,33 @@ class PathResponseBody(NamedTuple):
         return ControlCode.PATH_RESPONSE
 
 
+class MessageBody(NamedTuple):
+    """MESSAGE (either way): one message of the reliable control channel."""
+
+    seq: int
+    """The low 16 bits of the message's number (the sender numbers its messages consecutively)."""
+    ack: int
+    """The low 16 bits of the next message number the sender expects from its peer: every one
+    below it arrived (cumulative acknowledgement)."""
+    data: bytes
+    """The application's message, at least one byte."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.MESSAGE
+
+
+class MessageAckBody(NamedTuple):
+    """MESSAGE_ACK (either way): the cumulative acknowledgement of control messages alone."""
+
+    ack: int
+    """As :attr:`MessageBody.ack`."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.MESSAGE_ACK
+
+
 ControlBody = (
     ResetBody
     | OpenBody
@@ -255,6 +293,8 @@ ControlBody = (
     | KeepaliveBody
     | PathChallengeBody
     | PathResponseBody
+    | MessageBody
+    | MessageAckBody
 )
 
 # Layouts, byte offsets from the code byte (the first byte after the base header).
@@ -269,6 +309,8 @@ _CLOSE: Final = struct.Struct(">B16sB")  # code nonce reason
 _KEEPALIVE: Final = struct.Struct(">B16s")  # code nonce
 _PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
 _PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
+_MESSAGE: Final = struct.Struct(">BHH")  # code seq ack, then the message
+_MESSAGE_ACK: Final = struct.Struct(">BH")  # code ack
 
 OPEN_BODY_SIZE: Final = _OPEN.size
 """48 bytes: with the header an unkeyed OPEN is 53 bytes, a keyed one 69."""
@@ -294,6 +336,12 @@ PATH_CHALLENGE_BODY_SIZE: Final = _PATH_CHALLENGE.size
 that can trigger one (an unkeyed KEEPALIVE)."""
 PATH_RESPONSE_BODY_SIZE: Final = _PATH_RESPONSE.size
 """33 bytes: a PATH_RESPONSE datagram is 38 bytes."""
+MESSAGE_PREFIX_SIZE: Final = _MESSAGE.size
+"""5 bytes before a MESSAGE's data (code, seq, ack): an unkeyed MESSAGE is 10 bytes + the message."""
+MESSAGE_ACK_BODY_SIZE: Final = _MESSAGE_ACK.size
+"""3 bytes: an unkeyed MESSAGE_ACK is 8 bytes, a keyed one 26."""
+MESSAGE_SEQ_MODULUS: Final = 1 << 16
+"""Message numbers travel as their low 16 bits."""
 OPEN_NONCE_OFFSET: Final = struct.calcsize(">BBBBHH")
 """Where an OPEN body carries the master's nonce (after code, version, flags, suite, max_payload and
 attempt): 8."""
@@ -371,6 +419,16 @@ def encode_path_response(token: bytes, nonce: bytes) -> bytes:
     return _PATH_RESPONSE.pack(ControlCode.PATH_RESPONSE, token, nonce)
 
 
+def encode_message(seq: int, ack: int, data: bytes) -> bytes:
+    """A MESSAGE body (code byte included): the low 16 bits of ``seq`` and ``ack``, then ``data``."""
+    return _MESSAGE.pack(ControlCode.MESSAGE, seq & 0xFFFF, ack & 0xFFFF) + data
+
+
+def encode_message_ack(ack: int) -> bytes:
+    """A MESSAGE_ACK body (code byte included)."""
+    return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, ack & 0xFFFF)
+
+
 def _tagged(body: bytes | memoryview, size: int, name: str) -> bytes | memoryview:
     """The fixed part of a handshake body whose KEYED flag (its third byte) says whether a tag
     follows."""
@@ -422,6 +480,21 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, nonce, reason = _CLOSE.unpack(body)
         return CloseBody(code, nonce, reason)
+    if code is ControlCode.MESSAGE:
+        if len(body) <= MESSAGE_PREFIX_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"MESSAGE body of {len(body)} bytes carries no message"
+            )
+        _, seq, ack = _MESSAGE.unpack_from(body)
+        return MessageBody(seq, ack, bytes(body[MESSAGE_PREFIX_SIZE:]))
+    if code is ControlCode.MESSAGE_ACK:
+        if len(body) != MESSAGE_ACK_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control",
+                f"MESSAGE_ACK body is {len(body)} bytes, not {MESSAGE_ACK_BODY_SIZE}",
+            )
+        _, ack = _MESSAGE_ACK.unpack(body)
+        return MessageAckBody(ack)
     if code is ControlCode.PATH_CHALLENGE:
         if len(body) != PATH_CHALLENGE_BODY_SIZE:
             raise MalformedPacketError(

@@ -14,6 +14,7 @@ from construct import (
     BitsInteger,
     BitStruct,
     Bytes,
+    GreedyBytes,
     GreedyRange,
     If,
     Int8ub,
@@ -82,6 +83,10 @@ ResetBody: Any = Struct(
 KeepaliveBody: Any = Struct("nonce" / Bytes(NONCE_SIZE))
 PathChallengeBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE))
 PathResponseBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE), "nonce" / Bytes(NONCE_SIZE))
+MessageBody: Any = Struct("seq" / Int16ub, "ack" / Int16ub, "data" / GreedyBytes)
+"""MESSAGE (the reliable control channel): the message's number and the cumulative acknowledgement
+of the peer's messages (both their low 16 bits), then the message itself (at least one byte)."""
+MessageAckBody: Any = Struct("ack" / Int16ub)
 
 ControlBody: Any = Struct(
     "code" / Int8ub,
@@ -98,6 +103,8 @@ ControlBody: Any = Struct(
             int(ControlCode.KEEPALIVE): KeepaliveBody,
             int(ControlCode.PATH_CHALLENGE): PathChallengeBody,
             int(ControlCode.PATH_RESPONSE): PathResponseBody,
+            int(ControlCode.MESSAGE): MessageBody,
+            int(ControlCode.MESSAGE_ACK): MessageAckBody,
         },
     ),
 )
@@ -129,7 +136,7 @@ ProtectedControl: Any = Struct(
     "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
     "tag" / Bytes(TAG_SIZE),
 )
-"""A keyed session's KEEPALIVE or CLOSE: as ProtectedData, with the control code in the clear
+"""A keyed session's KEEPALIVE, CLOSE, MESSAGE or MESSAGE_ACK: as ProtectedData, with the control code in the clear
 after the header."""
 
 __all__ = [
@@ -138,6 +145,8 @@ __all__ = [
     "CookieBody",
     "Header",
     "KeepaliveBody",
+    "MessageAckBody",
+    "MessageBody",
     "OpenAckBody",
     "OpenBody",
     "PathChallengeBody",

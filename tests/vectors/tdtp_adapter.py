@@ -11,7 +11,7 @@ import random
 from collections import deque
 from typing import Any
 
-from tdtp import Connection, ConnectionConfig, DataReceived, Role
+from tdtp import Connection, ConnectionConfig, ControlReceived, DataReceived, Role
 from tdtp.config import AckMode
 from tdtp.protection.keys import PresharedKey
 from tdtp.wire import CipherSuite, CloseReason, ControlCode, PacketType
@@ -55,6 +55,7 @@ def make_config(config: dict[str, Any]) -> ConnectionConfig:
         encrypt=config.get("encrypt", True),
         deliver_late=config.get("deliver_late", False),
         deliver_duplicates=config.get("deliver_duplicates", False),
+        control_window=config.get("control_window", 64),
         # The reorder wait is the receiver's local choice (PROTOCOL.md 5.5): the scripts pin
         # delivery without one, each new sample at once.
         max_reorder_wait=config.get("max_reorder_wait", 0.0),
@@ -110,6 +111,10 @@ class ScriptRunner:
             conn.connect(ADDRESSES["slave"], now=now)
         elif action == "close":
             conn.close(now=now)
+        elif action == "send_control":
+            conn.send_control(bytes.fromhex(step["message"]), now=now)
+        elif action == "hold_control":
+            conn.control_held(int(step["count"]))
         elif action is None:
             conn.receive_datagram(
                 self._datagram(step["datagram"]), ADDRESSES[step["from"]], now=now
@@ -123,9 +128,12 @@ class ScriptRunner:
             conn.handle_timer(now=now)
         sent = conn.datagrams_to_send(now=now)
         delivered = []
+        control_delivered = []
         while (event := conn.next_event()) is not None:
             if isinstance(event, DataReceived):
                 delivered.append(event.payload.hex())
+            elif isinstance(event, ControlReceived):
+                control_delivered.append(event.payload.hex())
         control = []
         control_hex = []
         for datagram, _addr in sent:
@@ -147,6 +155,8 @@ class ScriptRunner:
             "delivered": delivered,
             "control_sent": control,
         }
+        if control_delivered:
+            expect["control_delivered"] = control_delivered
         if step.get("exact"):
             expect["control_sent_hex"] = control_hex
         return expect

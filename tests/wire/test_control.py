@@ -20,6 +20,8 @@ from tdtp.wire import (
     Header,
     KeepaliveBody,
     MalformedPacketError,
+    MessageAckBody,
+    MessageBody,
     OpenAckBody,
     OpenBody,
     OpenFlags,
@@ -31,6 +33,8 @@ from tdtp.wire import (
     encode_header,
     encode_hold,
     encode_keepalive,
+    encode_message,
+    encode_message_ack,
     encode_open,
     encode_open_ack,
 )
@@ -70,6 +74,8 @@ UNKEYED_SIZES = {
     ControlCode.RESET: 1 + RESET_ECHO_SIZE,
     ControlCode.PATH_CHALLENGE: PATH_CHALLENGE_BODY_SIZE,
     ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
+    ControlCode.MESSAGE: 6,  # the smallest: code, seq, ack and a one-byte message
+    ControlCode.MESSAGE_ACK: 3,
 }
 
 # Whole CONTROL datagrams, derived by hand field by field (docs/PROTOCOL.md section 7 shows the same).
@@ -181,6 +187,10 @@ def encode_body(body: ControlBody) -> bytes:
         return encode_path_challenge(body.token)
     if isinstance(body, PathResponseBody):
         return encode_path_response(body.token, body.nonce)
+    if isinstance(body, MessageBody):
+        return encode_message(body.seq, body.ack, body.data)
+    if isinstance(body, MessageAckBody):
+        return encode_message_ack(body.ack)
     return encode_keepalive(body.nonce)
 
 
@@ -196,6 +206,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "RESET": 7,
         "PATH_CHALLENGE": 8,
         "PATH_RESPONSE": 9,
+        "MESSAGE": 10,
+        "MESSAGE_ACK": 11,
     }
     assert {r.name: int(r) for r in CloseReason} == {
         "NORMAL": 0,
@@ -334,7 +346,7 @@ def test_empty_body_is_rejected() -> None:
     assert_bad_control(b"")
 
 
-@pytest.mark.parametrize("code", [0, *range(10, 256)])
+@pytest.mark.parametrize("code", [0, *range(12, 256)])
 def test_unknown_code_is_rejected(code: int) -> None:
     assert_bad_control(bytes([code]))
     assert_bad_control(bytes([code]) + bytes(12))
@@ -347,7 +359,8 @@ def test_every_wrong_size_is_rejected(code: ControlCode) -> None:
         # Flag byte 0xA9 (where a body has flags): KEYED clear, so no tag is expected.
         body = bytes([code]) + b"\xa9" * (size - 1)
         tags = size - good  # a RESET carries whole 16-byte tags after its echo (keyed)
-        if size == good or (code is ControlCode.RESET and tags > 0 and tags % 16 == 0):
+        longer = code is ControlCode.MESSAGE and size > good  # a message of any length
+        if size == good or longer or (code is ControlCode.RESET and tags > 0 and tags % 16 == 0):
             assert decode_control(body).code == code
         else:
             assert_bad_control(body)
@@ -363,7 +376,7 @@ def test_arbitrary_bytes_decode_or_raise_bad_control(body: bytes) -> None:
     tag = b""
     if isinstance(decoded, OpenBody | OpenAckBody) and decoded.flags & OpenFlags.KEYED:
         tag = body[-TAG_SIZE:]
-    if isinstance(decoded, ResetBody):
+    if isinstance(decoded, ResetBody | MessageBody):  # of variable length
         assert encode_body(decoded) == body
         return
     assert len(body) == UNKEYED_SIZES[decoded.code] + len(tag)

@@ -20,6 +20,8 @@ from tdtp.wire import (
     Header,
     KeepaliveBody,
     MalformedPacketError,
+    MessageAckBody,
+    MessageBody,
     OpenAckBody,
     OpenBody,
     OpenFlags,
@@ -32,6 +34,8 @@ from tdtp.wire import (
     encode_cookie,
     encode_header,
     encode_keepalive,
+    encode_message,
+    encode_message_ack,
     encode_open,
     encode_open_ack,
     encode_path_challenge,
@@ -208,6 +212,58 @@ def test_path_bodies_agreement(token: bytes, nonce: bytes) -> None:
     parsed = schema.ControlBody.parse(response)
     assert (parsed.body.token, parsed.body.nonce) == (token, nonce)
     assert decode_control(response) == PathResponseBody(token, nonce)
+
+
+@given(u16, u16, st.binary(min_size=1, max_size=300))
+def test_message_body_agreement(seq: int, ack: int, data: bytes) -> None:
+    fast = encode_message(seq, ack, data)
+    assert len(fast) == 5 + len(data)
+    fields = {"seq": seq, "ack": ack, "data": data}
+    assert schema_control_bytes(ControlCode.MESSAGE, fields) == fast
+    parsed = schema.ControlBody.parse(fast)
+    assert (parsed.code, parsed.body.seq, parsed.body.ack, parsed.body.data) == (
+        ControlCode.MESSAGE,
+        seq,
+        ack,
+        data,
+    )
+    assert decode_control(fast) == MessageBody(seq, ack, data)
+
+
+@given(u16)
+def test_message_ack_body_agreement(ack: int) -> None:
+    fast = encode_message_ack(ack)
+    assert len(fast) == 3
+    assert schema_control_bytes(ControlCode.MESSAGE_ACK, {"ack": ack}) == fast
+    assert schema.ControlBody.parse(fast).body.ack == ack
+    assert decode_control(fast) == MessageAckBody(ack)
+
+
+@given(st.binary(max_size=8))
+def test_short_or_long_message_bodies_are_malformed(rest: bytes) -> None:
+    """A MESSAGE without a message byte, or a MESSAGE_ACK of any other length, is bad_control."""
+    if len(rest) <= 4:
+        with pytest.raises(MalformedPacketError):
+            decode_control(bytes([ControlCode.MESSAGE]) + rest)
+    if len(rest) != 2:
+        with pytest.raises(MalformedPacketError):
+            decode_control(bytes([ControlCode.MESSAGE_ACK]) + rest)
+
+
+@given(headers.map(lambda h: h._replace(ptype=2)), u16, st.binary(min_size=5, max_size=40), b16)
+def test_protected_message_layout_agrees(
+    header: Header, number: int, sealed: bytes, tag: bytes
+) -> None:
+    """A keyed MESSAGE: the code in the clear after the header, then PN, sealed body, tag."""
+    fast = encode_header(*header) + bytes([ControlCode.MESSAGE]) + number.to_bytes(2, "big")
+    fast += sealed + tag
+    parsed = schema.ProtectedControl.parse(fast)
+    assert (parsed.code, parsed.packet_number, parsed.sealed) == (
+        ControlCode.MESSAGE,
+        number,
+        sealed,
+    )
+    assert schema.ProtectedControl.build(parsed) == fast
 
 
 @given(st.binary(min_size=OPEN_BODY_SIZE - 1, max_size=OPEN_BODY_SIZE - 1), st.binary(max_size=16))

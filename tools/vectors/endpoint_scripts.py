@@ -19,6 +19,8 @@ from tdtp.wire import (
     encode_cookie,
     encode_header,
     encode_keepalive,
+    encode_message,
+    encode_message_ack,
     encode_open,
     encode_open_ack,
     encode_reset,
@@ -480,6 +482,66 @@ def master_session() -> dict[str, Any]:
     }
 
 
+def slave_control_channel() -> dict[str, Any]:
+    """The reliable control channel (section 5.10) at a slave whose control_window is 4: a lost
+    MESSAGE, the next one held, the retransmission delivering both in order, a duplicate, the slave's
+    own message retransmitted after its loss delay, and every way a MESSAGE can be dropped."""
+    m = 0xF000 | MASTER_ISN  # the master's first message number
+    s = 0xF000 | SLAVE_ISN  # the slave's
+    header = encode_header(2, MASTER_ISN, 0, 0, 255)
+
+    def message(seq: int, ack: int, data: bytes) -> str:
+        return _hex(header + encode_message(seq, ack, data))
+
+    def message_ack(ack: int) -> str:
+        return _hex(header + encode_message_ack(ack))
+
+    steps = [
+        *_opening(),
+        _step(
+            0.021,
+            "master",
+            message(m + 1, s, b"c1"),
+            exact=True,
+            note="the master's message 1; message 0 was lost on its way: held, not delivered, and "
+            "acknowledged as 'next expected: message 0'",
+        ),
+        _step(
+            0.022,
+            "master",
+            message(m, s, b"c0"),
+            exact=True,
+            note="message 0 retransmitted: 0 and 1 delivered in order",
+        ),
+        _step(
+            0.023, "master", message(m + 1, s, b"c1"), note="message 1 again: acknowledged again"
+        ),
+        _action(0.024, "send_control", message="6f6b", exact=True, note="the slave sends 'ok'"),
+        _action(
+            0.35,
+            "advance",
+            exact=True,
+            note="no acknowledgement within the loss delay (0.32 s: no RTT sample yet): sent again",
+        ),
+        _step(0.36, "master", message_ack(s + 1), note="the master acknowledges it"),
+        _step(0.37, "master", message_ack(s + 5), note="acknowledges messages never sent"),
+        _step(0.38, "master", message(m + 6, s + 1, b"c6"), note="4 past the next expected"),
+        _step(0.39, "master", _hex(header + encode_message(m + 2, s + 1, b"")), note="no message"),
+        _step(0.40, "master", message(m + 2, s + 1, bytes(257)), note="over control_max_message"),
+        _action(0.41, "hold_control", count=4, note="the application holds 4 unread messages"),
+        _step(0.411, "master", message(m + 2, s + 1, b"c2"), note="the receive bound is full"),
+        _action(0.42, "hold_control", count=0, note="the application read them"),
+        _step(0.421, "master", message(m + 2, s + 1, b"c2"), note="retransmitted: delivered"),
+    ]
+    return {
+        "name": "slave: the reliable control channel",
+        "role": "slave",
+        "config": {"max_payload": 1200, "control_window": 4},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
 def all_scripts() -> list[dict[str, Any]]:
     return [
         slave_session(),
@@ -490,4 +552,5 @@ def all_scripts() -> list[dict[str, Any]]:
         master_rejected(),
         master_payload_too_small(),
         keyed_master_session(),
+        slave_control_channel(),
     ]

@@ -50,6 +50,8 @@ from tdtp.wire import (  # noqa: E402
     encode_header,
     encode_hold,
     encode_keepalive,
+    encode_message,
+    encode_message_ack,
     encode_open,
     encode_open_ack,
     encode_path_challenge,
@@ -357,6 +359,11 @@ def control_vectors() -> dict[str, Any]:
         ("PATH_CHALLENGE (the cookie's format)", encode_path_challenge(COOKIE_BYTES)),
         ("PATH_RESPONSE", encode_path_response(COOKIE_BYTES, MASTER_NONCE)),
         ("CLOSE NORMAL", encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
+        (
+            "MESSAGE E-STOP, number 0xFFFF, next expected 0xF0C4 (7.7)",
+            encode_message(0xFFFF, 0xF0C4, b"E-STOP"),
+        ),
+        ("MESSAGE_ACK, next expected 0x0000 (past the wrap)", encode_message_ack(0)),
         ("CLOSE with an unknown reason 200", encode_close(ControlCode.CLOSE, MASTER_NONCE, 200)),
         ("REJECT BUSY", encode_close(ControlCode.REJECT, MASTER_NONCE, CloseReason.BUSY)),
         (
@@ -386,7 +393,10 @@ def control_vectors() -> dict[str, Any]:
     broken: list[tuple[str, bytes]] = [
         ("no code byte", b""),
         ("code 0", b"\x00"),
-        ("code 10", b"\x0a" + bytes(17)),
+        ("code 12", b"\x0c" + bytes(17)),
+        ("MESSAGE without a message", encode_message(1, 2, b"")),
+        ("MESSAGE_ACK one byte long", encode_message_ack(1) + b"\x00"),
+        ("MESSAGE_ACK one byte short", encode_message_ack(1)[:-1]),
         ("RESET one byte short of its echo", b"\x07" + bytes(15)),
         ("RESET with a partial tag", b"\x07" + bytes(16 + 15)),
         ("code 255", b"\xff"),

@@ -8,7 +8,7 @@
 -- What it decodes: the 5-byte base header (TYPE, SEQ, ACK, SACK, HOLD with the hold time in
 -- microseconds, and which peer packets the ACK/SACK fields report received or absent), DATA
 -- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, RESET,
--- PATH_CHALLENGE, PATH_RESPONSE), and
+-- PATH_CHALLENGE, PATH_RESPONSE, and the reliable control channel's MESSAGE and MESSAGE_ACK), and
 -- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
 -- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
 -- expert info (Analyze > Expert Information; tshark: -z expert).
@@ -27,6 +27,7 @@ local CODE_NAMES = {
     [1] = "OPEN", [2] = "OPEN_ACK", [3] = "KEEPALIVE", [4] = "CLOSE", [5] = "REJECT", [6] = "COOKIE",
     [7] = "RESET",
     [8] = "PATH_CHALLENGE", [9] = "PATH_RESPONSE",
+    [10] = "MESSAGE", [11] = "MESSAGE_ACK",
 }
 local SUITE_NAMES = { [0] = "none", [1] = "AES-128-GCM", [2] = "ChaCha20-Poly1305" }
 local REASON_NAMES = {
@@ -85,6 +86,10 @@ f.pn = ProtoField.uint16("tdtp.pn", "Packet number (low 16 bits)", base.DEC)
 f.sealed = ProtoField.bytes("tdtp.sealed", "Sealed body")
 f.sealed_len = ProtoField.uint16("tdtp.sealed_len", "Sealed body length", base.DEC)
 f.keyed = ProtoField.bool("tdtp.keyed", "Keyed session")
+f.msg_seq = ProtoField.uint16("tdtp.message.seq", "Message number (low 16 bits)", base.DEC_HEX)
+f.msg_ack = ProtoField.uint16("tdtp.message.ack", "Next message expected from the peer (low 16 bits)", base.DEC_HEX)
+f.message = ProtoField.bytes("tdtp.message", "Control message")
+f.message_len = ProtoField.uint16("tdtp.message_len", "Control message length", base.DEC)
 
 local e = tdtp.experts
 e.truncated = ProtoExpert.new("tdtp.truncated", "Truncated: shorter than the 5-byte header",
@@ -373,6 +378,38 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         tree:add(f.path_token, tvb(HEADER + 1, 16))
         if code == 9 then tree:add(f.nonce, tvb(HEADER + 17, 16)) end
         return name
+    end
+    -- The reliable control channel (section 5.10): session control, protected in a keyed session.
+    if code == 10 or code == 11 then
+        if keyed then
+            if length < HEADER + 1 + PN + TAG then
+                tree:add_proto_expert_info(e.keyed_short)
+                return name .. " (truncated)"
+            end
+            local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
+            if (code == 10 and sealed < 5) or (code == 11 and sealed ~= 2) then
+                tree:add_proto_expert_info(e.bad_control)
+            end
+            return string.format("%s pn=%d", name, pn)
+        end
+        if code == 11 then
+            if length ~= HEADER + 3 then
+                tree:add_proto_expert_info(e.bad_control)
+                return name .. " (wrong length)"
+            end
+            tree:add(f.msg_ack, tvb(HEADER + 1, 2))
+            return string.format("MESSAGE_ACK next=%d", tvb(HEADER + 1, 2):uint())
+        end
+        if length < HEADER + 6 then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (no message)"
+        end
+        tree:add(f.msg_seq, tvb(HEADER + 1, 2))
+        tree:add(f.msg_ack, tvb(HEADER + 3, 2))
+        tree:add(f.message_len, length - HEADER - 5):set_generated()
+        tree:add(f.message, tvb(HEADER + 5, length - HEADER - 5))
+        return string.format("MESSAGE seq=%d next=%d len=%d", tvb(HEADER + 1, 2):uint(),
+            tvb(HEADER + 3, 2):uint(), length - HEADER - 5)
     end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then
