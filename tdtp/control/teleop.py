@@ -63,6 +63,15 @@ NOISE_GAIN: Final = 0.125
 """Gain of the moving average of the standing RTT's interval-to-interval change."""
 NOISE_CAP: Final = 0.005
 """One interval's change counts at most this much (s) in it: a queue building up is not noise."""
+JITTER_GAIN: Final = 1.0 / 16.0
+"""Gain of the moving average of the difference between consecutive RTT samples (RFC 3550's
+interarrival jitter, on round trips)."""
+JITTER_SHARE: Final = 1.5
+"""Standing delay tolerated per unit of that jitter: a FIFO whose packets draw random delays (netem
+with a rate, a radio link's scheduler) holds each one behind slower ones, which lifts the floor of a
+fast flow's RTT samples by up to the jitter's range although nothing queues for lack of capacity."""
+JITTER_CAP: Final = 0.020
+"""The jitter's share of the target is at most this (s)."""
 
 LIMIT_APPLICATION: Final = "application"
 """The application sends less than it is allowed: nothing on the path holds it back."""
@@ -263,6 +272,8 @@ class TeleopController(RateController):
         self._iv_min_rtt = math.inf
         self._iv_samples = 0
         self._iv_acked = 0
+        self._last_sample = math.nan  # the previous RTT sample, for the jitter
+        self._jitter = 0.0
         self._queue_delay = 0.0
         self._prev_queue_delay = 0.0
         self._prev2_queue_delay = 0.0
@@ -468,6 +479,12 @@ class TeleopController(RateController):
         if sample < self._iv_min_rtt:
             self._iv_min_rtt = sample
         self._iv_samples += 1
+        last = self._last_sample
+        if not math.isnan(last):
+            # Random delays make consecutive samples differ by about the delays' spread; a queue
+            # building up moves them by a packet's transmit time at a time, and adds almost nothing.
+            self._jitter += JITTER_GAIN * (abs(sample - last) - self._jitter)
+        self._last_sample = sample
 
     def _advance(self, now: float) -> None:
         if not self._started:
@@ -491,9 +508,22 @@ class TeleopController(RateController):
             self._end_interval(now)
 
     def _target(self) -> float:
-        """The queue delay that counts as congestion: the configured target plus twice the
-        interval-to-interval noise of the standing RTT."""
-        return self._cfg.target_queue_delay + 2.0 * self._noise
+        """The queue delay that counts as congestion: the configured target, plus twice the
+        interval-to-interval noise of the standing RTT, plus ``JITTER_SHARE`` times the path's RTT
+        jitter (at most ``JITTER_CAP``): on a jittery FIFO path a fast flow's standing RTT sits
+        above a slow flow's by up to the jitter's range with no queue for capacity (docs/CONTROL.md
+        9.2)."""
+        jitter = JITTER_SHARE * self._jitter
+        return (
+            self._cfg.target_queue_delay
+            + 2.0 * self._noise
+            + (jitter if jitter < JITTER_CAP else JITTER_CAP)
+        )
+
+    @property
+    def jitter(self) -> float:
+        """The moving average of the difference between consecutive RTT samples (s)."""
+        return self._jitter
 
     def _nominal_interval(self) -> float:
         return max(self._srtt, self._cfg.interval)

@@ -4,6 +4,7 @@ byte-based TCP-friendly ceiling, the opt-in floor, and its config's validation."
 from __future__ import annotations
 
 import math
+import random
 from collections import deque
 from collections.abc import Callable
 
@@ -99,6 +100,27 @@ def test_a_sustained_queue_above_the_target_cuts_the_rate() -> None:
     assert controller.delay_decrease_count >= 1
     assert controller.rate < 1000.0
     assert controller.queue_delay > controller.config.target_queue_delay
+
+
+def test_a_jittery_path_whose_floor_rises_with_the_rate_is_not_a_queue() -> None:
+    # RTT samples spread over 20 ms at random; then the floor rises 8 ms (a FIFO with random delays
+    # holds a fast flow's packets behind slower ones). A flat 8 ms rise would be a queue to cut;
+    # with that jitter it is within 1.5 x the jitter the threshold allows.
+    rng = random.Random(5)
+    controller = TeleopController()
+    end = drive(controller, duration=2.0, rtt=lambda _: 0.040 + rng.uniform(0.0, 0.020))
+    drive(controller, start=end, duration=2.0, rtt=lambda _: 0.048 + rng.uniform(0.0, 0.020))
+    assert controller.jitter == pytest.approx(0.0067, abs=0.0015)  # E|U - U'| of U(0, 20 ms)
+    assert controller.delay_decrease_count == 0
+    assert controller.rate >= 1000.0
+
+
+def test_the_same_rise_without_jitter_is_a_queue() -> None:
+    controller = TeleopController()
+    end = drive(controller, duration=2.0, rtt=flat(0.040))
+    drive(controller, start=end, duration=2.0, rtt=flat(0.052))
+    assert controller.jitter < 0.0005
+    assert controller.delay_decrease_count >= 1
 
 
 def test_queue_below_the_target_does_not_cut() -> None:
