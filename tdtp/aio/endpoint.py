@@ -27,11 +27,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
+from tdtp.aio.outbox import SocketOutbox
 from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
 from tdtp.aio.timer import monotonic
@@ -76,6 +78,14 @@ def format_address(addr: Address | None) -> str:
     return f"[{host}]:{port}" if ":" in str(host) else f"{host}:{port}"
 
 
+def rx_time_of(stamp: int, now: float, wall_ns: int) -> float | None:
+    """A kernel receive time (``SO_TIMESTAMPNS``: ns on the realtime clock, -1 for none) on the
+    :func:`~tdtp.aio.timer.monotonic` clock, given both clocks read at ``now`` / ``wall_ns``."""
+    if stamp < 0:
+        return None
+    return now - (wall_ns - stamp) * 1e-9
+
+
 class Endpoint:
     """A master's or slave's end of one association. Create it with :func:`tdtp.connect` or take it
     from a :class:`tdtp.Server`; do not construct it directly."""
@@ -94,9 +104,13 @@ class Endpoint:
         transport_closed: Callable[[], Awaitable[None]] | None = None,
         reconnect: ReconnectPolicy | None = None,
         new_connection: Callable[[], Connection] | None = None,
+        outbox: SocketOutbox | None = None,
     ) -> None:
         self._conn = conn
         self._transport = transport
+        # On the batched datagram layer: the socket's outbox, which takes what is sent while the
+        # loop serves a wake-up (tdtp.aio.outbox) and sends it with one sendmmsg at its end.
+        self._out = outbox
         self._connected = connected
         loop = asyncio.get_running_loop()
         self._loop = loop
@@ -235,11 +249,16 @@ class Endpoint:
         """
         now = monotonic()
         conn = self._conn
+        out = self._out
         try:
-            # The common case leaves at once: encoded and handed to the socket before the
+            # The common case leaves at once: encoded and handed to the socket (or, during a
+            # wake-up on the batched layer, to the outbox flushed at its end) before the
             # connection's bookkeeping (the round trip does not wait for it).
             sent = conn.send_direct(
-                payload, self._transport.sendto, connected=self._connected, now=now
+                payload,
+                out.append if out is not None and out.owner.depth else self._transport.sendto,
+                connected=self._connected,
+                now=now,
             )
         except ConnectionClosedError as exc:
             event = exc.event
@@ -376,6 +395,29 @@ class Endpoint:
         self._conn.receive_datagram(data, addr, now=now)
         self._flush(now)
 
+    def receive_batch(
+        self,
+        datas: list[bytes],
+        addrs: list[Address],
+        stamps: list[int] | None,
+        classes: list[int] | None,
+    ) -> None:
+        """A batch from the datagram layer (one ``recvmmsg``), oldest first: one clock read, every
+        datagram handed to the core in order, one flush. ``stamps`` are the kernel's receive times
+        (``SO_TIMESTAMPNS``, ns on the realtime clock) and ``classes`` the TOS / traffic class
+        bytes, parallel to ``datas`` (-1 where the kernel gave none), or ``None``."""
+        now = monotonic()
+        wall = time.time_ns() if stamps is not None else 0
+        conn = self._conn
+        for i in range(len(datas)):
+            rx_time = rx_time_of(stamps[i], now, wall) if stamps is not None else None
+            ecn = classes[i] & 3 if classes is not None and classes[i] >= 0 else None
+            conn.receive_datagram(datas[i], addrs[i], now=now, rx_time=rx_time, ecn=ecn)
+            if conn.state is State.CLOSED:
+                self._flush(now)  # ended (or reopening): what follows finds the next session
+                conn = self._conn
+        self._flush(now)
+
     def pause_writing(self) -> None:
         """The socket's send buffer is backed up: hold data until :meth:`resume_writing`."""
         if not self._conn.sending_paused:
@@ -417,7 +459,10 @@ class Endpoint:
     def _flush(self, now: float | None = None) -> None:
         conn = self._conn
         datagrams = conn.datagrams_to_send(now=monotonic() if now is None else now)
-        if datagrams:
+        out = self._out
+        if datagrams and out is not None and out.owner.depth:
+            out.extend(datagrams, self._connected)  # one sendmmsg when the wake-up ends
+        elif datagrams:
             sendto = self._transport.sendto
             connected = self._connected
             for data, addr in datagrams:

@@ -127,6 +127,9 @@ class Connection(ConnectionView):
         )
         self._state = State.IDLE if role is Role.MASTER else State.LISTENING
         self._peer: Address | None = None
+        self.last_rx_time: float | None = None
+        """The kernel's receive time of the last datagram from the peer's address, when the
+        driver passed one (``receive_datagram(rx_time=)``)."""
         self._path = PeerPath(config, stats)  # the peer's address: validated, or under the 3x limit
         # The peer's packet protection, once keyed (Handshake.keys; ours is the outbox's sealer).
         self._opener: PacketOpener | None = None
@@ -288,8 +291,21 @@ class Connection(ConnectionView):
 
     # ------------------------------------------------------------------ input
 
-    def receive_datagram(self, data: bytes, addr: Address, *, now: float) -> None:
-        """Take one datagram from the network. Never raises on its content."""
+    def receive_datagram(
+        self,
+        data: bytes,
+        addr: Address,
+        *,
+        now: float,
+        rx_time: float | None = None,
+        ecn: int | None = None,
+    ) -> None:
+        """Take one datagram from the network. Never raises on its content.
+
+        Optional inputs a driver may know: ``rx_time``, when the kernel received it (on the same
+        clock as ``now``; kept as :attr:`last_rx_time` for a controller that wants the exact
+        one-way delay), and ``ecn``, the IP header's ECN field (0-3; ``3``, Congestion
+        Experienced, is counted in ``stats.ecn_ce``). The core reads no clock for either."""
         stats = self._stats
         stats.datagrams_in += 1
         if self._state is State.CLOSED:
@@ -299,6 +315,10 @@ class Connection(ConnectionView):
         if peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
             stats.count_drop(DropReason.WRONG_ADDRESS)
             return
+        if rx_time is not None:
+            self.last_rx_time = rx_time
+        if ecn == 3:
+            stats.ecn_ce += 1
         size = len(data)
         if size < HEADER_SIZE:
             stats.count_drop(DropReason.TRUNCATED)
