@@ -55,6 +55,7 @@ COMPILED = [
     "tdtp/control/tfrc.py",
     "tdtp/control/trinomial.py",
     "tdtp/control/registry.py",
+    "tdtp/aio/outbox.py",
     "tdtp/aio/loop_timers.py",
     "tdtp/aio/endpoint.py",
 ]

@@ -67,6 +67,7 @@ COMPILED_MODULES: Final = (
     "tdtp.control.tfrc",
     "tdtp.control.trinomial",
     "tdtp.control.registry",
+    "tdtp.aio.outbox",
     "tdtp.aio.loop_timers",
     "tdtp.aio.endpoint",
 )

@@ -66,8 +66,7 @@ class BatchedDatagramTransport(asyncio.DatagramTransport):
         self._loop_outbox: LoopOutbox = loop_outbox(asyncio.get_running_loop())
         self.outbox: SocketOutbox | None = None
         """This socket's share of the loop's outbox (set once attached)."""
-        self.batch_receiver: BatchReceiver | None = None
-        """Takes each receive batch in one call when set (else ``datagram_received`` each)."""
+        self._batch_receiver: BatchReceiver | None = None
 
     def _attach(self, layer: DatagramLayer) -> None:
         self._layer = layer
@@ -77,6 +76,20 @@ class BatchedDatagramTransport(asyncio.DatagramTransport):
     @property
     def layer(self) -> DatagramLayer | None:
         return self._layer
+
+    @property
+    def batch_receiver(self) -> BatchReceiver | None:
+        """Takes each receive batch in one call, straight from the engine, when set (else the
+        protocol's ``datagram_received`` gets each datagram). It is a wake-up of the loop's outbox
+        of its own: it holds the outbox while it hands the batch on (``Endpoint.receive_batch``,
+        ``tdtp.aio.endpoint.demultiplex``)."""
+        return self._batch_receiver
+
+    @batch_receiver.setter
+    def batch_receiver(self, receiver: BatchReceiver | None) -> None:
+        self._batch_receiver = receiver
+        if self._layer is not None:
+            self._layer.set_receiver(receiver if receiver is not None else self._on_receive)
 
     # -- called by the layer
 
@@ -88,15 +101,11 @@ class BatchedDatagramTransport(asyncio.DatagramTransport):
         classes: list[int] | None,
     ) -> None:
         outbox = self._loop_outbox
-        outbox.depth += 1  # a wake-up: what the endpoints send now leaves in one batch
+        outbox.hold()  # a wake-up: what the endpoints send now leaves in one batch
         try:
-            receiver = self.batch_receiver
-            if receiver is not None:
-                receiver(datas, addrs, stamps, classes)
-            else:
-                receive = self._protocol.datagram_received  # per batch: tdtp rebinds it
-                for data, addr in zip(datas, addrs, strict=True):
-                    receive(data, addr)
+            receive = self._protocol.datagram_received  # per batch: tdtp rebinds it
+            for data, addr in zip(datas, addrs, strict=True):
+                receive(data, addr)
         finally:
             outbox.release()
 

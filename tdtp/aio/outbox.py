@@ -17,7 +17,6 @@ once, as before.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import weakref
 from collections.abc import Callable
 
@@ -31,8 +30,6 @@ Item = tuple[bytes, Address | None]
 
 class SocketOutbox:
     """The datagrams queued for one socket during the current wake-up."""
-
-    __slots__ = ("_send_batch", "closed", "items", "owner", "queued")
 
     def __init__(self, owner: LoopOutbox, send_batch: Callable[[list[Item]], int]) -> None:
         self.owner = owner
@@ -65,9 +62,10 @@ class SocketOutbox:
         if items and not self.closed:
             self.owner.batches += 1
             self.owner.datagrams += len(items)
-            # A socket closed during the wake-up: lost, as on any closed socket.
-            with contextlib.suppress(DatagramLayerClosedError):
+            try:
                 self._send_batch(items)
+            except DatagramLayerClosedError:
+                self.closed = True  # closed during the wake-up: lost, as on any closed socket
 
     def close(self) -> None:
         self.closed = True

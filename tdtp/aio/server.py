@@ -4,7 +4,7 @@ One UDP socket for any number of masters, up to ``max_peers``: an OPEN from an u
 through the shared :class:`~tdtp.admission.Admission` (cookie, rate limit, keys) before any state
 exists, and each admitted master gets an :class:`~tdtp.aio.endpoint.Endpoint`, found again by its
 address for every datagram that follows. On the batched datagram layer the server takes each
-``recvmmsg`` batch in one call (:meth:`Server._batch_received`): one clock read, each datagram handed
+``recvmmsg`` batch in one call (:class:`~tdtp.aio.endpoint.Demultiplexer`): one clock read, each datagram handed
 to its session's core, then one flush per session touched and one ``sendmmsg`` for all of them.
 """
 
@@ -14,7 +14,6 @@ import asyncio
 import logging
 import socket
 import sys
-import time
 from collections import deque
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
@@ -25,10 +24,10 @@ from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpoint
 from tdtp.aio.endpoint import (
     DataCallback,
+    Demultiplexer,
     Endpoint,
     WatchdogCallback,
     format_address,
-    rx_time_of,
 )
 from tdtp.aio.impairment import ImpairedTransport
 from tdtp.aio.opening import (
@@ -55,7 +54,6 @@ from tdtp.netem import NetemSpec
 from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
-from tdtp.session.state import State
 from tdtp.wire.control import CloseReason, ControlCode, OpenFlags
 from tdtp.wire.header import HEADER_SIZE, PacketType
 
@@ -300,50 +298,6 @@ class Server:
             self._sender.sendto(verdict.datagram, addr)
         elif isinstance(verdict, AdmittedOpen):
             self._open(verdict, key, addr, now)
-
-    def _batch_received(
-        self,
-        datas: list[bytes],
-        addrs: list[Address],
-        stamps: list[int] | None,
-        classes: list[int] | None,
-    ) -> None:
-        """One receive batch of the datagram layer, demultiplexed by address: one clock read; each
-        datagram of a known session straight to its core, in order; then one flush per session
-        touched (what they send joins the loop's outbox: one ``sendmmsg``). OPENs and datagrams
-        from unknown addresses take :meth:`_datagram_received`'s way, one at a time."""
-        now = monotonic()
-        wall = time.time_ns() if stamps is not None else 0
-        peers = self._peers
-        touched: dict[Endpoint, None] = {}
-        last: Address | None = None
-        endpoint: Endpoint | None = None
-        for i in range(len(datas)):
-            data = datas[i]
-            addr = addrs[i]
-            if addr is not last:  # the engine hands the same tuple for a run from one source
-                last = addr
-                endpoint = peers.get((addr[0], addr[1]))
-            if endpoint is None or endpoint.is_closed or _is_open(data):
-                self._datagram_received(data, addr)
-                last = None  # the table may have changed
-                continue
-            conn = endpoint.connection
-            conn.receive_datagram(
-                data,
-                addr,
-                now=now,
-                rx_time=rx_time_of(stamps[i], now, wall) if stamps is not None else None,
-                ecn=classes[i] & 3 if classes is not None and classes[i] >= 0 else None,
-            )
-            if conn.state is State.CLOSED:
-                endpoint._flush(now)  # released: later datagrams from there are strangers
-                touched.pop(endpoint, None)
-                last = None
-            else:
-                touched[endpoint] = None
-        for endpoint in touched:
-            endpoint._flush(now)
 
     def _on_unattached(self, data: bytes, key: tuple[object, object], addr: Address) -> None:
         """A datagram from an address no session holds: a master that moved (PROTOCOL.md 5.8)?"""
@@ -606,9 +560,11 @@ async def _listen(
         else ImpairedTransport(socket_side, netem, seed=netem_seed, timer=timer)
     )
     if isinstance(transport, BatchedDatagramTransport) and recorder is None:
-        transport.batch_receiver = server._batch_received
         if netem is None:
             server._outbox = transport.outbox
+        transport.batch_receiver = Demultiplexer(
+            server._peers, server._datagram_received, server._outbox
+        )
     logger.info(
         "tdtp slave: listening on %s%s", server._where(), " (keyed)" if server.keyed else ""
     )
