@@ -71,7 +71,7 @@ class BatchedDatagramTransport(asyncio.DatagramTransport):
     def _attach(self, layer: DatagramLayer) -> None:
         self._layer = layer
         self.sendto = layer.sendto  # type: ignore[method-assign,assignment]
-        self.outbox = self._loop_outbox.socket(layer.send_batch)
+        self.outbox = self._loop_outbox.socket(layer.send_batch, layer.batch)
 
     @property
     def layer(self) -> DatagramLayer | None:

@@ -324,13 +324,17 @@ class Endpoint:
         now = monotonic()
         conn = self._conn
         out = self._out
+        if out is not None and not out.owner.depth:
+            # On the batched layer, outside a wake-up of ours (an application task): what this
+            # pass of the loop sends leaves in one sendmmsg once the callbacks ready now ran.
+            out.owner.hold_until_ready_ran(self._loop)
         try:
-            # The common case leaves at once: encoded and handed to the socket (or, during a
-            # wake-up on the batched layer, to the outbox flushed at its end) before the
-            # connection's bookkeeping (the round trip does not wait for it).
+            # The common case leaves at once: encoded and handed to the socket (or, on the batched
+            # layer, to the outbox sent at the end of the wake-up) before the connection's
+            # bookkeeping (the round trip does not wait for it).
             sent = conn.send_direct(
                 payload,
-                out.append if out is not None and out.owner.depth else self._transport.sendto,
+                out.append if out is not None else self._transport.sendto,
                 connected=self._connected,
                 now=now,
             )
@@ -590,6 +594,10 @@ class Endpoint:
                     conn.stats.events_discarded += 1
                 queue.append(event)
                 if self._data_waiters:
+                    out = self._out
+                    if out is not None and out.owner.depth:
+                        # The readers woken now answer within this wake-up's batch.
+                        out.owner.hold_until_ready_ran(self._loop)
                     self._wake(self._data_waiters)
             else:
                 self._on_other_event(event)

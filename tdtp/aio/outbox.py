@@ -31,19 +31,26 @@ Item = tuple[bytes, Address | None]
 class SocketOutbox:
     """The datagrams queued for one socket during the current wake-up."""
 
-    def __init__(self, owner: LoopOutbox, send_batch: Callable[[list[Item]], int]) -> None:
+    def __init__(
+        self, owner: LoopOutbox, send_batch: Callable[[list[Item]], int], limit: int
+    ) -> None:
         self.owner = owner
         self._send_batch = send_batch
+        self._limit = limit
         self.items: list[Item] = []
         self.queued = False
         self.closed = False
 
     def append(self, data: bytes, addr: Address | None = None, /) -> None:
-        """Queue one datagram (the shape of a transport's ``sendto``)."""
-        self.items.append((data, addr))
+        """Queue one datagram (the shape of a transport's ``sendto``); a full batch leaves at once
+        (the outbox is bounded by the layer's batch)."""
+        items = self.items
+        items.append((data, addr))
         if not self.queued:
             self.queued = True
             self.owner.dirty.append(self)
+        if len(items) >= self._limit:
+            self.flush()
 
     def extend(self, datagrams: list[tuple[bytes, Address]], connected: bool) -> None:
         """Queue what a connection's ``datagrams_to_send`` returned (no address on a connected
@@ -55,6 +62,8 @@ class SocketOutbox:
         if not self.queued:
             self.queued = True
             self.owner.dirty.append(self)
+        if len(self.items) >= self._limit:
+            self.flush()
 
     def flush(self) -> None:
         items, self.items = self.items, []
@@ -85,8 +94,9 @@ class LoopOutbox:
         self.datagrams = 0
         """Datagrams sent by flushes."""
 
-    def socket(self, send_batch: Callable[[list[Item]], int]) -> SocketOutbox:
-        return SocketOutbox(self, send_batch)
+    def socket(self, send_batch: Callable[[list[Item]], int], limit: int) -> SocketOutbox:
+        """A socket's outbox: ``send_batch`` sends a list, at most ``limit`` are held."""
+        return SocketOutbox(self, send_batch, limit)
 
     def hold(self) -> None:
         """A wake-up begins: sends are queued until the matching :meth:`release`."""
@@ -105,8 +115,9 @@ class LoopOutbox:
                 dirty = self.dirty
 
     def hold_until_ready_ran(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Hold until the callbacks scheduled so far (the tasks a tick just woke) have run: the
-        release is queued behind them with ``call_soon``."""
+        """Hold until the callbacks scheduled so far (the tasks a tick or a sample just woke, the
+        rest of the task sending now) have run: the release is queued behind them with
+        ``call_soon``."""
         self.depth += 1
         loop.call_soon(self.release)
 
