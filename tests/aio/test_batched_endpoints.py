@@ -9,7 +9,9 @@ datagram sent arrives, in order, at the session of its address; nothing forged i
 from __future__ import annotations
 
 import asyncio
+import errno
 import math
+import os
 import socket
 from collections.abc import Iterator
 
@@ -259,4 +261,28 @@ async def test_an_oversized_datagram_in_a_flush_is_counted_and_the_rest_leave(
             lambda: slave.stats.received.data_packets == master.stats.sent.data_packets
         )
         assert [(await slave.recv()).payload[:5] for _ in range(2)] == [b"first", b"third"]
+        await master.close()
+
+
+@pytest.mark.asyncio
+async def test_kernel_errors_reach_the_endpoint_as_on_the_loops_transport(transport: str) -> None:
+    """What the layer reports (ENOBUFS, EMSGSIZE, ECONNREFUSED once established) is what the
+    loop's transport reports to ``error_received``: a lost datagram counted in ``send_errors``,
+    never an exception into the loop, and the session goes on."""
+    if transport == "stock":
+        pytest.skip("the loop's transport reports its own errors")
+    async with listen("127.0.0.1", 0, config=UNLIMITED) as server:
+        (master,), (slave,) = await _masters(server, 1)
+        batched = master._transport
+        assert isinstance(batched, BatchedDatagramTransport)
+        before = master.send_errors
+        for code in (errno.ENOBUFS, errno.EMSGSIZE):
+            batched._on_error(OSError(code, os.strerror(code)))
+        batched._on_error(ConnectionRefusedError(errno.ECONNREFUSED, "refused"))
+        assert master.send_errors == before + 3
+        assert not master.is_closed
+        master.send(b"after" + bytes(95))
+        await eventually(
+            lambda: slave.stats.received.data_packets == master.stats.sent.data_packets
+        )
         await master.close()
