@@ -30,13 +30,13 @@ import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
+from time import monotonic  # = tdtp.aio.timer.monotonic, called directly (per packet)
 from typing import Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.outbox import SocketOutbox
 from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
-from tdtp.aio.timer import monotonic
 from tdtp.errors import ConnectionClosedError, ConnectionStateError, EndpointClosedError
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
@@ -185,6 +185,7 @@ class Endpoint:
         # On the batched datagram layer: the socket's outbox, which takes what is sent while the
         # loop serves a wake-up (tdtp.aio.outbox) and sends it with one sendmmsg at its end.
         self._out = outbox
+        self._queue_out = outbox.append if outbox is not None else None
         self._connected = connected
         loop = asyncio.get_running_loop()
         self._loop = loop
@@ -334,7 +335,7 @@ class Endpoint:
             # bookkeeping (the round trip does not wait for it).
             sent = conn.send_direct(
                 payload,
-                out.append if out is not None else self._transport.sendto,
+                self._queue_out if self._queue_out is not None else self._transport.sendto,
                 connected=self._connected,
                 now=now,
             )
