@@ -325,6 +325,7 @@ class Endpoint:
         now = monotonic()
         conn = self._conn
         out = self._out
+        queue_out = self._queue_out
         if out is not None and not out.owner.depth:
             # On the batched layer, outside a wake-up of ours (an application task): what this
             # pass of the loop sends leaves in one sendmmsg once the callbacks ready now ran.
@@ -335,7 +336,7 @@ class Endpoint:
             # bookkeeping (the round trip does not wait for it).
             sent = conn.send_direct(
                 payload,
-                self._queue_out if self._queue_out is not None else self._transport.sendto,
+                queue_out if out is not None and queue_out is not None else self._transport.sendto,
                 connected=self._connected,
                 now=now,
             )
