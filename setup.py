@@ -60,6 +60,7 @@ COMPILED = [
     "tdtp/control/trinomial.py",
     "tdtp/control/registry.py",
     "tdtp/control/send_meter.py",
+    "tdtp/aio/outbox.py",
     "tdtp/aio/loop_timers.py",
     "tdtp/aio/endpoint.py",
 ]

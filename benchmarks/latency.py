@@ -18,6 +18,8 @@ are a warm-up and are not recorded; then the client runs for ``--seconds``.
 - ``keyed``: ``tdtp uvloop`` with a pre-shared key (AES-128-GCM, payloads encrypted), measured the
   same way.
 - ``pure``: ``tdtp uvloop`` on the pure-Python build (``TDTP_PURE_PYTHON=1`` in both processes).
+- ``stock``: ``tdtp uvloop`` on the loop's own datagram transport (``TDTP_DATAGRAM_LAYER=0``) instead
+  of the batched datagram layer ``tdtp uvloop`` runs on by default where its C engine is built.
 
 Beside the round trips, each side's **CPU per round trip** (``getrusage``): the client's over the
 ping-pong, the echo's from its first echo to its last. CPU time per round trip does not grow when a
@@ -39,6 +41,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import math
+import os
 import struct
 import sys
 import time
@@ -65,6 +68,7 @@ VARIANTS = {
     "tdtp-uvloop": "tdtp uvloop",
     "keyed-uvloop": "tdtp uvloop, keyed (AES-128-GCM)",
     "pure-uvloop": "tdtp uvloop, pure-Python build",
+    "stock-uvloop": "tdtp uvloop, loop's transport (TDTP_DATAGRAM_LAYER=0)",
 }
 _COUNTER = struct.Struct("!Q")
 BENCH_KEY = PresharedKey(bytes(range(32)), "bench")
@@ -154,8 +158,17 @@ async def _echo(control: Any, impl: str) -> Json:
     return report
 
 
+def _use_transport(impl: str) -> str:
+    """``stock``: tdtp on the loop's own transport (read by tdtp.listen / tdtp.connect)."""
+    if impl == "stock":
+        os.environ["TDTP_DATAGRAM_LAYER"] = "0"
+        return "tdtp"
+    return impl
+
+
 def echo_worker(conn: Any, *, impl: str, cpu_slot: int) -> None:
     common.pin_to_cpu(cpu_slot)
+    impl = _use_transport(impl)
     report = common.run_in_loop("uvloop", lambda: _echo(conn, impl))
     report["build"] = common.tdtp_build()
     conn.send({"final": report})
@@ -269,6 +282,7 @@ async def _client(impl: str, port: int, seconds: float) -> Json:
 
 def client_worker(conn: Any, *, impl: str, port: int, seconds: float, cpu_slot: int) -> None:
     common.pin_to_cpu(cpu_slot)
+    impl = _use_transport(impl)
     report = common.run_in_loop("uvloop", lambda: _client(impl, port, seconds))
     report["build"] = common.tdtp_build()
     conn.send({"final": report})
@@ -396,6 +410,10 @@ def main(argv: list[str] | None = None) -> int:
             rows.extend(
                 rtt_rows(runs, "keyed-uvloop", "tdtp-uvloop", "keyed/unkeyed", ("p50",))[:1]
             )
+    if "stock-uvloop" in runs and "tdtp-uvloop" in runs:
+        rows.extend(
+            rtt_rows(runs, "tdtp-uvloop", "stock-uvloop", "layer/loop's transport", ("p50",))
+        )
     if "pure-uvloop" in runs:
         pure_rows = rtt_rows(runs, "pure-uvloop", "raw-uvloop", "pure/raw", ("p50",))
         assert pure_rows[0].ratio is not None

@@ -73,6 +73,11 @@ SUITE = (
         ("--seconds", "0.1", "--repeat", "1"),
     ),
     Bench(
+        "datagram",
+        ("--seconds", "1", "--repeat", "3"),
+        ("--seconds", "0.1", "--repeat", "1"),
+    ),
+    Bench(
         "quic_peer",
         ("--seconds", "1", "--repeat", "3"),
         ("--seconds", "0.1", "--repeat", "1"),

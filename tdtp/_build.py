@@ -72,6 +72,7 @@ COMPILED_MODULES: Final = (
     "tdtp.control.trinomial",
     "tdtp.control.registry",
     "tdtp.control.send_meter",
+    "tdtp.aio.outbox",
     "tdtp.aio.loop_timers",
     "tdtp.aio.endpoint",
 )

@@ -388,7 +388,9 @@ deliver(Engine *self, int n)
     }
     self->c.batches_received++;
     PyObject *args[4] = {datas, addrs, stamps ? stamps : Py_None, classes ? classes : Py_None};
-    PyObject *r = PyObject_Vectorcall(self->on_batch, args, 4, NULL);
+    PyObject *callback = Py_NewRef(self->on_batch); /* set_on_batch may replace it meanwhile */
+    PyObject *r = PyObject_Vectorcall(callback, args, 4, NULL);
+    Py_DECREF(callback);
     Py_DECREF(datas);
     Py_DECREF(addrs);
     Py_XDECREF(stamps);
@@ -700,6 +702,17 @@ Engine_set_paused(Engine *self, PyObject *arg)
 }
 
 static PyObject *
+Engine_set_on_batch(Engine *self, PyObject *callback)
+{
+    if (!PyCallable_Check(callback)) {
+        PyErr_SetString(ArgumentTypeError, "on_batch must be callable");
+        return NULL;
+    }
+    Py_XSETREF(self->on_batch, Py_NewRef(callback));
+    Py_RETURN_NONE;
+}
+
+static PyObject *
 Engine_close(Engine *self, PyObject *Py_UNUSED(ignored))
 {
     self->closed = 1;
@@ -845,6 +858,8 @@ static PyMethodDef Engine_methods[] = {
     {"stats", (PyCFunction)Engine_stats, METH_NOARGS, "The counters, as a dict."},
     {"set_paused", (PyCFunction)Engine_set_paused, METH_O,
      "While paused, every send is handed to on_blocked without a system call."},
+    {"set_on_batch", (PyCFunction)Engine_set_on_batch, METH_O,
+     "Hand the next batches to another callback (same arguments as on_batch)."},
     {"close", (PyCFunction)Engine_close, METH_NOARGS, "Forget the file descriptor (not closed)."},
     {NULL, NULL, 0, NULL},
 };

@@ -1,32 +1,23 @@
 """The asyncio entry points: :func:`connect` for a master, :func:`listen` for a slave.
 
 ``connect`` gives one :class:`~tdtp.aio.endpoint.Endpoint` on its own connected UDP socket (the kernel
-drops datagrams from anyone but the slave). ``listen`` binds one UDP socket for any number of masters, up
-to ``max_peers``, and hands out an endpoint for each master whose OPEN arrives.
+drops datagrams from anyone but the slave). ``listen`` (:mod:`tdtp.aio.server`) binds one UDP socket for
+any number of masters, up to ``max_peers``, and hands out an endpoint for each master whose OPEN arrives.
 
 Both check their arguments at once (a port of 70000 or ``timer="timefd"`` raises before anything is
-bound) and return an :class:`Opener`: ``await`` it, or use it directly as ``async with``, as aioquic's
-and websockets' ``connect`` allow.
+bound) and return an :class:`~tdtp.aio.opening.Opener`: ``await`` it, or use it directly as
+``async with``, as aioquic's and websockets' ``connect`` allow.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import errno
 import logging
 import random
 import socket
-import sys
-from collections import deque
-from collections.abc import AsyncIterator, Callable, Coroutine, Generator
-from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, TypeVar
 
-from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
-from tdtp.admission.path_migration import MigrationStats
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
-from tdtp.aio.datagram_transport import datagram_endpoint
+from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpoint
 from tdtp.aio.endpoint import (
     DataCallback,
     Endpoint,
@@ -34,140 +25,39 @@ from tdtp.aio.endpoint import (
     WatchdogCallback,
     format_address,
 )
-from tdtp.aio.impairment import ImpairedTransport, as_spec
-from tdtp.aio.reconnect import ReconnectPolicy, as_policy
-from tdtp.aio.timer import TimerPreference, check_timer_preference, monotonic
-from tdtp.config import ConnectionConfig, Role
-from tdtp.errors import (
-    AddressError,
-    ArgumentTypeError,
-    ConnectError,
-    ConnectionStateError,
-    InvalidArgumentError,
-    InvalidKeyError,
-    PortUnreachableError,
-    ServerClosedError,
+from tdtp.aio.impairment import ImpairedTransport
+from tdtp.aio.opening import (
+    Opener,
+    _check_common,
+    _check_port,
+    _deliver_to,
+    _limit_write_buffer,
+    _released,
+    address_error,
 )
+from tdtp.aio.reconnect import ReconnectPolicy, as_policy
+from tdtp.aio.server import Server, ServerStats, listen
+from tdtp.aio.timer import TimerPreference, monotonic
+from tdtp.config import ConnectionConfig, Role
+from tdtp.errors import ConnectError, InvalidArgumentError, PortUnreachableError
 from tdtp.netem import NetemSpec
-from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
+from tdtp.protection.keys import KeyInput
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
 from tdtp.session.state import State
-from tdtp.wire.control import CloseReason, ControlCode, OpenFlags
-from tdtp.wire.header import HEADER_SIZE, PacketType
 
-__all__ = ["ConnectError", "Opener", "Server", "ServerStats", "connect", "listen"]
-
-_CONTROL_TYPE_BITS = int(PacketType.CONTROL) << 6
-_OPEN = int(ControlCode.OPEN)
-SOCKET_CLOSE_PATIENCE = 5.0
-"""Longest :meth:`Server.close` waits for an emulated link to let its last datagrams out before it
-drops them and releases the port."""
+__all__ = [
+    "ConnectError",
+    "Opener",
+    "Server",
+    "ServerStats",
+    "_limit_write_buffer",
+    "address_error",
+    "connect",
+    "listen",
+]
 
 logger = logging.getLogger("tdtp")
-
-
-class _Closable(Protocol):
-    async def close(self) -> None: ...
-
-
-T = TypeVar("T", bound=_Closable)
-
-
-class Opener(Generic[T]):
-    """What :func:`connect` and :func:`listen` return: ``await`` it for the endpoint (or server), or
-    use it as ``async with tdtp.connect(...) as ep:``, which closes it on the way out."""
-
-    def __init__(self, open_: Callable[[], Coroutine[Any, Any, T]]) -> None:
-        self._open = open_
-        self._opened: T | None = None
-
-    def __await__(self) -> Generator[Any, None, T]:
-        return self._open().__await__()
-
-    async def __aenter__(self) -> T:
-        self._opened = await self._open()
-        return self._opened
-
-    async def __aexit__(self, *exc_info: object) -> None:
-        opened, self._opened = self._opened, None
-        if opened is not None:
-            await opened.close()
-
-
-def _peer_key(addr: Address) -> tuple[object, object]:
-    return addr[0], addr[1]
-
-
-def _check_port(port: object, *, allow_zero: bool) -> int:
-    low = 0 if allow_zero else 1
-    if isinstance(port, bool) or not isinstance(port, int) or not low <= port <= 65535:
-        what = "0..65535 (0 picks a free port)" if allow_zero else "1..65535"
-        raise InvalidArgumentError(f"port must be an integer in {what}, got {port!r}")
-    return port
-
-
-def _check_common(
-    config: object, timer: object, on_data: object, on_watchdog: object, netem: object
-) -> NetemSpec | None:
-    if config is not None and not isinstance(config, ConnectionConfig):
-        raise ArgumentTypeError(
-            f"config must be a tdtp.ConnectionConfig or None, got {type(config).__name__}"
-        )
-    check_timer_preference(timer)
-    for name, callback in (("on_data", on_data), ("on_watchdog", on_watchdog)):
-        if callback is not None and not callable(callback):
-            raise ArgumentTypeError(f"{name} must be callable or None, got {callback!r}")
-    if netem is None:
-        return None
-    if not isinstance(netem, NetemSpec | str):
-        raise ArgumentTypeError(f"netem must be a netem string or NetemSpec, got {netem!r}")
-    return as_spec(netem)
-
-
-def address_error(exc: OSError, action: str, host: object, port: int) -> AddressError:
-    """The :class:`~tdtp.AddressError` for an ``OSError`` from resolving or binding ``host:port``:
-    what to ``action`` (e.g. "listen on") and why, in words a user can act on."""
-    where = format_address((host, port))
-    if exc.errno is None and isinstance(exc.__cause__, OSError):
-        exc = exc.__cause__  # uvloop wraps the bind error: the errno is on its cause
-    if isinstance(exc, socket.gaierror):
-        return AddressError(f"cannot {action} {where}: host name not resolved ({exc.strerror})")
-    if exc.errno == errno.EADDRINUSE:
-        return AddressError(
-            f"cannot {action} {where}: the port is in use; choose another port or stop the "
-            "program using it"
-        )
-    if exc.errno == errno.EADDRNOTAVAIL:
-        return AddressError(f"cannot {action} {where}: not an address of this host")
-    return AddressError(f"cannot {action} {where}: {exc.strerror or exc}")
-
-
-def _limit_write_buffer(transport: asyncio.BaseTransport) -> None:
-    """Ask for ``pause_writing`` as soon as the loop has to buffer one datagram: the endpoint then
-    holds data (a newer sample supersedes it) instead of letting the loop queue it."""
-    # A loop without flow control keeps what it cannot send to itself; nothing to do then.
-    with contextlib.suppress(AttributeError, NotImplementedError):
-        transport.set_write_buffer_limits(high=0)  # type: ignore[attr-defined]
-
-
-def _deliver_to(
-    protocol: asyncio.DatagramProtocol,
-    receive: Callable[[bytes, Address], None],
-    capture: CapturingTransport | None,
-) -> None:
-    """Hand the protocol's datagrams straight to ``receive`` (one Python call less per datagram),
-    through the pcap capture first when there is one."""
-    if capture is None:
-        protocol.datagram_received = receive  # type: ignore[method-assign,assignment]
-        return
-    record = capture.received
-
-    def recorded(data: bytes, addr: Address) -> None:
-        record(data, addr)
-        receive(data, addr)
-
-    protocol.datagram_received = recorded  # type: ignore[method-assign]
 
 
 class _MasterProtocol(asyncio.DatagramProtocol):
@@ -342,6 +232,9 @@ async def _connect(
     async def _wait_transport_closed() -> None:
         await _released(protocol.closed, transport)
 
+    # On the batched layer, with nothing between the endpoint and the socket: batches both ways.
+    batched = transport if isinstance(transport, BatchedDatagramTransport) else None
+    direct = batched is not None and sender is transport
     endpoint = Endpoint(
         conn,
         sender,
@@ -353,9 +246,12 @@ async def _connect(
         transport_closed=_wait_transport_closed,
         reconnect=reconnect,
         new_connection=lambda: Connection(config, role=Role.MASTER, rng=rng, key=key),
+        outbox=batched.outbox if batched is not None and direct else None,
     )
     protocol.endpoint = endpoint
     _deliver_to(protocol, endpoint.datagram_received, recorder)
+    if batched is not None and recorder is None:
+        batched.batch_receiver = endpoint.receive_batch
     conn.connect(remote, now=monotonic())
     endpoint._flush()
     try:
@@ -372,510 +268,3 @@ async def _connect(
         await endpoint.close()
         raise
     return endpoint
-
-
-async def _released(closed: asyncio.Future[None], transport: asyncio.DatagramTransport) -> None:
-    """Wait until the socket is closed (the port is free), dropping what an emulated link still
-    holds after :data:`SOCKET_CLOSE_PATIENCE`."""
-    try:
-        await asyncio.wait_for(asyncio.shield(closed), SOCKET_CLOSE_PATIENCE)
-    except TimeoutError:
-        transport.abort()
-        await asyncio.shield(closed)
-
-
-@dataclass(slots=True)
-class ServerStats:
-    """What the listening socket saw outside any connection."""
-
-    datagrams_unattached: int = 0
-    """Datagrams from addresses without a connection that were not an OPEN (the session datagrams
-    among them were answered with a RESET when big enough and within budget: ``admission``)."""
-    peers_refused: int = 0
-    """Admitted OPENs answered with REJECT ``BUSY``: ``max_peers`` connections were open, or the
-    accept backlog was full."""
-    peers_accepted: int = 0
-    """Connections established (the master confirmed the session)."""
-    peers_evicted: int = 0
-    """Sessions closed (``EVICTED``) to make room for a new master while the server was full: each
-    one's master had been silent longest, beyond its silence timeout."""
-    peers_in_use: int = 0
-    """Exclusive server: admitted OPENs answered with REJECT ``IN_USE`` (another master commands)."""
-    takeovers: int = 0
-    """Exclusive server: sessions ended because another master took control."""
-    admission: AdmissionStats = field(default_factory=AdmissionStats)
-    """The front door: OPENs seen, cookies and rejects sent, drops by reason, bytes in and out."""
-    migration: MigrationStats = field(default_factory=MigrationStats)
-    """Path migration: datagrams from unknown addresses, trials, challenges, sessions moved."""
-
-
-class _ServerProtocol(asyncio.DatagramProtocol):
-    def __init__(self, server: Server) -> None:
-        self.server = server
-        self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-
-    def datagram_received(self, data: bytes, addr: Address) -> None:
-        self.server._datagram_received(data, addr)
-
-    def error_received(self, exc: Exception) -> None:
-        pass  # an ICMP error about one master says nothing about the others
-
-    def pause_writing(self) -> None:
-        # One socket for every master: while it is backed up, every endpoint holds its data.
-        for endpoint in self.server.endpoints:
-            endpoint.pause_writing()
-
-    def resume_writing(self) -> None:
-        for endpoint in self.server.endpoints:
-            endpoint.resume_writing()
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        if not self.closed.done():
-            self.closed.set_result(None)
-
-
-class Server:
-    """A slave's listening socket. Iterate it (``async for endpoint in server``) or call
-    :meth:`accept` to get an endpoint for each master that connects.
-
-    Every OPEN goes through one shared :class:`~tdtp.admission.Admission`: no state is kept for a
-    master until it proves it receives at its address (a cookie) and, on a keyed server, holds a key
-    of the ring. A validated master that finds the server full (``max_peers`` connections, or
-    ``backlog`` established ones nobody accepted yet) is refused at once with REJECT ``BUSY``.
-    """
-
-    def __init__(
-        self,
-        *,
-        config: ConnectionConfig | None,
-        max_peers: int,
-        timer: TimerPreference,
-        on_data: DataCallback | None,
-        on_watchdog: WatchdogCallback | None = None,
-        backlog: int = 16,
-        keys: KeyRing | None = None,
-        exclusive: bool = False,
-        takeover_after: int = 3,
-    ) -> None:
-        if isinstance(max_peers, bool) or not isinstance(max_peers, int) or max_peers < 1:
-            raise InvalidArgumentError(f"max_peers must be an integer >= 1, got {max_peers!r}")
-        if not isinstance(exclusive, bool):
-            raise ArgumentTypeError(f"exclusive must be True or False, got {exclusive!r}")
-        if (
-            isinstance(takeover_after, bool)
-            or not isinstance(takeover_after, int)
-            or not 1 <= takeover_after <= 1000
-        ):
-            raise InvalidArgumentError(
-                f"takeover_after must be an integer from 1 to 1000 (watchdog periods), got "
-                f"{takeover_after!r}"
-            )
-        self._exclusive = exclusive
-        self._takeover_after = takeover_after
-        if isinstance(backlog, bool) or not isinstance(backlog, int) or backlog < 1:
-            raise InvalidArgumentError(f"backlog must be an integer >= 1, got {backlog!r}")
-        self._config = config
-        self._max_peers = max_peers
-        self._backlog = backlog
-        self._timer = timer
-        self._on_data = on_data
-        self._on_watchdog = on_watchdog
-        self._admission = Admission(config, keys)
-        self._protocol: _ServerProtocol | None = None
-        self._transport: asyncio.DatagramTransport | None = None
-        self._sender: asyncio.DatagramTransport | ImpairedTransport | None = None
-        self._peers: dict[tuple[object, object], Endpoint] = {}
-        self._pending: deque[Endpoint] = deque()
-        """Endpoints of admitted masters nobody has accepted yet, opening or established."""
-        self._waiters: list[asyncio.Future[None]] = []
-        """Tasks waiting in accept(): each one looks again when a master is established."""
-        self._closed = False
-        self.stats = ServerStats(
-            admission=self._admission.stats, migration=self._admission.paths.stats
-        )
-
-    @property
-    def sockname(self) -> Address:
-        """The bound address, e.g. to learn the port after ``listen(port=0)``."""
-        if self._transport is None:
-            raise ConnectionStateError("the server is not bound; create it with tdtp.listen()")
-        sockname: Address = self._transport.get_extra_info("sockname")
-        return sockname
-
-    @property
-    def port(self) -> int:
-        return int(self.sockname[1])
-
-    @property
-    def keyed(self) -> bool:
-        """Whether this server accepts keyed sessions only."""
-        return self._admission.keys is not None
-
-    @property
-    def endpoints(self) -> list[Endpoint]:
-        """The masters connected (or connecting) now."""
-        return list(self._peers.values())
-
-    async def accept(self) -> Endpoint:
-        """The next master's endpoint, once its connection is established."""
-        loop = asyncio.get_running_loop()
-        while True:
-            endpoint = self._next_established()
-            if endpoint is not None:
-                return endpoint
-            if self._closed:
-                raise ServerClosedError("the server is closed; no more masters are accepted")
-            waiter: asyncio.Future[None] = loop.create_future()
-            self._waiters.append(waiter)
-            try:
-                await waiter
-            finally:
-                if waiter in self._waiters:
-                    self._waiters.remove(waiter)
-
-    def _next_established(self) -> Endpoint | None:
-        pending = self._pending
-        for endpoint in pending:
-            if endpoint.established:
-                pending.remove(endpoint)
-                return endpoint
-        return None
-
-    def __aiter__(self) -> AsyncIterator[Endpoint]:
-        return self._iterate()
-
-    async def _iterate(self) -> AsyncIterator[Endpoint]:
-        while True:
-            try:
-                yield await self.accept()
-            except ServerClosedError:
-                return
-
-    async def close(self) -> None:
-        """Close every connection (each peer gets a CLOSE) and the socket, and return once the port
-        is free (an emulated link first lets its last datagrams out). Idempotent."""
-        if not self._closed:
-            self._closed = True
-            for endpoint in list(self._peers.values()):
-                await endpoint.close()
-            if self._sender is not None:
-                self._sender.close()
-            self._wake()
-            logger.info("tdtp slave: stopped listening on %s", self._where())
-        if self._protocol is not None and self._transport is not None:
-            await _released(self._protocol.closed, self._transport)
-
-    def __repr__(self) -> str:
-        state = "closed" if self._closed else "listening"
-        keyed = " keyed" if self.keyed else ""
-        return (
-            f"<Server {self._where()} {state}{keyed} masters={len(self._peers)}/{self._max_peers}>"
-        )
-
-    def _where(self) -> str:
-        if self._transport is None:
-            return "(unbound)"
-        return format_address(self._transport.get_extra_info("sockname"))
-
-    async def __aenter__(self) -> Server:
-        return self
-
-    async def __aexit__(self, *exc_info: object) -> None:
-        await self.close()
-
-    # ------------------------------------------------------------------ internals
-
-    def _wake(self) -> None:
-        for waiter in self._waiters:
-            if not waiter.done():
-                waiter.set_result(None)
-        self._waiters.clear()
-
-    def _datagram_received(self, data: bytes, addr: Address) -> None:
-        key = _peer_key(addr)
-        endpoint = self._peers.get(key)
-        if endpoint is not None:
-            endpoint.datagram_received(data, addr)
-            if key in self._peers or not _is_open(data):
-                return
-            # The connection ended on this OPEN: its master restarted and opens anew.
-        if self._closed:
-            return
-        # Only an OPEN may lead to state, and only once admitted. Anything else may be a master
-        # whose address changed (path migration, within a bounded budget) or, when no session
-        # claims it, a master whose session died with a restart of ours: it gets a RESET.
-        if not _is_open(data):
-            self.stats.datagrams_unattached += 1
-            self._on_unattached(data, key, addr)
-            return
-        assert self._sender is not None
-        now = monotonic()
-        verdict = self._admission.admit(data, addr, now)
-        if isinstance(verdict, Reply):
-            self._sender.sendto(verdict.datagram, addr)
-        elif isinstance(verdict, AdmittedOpen):
-            self._open(verdict, key, addr, now)
-
-    def _on_unattached(self, data: bytes, key: tuple[object, object], addr: Address) -> None:
-        """A datagram from an address no session holds: a master that moved (PROTOCOL.md 5.8)?"""
-        assert self._sender is not None
-        now = monotonic()
-        peers = self._peers
-        paths = self._admission.paths
-        outcome = paths.on_unattached(
-            data, addr, now, [endpoint.connection for endpoint in peers.values()]
-        )
-        if outcome is None:
-            # Only a datagram no session may own gets a RESET (PROTOCOL.md 5.7): one that might be
-            # the datagram of a master that moved does not (PathMigration.unclaimed).
-            if paths.unclaimed:
-                reset = self._admission.reset(data, now)
-                if reset is not None:
-                    self._sender.sendto(reset, addr)
-            return
-        if isinstance(outcome, bytes):
-            self._sender.sendto(outcome, addr)  # a PATH_CHALLENGE
-            return
-        for old_key, endpoint in peers.items():
-            if endpoint.connection is outcome:
-                del peers[old_key]
-                peers[key] = endpoint
-                logger.info(
-                    "tdtp slave: a master moved from %s:%s to %s",
-                    old_key[0],
-                    old_key[1],
-                    format_address(addr),
-                )
-                endpoint._flush(now)
-                return
-
-    def _exclusive_refuses(self, admitted: AdmittedOpen, addr: Address, now: float) -> bool:
-        """Exclusive server (PROTOCOL.md 5.9): the master commanding the slave keeps it unless it
-        has been silent for ``takeover_after`` watchdog periods, or the new master is keyed and
-        asks with TAKEOVER; then it is ended (``taken_over``). True: refused with REJECT IN_USE."""
-        holders = [ep for ep in self._peers.values() if not ep.is_closed]
-        if not holders:
-            return False
-        takeover = admitted.key is not None and bool(admitted.body.flags & OpenFlags.TAKEOVER)
-        silence = self._takeover_after * self._admission.config.silence_timeout
-        if not takeover and any(ep.connection.quiet_for(now) < silence for ep in holders):
-            assert self._sender is not None
-            self.stats.peers_in_use += 1
-            self._sender.sendto(self._admission.reject(admitted, CloseReason.IN_USE), addr)
-            logger.info("tdtp slave: refused %s (exclusive, in use)", format_address(addr))
-            return True
-        for endpoint in holders:
-            self.stats.takeovers += 1
-            logger.info(
-                "tdtp slave: %s takes control from %s%s",
-                format_address(addr),
-                format_address(endpoint.peer),
-                " (takeover flag)" if takeover else " (silent)",
-            )
-            endpoint.connection.close(now=now, taken_over=True)
-            endpoint._flush(now)
-        return False
-
-    def _open(
-        self, admitted: AdmittedOpen, key: tuple[object, object], addr: Address, now: float
-    ) -> None:
-        assert self._sender is not None
-        if self._exclusive and self._exclusive_refuses(admitted, addr, now):
-            return
-        if len(self._peers) >= self._max_peers:
-            self._evict_silent(now)
-        if len(self._peers) >= self._max_peers or (
-            self._on_data is None and len(self._pending) >= self._backlog
-        ):
-            self.stats.peers_refused += 1
-            self._sender.sendto(self._admission.reject(admitted, CloseReason.BUSY), addr)
-            logger.info(
-                "tdtp slave: refused %s (busy: %d masters, %d waiting to be accepted)",
-                format_address(addr),
-                len(self._peers),
-                len(self._pending),
-            )
-            return
-        conn = Connection(self._config, role=Role.SLAVE, admission=self._admission)
-        endpoint = Endpoint(
-            conn,
-            self._sender,
-            connected=False,
-            timer=self._timer,
-            on_data=self._on_data,
-            on_watchdog=self._on_watchdog,
-            on_closed=self._forget,
-            on_established=self._on_established,
-        )
-        self._peers[key] = endpoint
-        pending = self._pending
-        if len(pending) >= self._backlog:
-            # Callback style (on_data): the session is served either way; accept() sees the
-            # newest ``backlog`` ones.
-            pending.popleft()
-        pending.append(endpoint)
-        conn.accept_open(admitted, addr, now=now)
-        endpoint._flush(now)
-
-    def _evict_silent(self, now: float) -> None:
-        """The server is full and a validated master arrives: the session whose master has been
-        silent longest, beyond its silence timeout, gives up its slot (closed as ``EVICTED``).
-        Live sessions are never evicted, so a master that keeps talking keeps its slot."""
-        longest: Endpoint | None = None
-        longest_since = now
-        for endpoint in self._peers.values():
-            since = endpoint.connection.silent_since
-            if since is not None and since < longest_since:
-                longest, longest_since = endpoint, since
-        if longest is None:
-            return
-        self.stats.peers_evicted += 1
-        logger.info(
-            "tdtp slave: %s silent for %.1f s gives its slot to a new master",
-            format_address(longest.peer),
-            now - longest_since,
-        )
-        longest.evict(now)
-
-    def _on_established(self, endpoint: Endpoint) -> None:
-        self.stats.peers_accepted += 1
-        self._wake()
-
-    def _forget(self, endpoint: Endpoint) -> None:
-        peer = endpoint.peer
-        if peer is not None and self._peers.get(_peer_key(peer)) is endpoint:
-            del self._peers[_peer_key(peer)]
-        if endpoint in self._pending:
-            self._pending.remove(endpoint)
-
-
-def _is_open(data: bytes) -> bool:
-    return len(data) > HEADER_SIZE and data[0] & 0xC0 == _CONTROL_TYPE_BITS and data[5] == _OPEN
-
-
-def listen(
-    host: str | None = "127.0.0.1",
-    port: int = 0,
-    *,
-    config: ConnectionConfig | None = None,
-    max_peers: int = 256,
-    backlog: int = 16,
-    timer: TimerPreference = "auto",
-    on_data: DataCallback | None = None,
-    on_watchdog: WatchdogCallback | None = None,
-    netem: NetemSpec | str | None = None,
-    netem_seed: int | None = None,
-    key: KeyInput | None = None,
-    keys: KeysInput | None = None,
-    pcap: CaptureTarget | None = None,
-    reuse_port: bool = False,
-    exclusive: bool = False,
-    takeover_after: int = 3,
-) -> Opener[Server]:
-    """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
-
-    ``async with tdtp.listen(host, port) as server: async for ep in server: ...`` (or
-    ``server = await tdtp.listen(...)``). Arguments are checked at once
-    (:class:`~tdtp.InvalidArgumentError`); :class:`~tdtp.AddressError` says why the address cannot
-    be bound (in use, not local, not resolvable).
-
-    At most ``max_peers`` masters are served at once, and at most ``backlog`` established ones wait
-    for :meth:`Server.accept` (with ``on_data`` the sessions are served anyway and accept() sees the
-    newest ``backlog``); a master beyond either is refused at once (REJECT ``BUSY``). ``on_data``
-    and ``on_watchdog`` apply to every endpoint (see :func:`connect`).
-
-    ``key`` (one pre-shared key) or ``keys`` (a :class:`~tdtp.KeyRing`, several keys, or a mapping
-    of master name to secret) makes the server keyed: it accepts only masters holding one of the
-    keys, and every datagram of their sessions is authenticated. Without keys anyone who can reach
-    the port can open a session.
-
-    ``netem`` impairs everything the slave sends (all its masters share the one emulated link).
-    ``pcap`` (a path, or a shared :class:`~tdtp.capture.pcap.PcapWriter`) records every datagram the
-    socket sends and receives, every master's and the strangers' alike, until the server closes.
-
-    ``reuse_port=True`` (Linux, BSD) binds with ``SO_REUSEPORT``, so that several processes can
-    each listen on the same port: the kernel hands a master's datagrams, by its address, always to
-    the same one. A process per core, each with its own server, spreads the masters over every core
-    (README, "Sessions at scale"). Every process must pass ``reuse_port=True``.
-
-    ``exclusive=True``: at most one master commands the slave at a time (docs/PROTOCOL.md 5.9). A new
-    master is refused (REJECT ``IN_USE``) unless the one in control has been silent for
-    ``takeover_after`` watchdog periods (``silence_timeout`` each; 1 to 1000, default 3), or the new
-    one is keyed and connects with ``ConnectionConfig(takeover=True)``: then the old session ends with
-    the cause ``taken_over`` and the new master takes control.
-    """
-    if host is not None and not isinstance(host, str):
-        raise InvalidArgumentError(f"host must be an address, a host name or None, got {host!r}")
-    if not isinstance(reuse_port, bool):
-        raise ArgumentTypeError(f"reuse_port must be True or False, got {reuse_port!r}")
-    if reuse_port and not hasattr(socket, "SO_REUSEPORT"):
-        raise InvalidArgumentError(
-            f"reuse_port=True needs SO_REUSEPORT, which {sys.platform} does not have; run one "
-            "process per port instead"
-        )
-    _check_port(port, allow_zero=True)
-    spec = _check_common(config, timer, on_data, on_watchdog, netem)
-    if key is not None and keys is not None:
-        raise InvalidKeyError("pass key= (one key) or keys= (several), not both")
-    chosen = keys if keys is not None else key
-    ring = as_key_ring(chosen) if chosen is not None else None
-    server = Server(
-        config=config,
-        max_peers=max_peers,
-        timer=timer,
-        on_data=on_data,
-        on_watchdog=on_watchdog,
-        backlog=backlog,
-        keys=ring,
-        exclusive=exclusive,
-        takeover_after=takeover_after,
-    )
-    return Opener(lambda: _listen(server, host, port, spec, netem_seed, timer, pcap, reuse_port))
-
-
-async def _listen(
-    server: Server,
-    host: str | None,
-    port: int,
-    netem: NetemSpec | None,
-    netem_seed: int | None,
-    timer: TimerPreference,
-    pcap: CaptureTarget | None,
-    reuse_port: bool = False,
-) -> Server:
-    loop = asyncio.get_running_loop()
-    family = socket.AF_INET6 if host is not None and ":" in host else socket.AF_UNSPEC
-    capture = open_capture(pcap) if pcap is not None else None
-    try:
-        transport, protocol = await datagram_endpoint(
-            loop,
-            lambda: _ServerProtocol(server),
-            local_addr=(host or "0.0.0.0", port),
-            family=family,
-            reuse_port=reuse_port or None,
-        )
-    except OSError as exc:
-        if capture is not None and capture[1]:
-            capture[0].close()
-        raise address_error(exc, "listen on", host or "0.0.0.0", port) from exc
-    except BaseException:
-        if capture is not None and capture[1]:
-            capture[0].close()
-        raise
-    _limit_write_buffer(transport)
-    server._transport = transport
-    server._protocol = protocol
-    socket_side: asyncio.DatagramTransport = transport
-    recorder: CapturingTransport | None = None
-    if capture is not None:
-        socket_side = recorder = CapturingTransport(transport, capture[0], owned=capture[1])
-    _deliver_to(protocol, server._datagram_received, recorder)
-    server._sender = (
-        socket_side
-        if netem is None
-        else ImpairedTransport(socket_side, netem, seed=netem_seed, timer=timer)
-    )
-    logger.info(
-        "tdtp slave: listening on %s%s", server._where(), " (keyed)" if server.keyed else ""
-    )
-    return server

@@ -91,6 +91,7 @@ class _Engine(Protocol):
     def send_batch(self, items: list[tuple[bytes, Address | None]], /) -> int: ...
     def stats(self) -> dict[str, int]: ...
     def set_paused(self, paused: bool, /) -> None: ...
+    def set_on_batch(self, on_batch: BatchCallback, /) -> None: ...
     def close(self) -> None: ...
 
 
@@ -271,6 +272,11 @@ class DatagramLayer:
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"<DatagramLayer {self.engine} batch={self.batch} {state}>"
+
+    def set_receiver(self, on_receive: BatchCallback) -> None:
+        """Hand the next batches to ``on_receive`` instead (called by the engine directly, no
+        Python call in between)."""
+        self._impl.set_on_batch(on_receive)
 
     # ------------------------------------------------------------------ errors
 

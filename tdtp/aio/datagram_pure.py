@@ -295,5 +295,10 @@ class PureEngine:
     def set_paused(self, paused: bool) -> None:
         self.paused = int(bool(paused))
 
+    def set_on_batch(self, on_batch: BatchCallback) -> None:
+        if not callable(on_batch):
+            raise ArgumentTypeError("on_batch must be callable")
+        self._on_batch = on_batch
+
     def close(self) -> None:
         self._closed = True

@@ -1,15 +1,19 @@
-"""The datagram layer behind asyncio's transport interface: the opt-in switch of issue 23's first round.
+"""The datagram layer behind asyncio's transport interface: what ``tdtp.connect`` and ``tdtp.listen`` run on.
 
 :func:`create_datagram_endpoint` has the shape of ``loop.create_datagram_endpoint`` and returns a
-:class:`BatchedDatagramTransport` over a :class:`~tdtp.aio.datagram.DatagramLayer`, so that
-``tdtp.connect`` and ``tdtp.listen`` can run on the batched receive path without changing what they
-do: each ``recvmmsg`` batch is handed to the protocol's ``datagram_received`` one datagram at a time,
-kernel errors to ``error_received``, a full send buffer to ``pause_writing`` / ``resume_writing``.
+:class:`BatchedDatagramTransport` over a :class:`~tdtp.aio.datagram.DatagramLayer`. Receiving, each
+``recvmmsg`` batch goes to :attr:`BatchedDatagramTransport.batch_receiver` in one call when the
+endpoint or server has set one (``Endpoint.receive_batch``, ``Server._batch_received``), else to the
+protocol's ``datagram_received`` one datagram at a time (a pcap capture records them that way). The
+batch is a wake-up of the loop's :class:`~tdtp.aio.outbox.LoopOutbox`: whatever the endpoints send
+while handling it leaves in one ``sendmmsg`` when it ends. Kernel errors go to ``error_received``, a
+full send buffer to ``pause_writing`` / ``resume_writing``, as with the loop's own transport. The
+kernel's receive times (``SO_TIMESTAMPNS``) and the ECN bits are asked for and handed on.
 
-It is off unless ``TDTP_DATAGRAM_LAYER=1`` is in the environment (:func:`enabled`). What it saves is
-the receive side's system calls (one ``recvmmsg`` per batch instead of one ``recvfrom`` each) and
-uvloop's per-datagram callback machinery; the per-datagram Python call into the protocol and the
-per-datagram send remain until the endpoints take batches themselves (the integration round).
+Which transport (:func:`enabled`): the layer whenever its compiled engine is built, unless
+``TDTP_DATAGRAM_LAYER=0``; the loop's own transport otherwise (no C compiler, ``TDTP_PURE_PYTHON=1``).
+``TDTP_DATAGRAM_LAYER=1`` asks for the layer even on the pure-Python engine, ``=pure`` for the pure
+engine even where the compiled one is built (for tests and benchmarks).
 """
 
 from __future__ import annotations
@@ -18,9 +22,10 @@ import asyncio
 import os
 import socket
 from collections.abc import Callable
-from typing import Any, Final, TypeVar
+from typing import Any, Final, Literal, TypeVar
 
-from tdtp.aio.datagram import DatagramLayer, open_datagram_endpoint
+from tdtp.aio.datagram import DatagramLayer, datagram_build_info, open_datagram_endpoint
+from tdtp.aio.outbox import LoopOutbox, SocketOutbox, loop_outbox
 from tdtp.session.events import Address
 
 __all__ = [
@@ -34,9 +39,20 @@ __all__ = [
 ENV: Final = "TDTP_DATAGRAM_LAYER"
 
 
+BatchReceiver = Callable[[list[bytes], list[Address], list[int] | None, list[int] | None], None]
+
+
 def enabled() -> bool:
-    """Whether ``TDTP_DATAGRAM_LAYER`` asks for the batched datagram layer (set, not ``0``)."""
-    return os.environ.get(ENV, "") not in ("", "0")
+    """Whether ``tdtp.connect`` / ``tdtp.listen`` run on the batched datagram layer: by default
+    when its compiled engine is built; ``TDTP_DATAGRAM_LAYER=0`` never, ``1`` (or ``pure``) always."""
+    value = os.environ.get(ENV, "")
+    if value == "":
+        return datagram_build_info().compiled
+    return value != "0"
+
+
+def _engine() -> Literal["auto", "pure"]:
+    return "pure" if os.environ.get(ENV, "") == "pure" else "auto"
 
 
 class BatchedDatagramTransport(asyncio.DatagramTransport):
@@ -47,10 +63,33 @@ class BatchedDatagramTransport(asyncio.DatagramTransport):
         self._protocol = protocol
         self._layer: DatagramLayer | None = None
         self._closing = False
+        self._loop_outbox: LoopOutbox = loop_outbox(asyncio.get_running_loop())
+        self.outbox: SocketOutbox | None = None
+        """This socket's share of the loop's outbox (set once attached)."""
+        self._batch_receiver: BatchReceiver | None = None
 
     def _attach(self, layer: DatagramLayer) -> None:
         self._layer = layer
         self.sendto = layer.sendto  # type: ignore[method-assign,assignment]
+        self.outbox = self._loop_outbox.socket(layer.send_batch, layer.batch)
+
+    @property
+    def layer(self) -> DatagramLayer | None:
+        return self._layer
+
+    @property
+    def batch_receiver(self) -> BatchReceiver | None:
+        """Takes each receive batch in one call, straight from the engine, when set (else the
+        protocol's ``datagram_received`` gets each datagram). It is a wake-up of the loop's outbox
+        of its own: it holds the outbox while it hands the batch on (``Endpoint.receive_batch``,
+        ``tdtp.aio.endpoint.demultiplex``)."""
+        return self._batch_receiver
+
+    @batch_receiver.setter
+    def batch_receiver(self, receiver: BatchReceiver | None) -> None:
+        self._batch_receiver = receiver
+        if self._layer is not None:
+            self._layer.set_receiver(receiver if receiver is not None else self._on_receive)
 
     # -- called by the layer
 
@@ -61,9 +100,14 @@ class BatchedDatagramTransport(asyncio.DatagramTransport):
         stamps: list[int] | None,
         classes: list[int] | None,
     ) -> None:
-        receive = self._protocol.datagram_received  # looked up per batch: tdtp rebinds it
-        for data, addr in zip(datas, addrs, strict=True):
-            receive(data, addr)
+        outbox = self._loop_outbox
+        outbox.hold()  # a wake-up: what the endpoints send now leaves in one batch
+        try:
+            receive = self._protocol.datagram_received  # per batch: tdtp rebinds it
+            for data, addr in zip(datas, addrs, strict=True):
+                receive(data, addr)
+        finally:
+            outbox.release()
 
     def _on_error(self, exc: OSError) -> None:
         self._protocol.error_received(exc)
@@ -108,6 +152,9 @@ class BatchedDatagramTransport(asyncio.DatagramTransport):
         if self._closing:
             return
         self._closing = True
+        if self.outbox is not None:
+            self.outbox.flush()  # what the wake-up queued (a CLOSE) leaves before the socket
+            self.outbox.close()
         if self._layer is not None:
             self._layer.close()
         asyncio.get_running_loop().call_soon(self._protocol.connection_lost, None)
@@ -139,6 +186,9 @@ async def create_datagram_endpoint(
         on_pause=transport._on_pause,
         on_resume=transport._on_resume,
         reuse_port=bool(reuse_port),
+        timestamps=True,
+        ecn=True,
+        engine=_engine(),
     )
     transport._attach(layer)
     protocol.connection_made(transport)

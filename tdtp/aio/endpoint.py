@@ -33,14 +33,16 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import Protocol
+from time import monotonic  # = tdtp.aio.timer.monotonic, called directly (per packet)
+from typing import Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
+from tdtp.aio.outbox import SocketOutbox
 from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
-from tdtp.aio.timer import monotonic
 from tdtp.errors import ConnectionClosedError, ConnectionStateError, EndpointClosedError
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
@@ -56,6 +58,8 @@ from tdtp.session.events import (
 )
 from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats
+from tdtp.wire.control import ControlCode
+from tdtp.wire.header import HEADER_SIZE, PacketType
 
 __all__ = [
     "ControlCallback",
@@ -65,6 +69,9 @@ __all__ = [
     "WatchdogCallback",
     "WatchdogEvent",
 ]
+
+_CONTROL_BITS: Final = int(PacketType.CONTROL) << 6
+_OPEN: Final = int(ControlCode.OPEN)
 
 DataCallback = Callable[[DataReceived], None]
 WatchdogEvent = PeerSilent | PeerResumed
@@ -86,6 +93,83 @@ def format_address(addr: Address | None) -> str:
     return f"[{host}]:{port}" if ":" in str(host) else f"{host}:{port}"
 
 
+def rx_time_of(stamp: int, now: float, wall_ns: int) -> float | None:
+    """A kernel receive time (``SO_TIMESTAMPNS``: ns on the realtime clock, -1 for none) on the
+    :func:`~tdtp.aio.timer.monotonic` clock, given both clocks read at ``now`` / ``wall_ns``."""
+    if stamp < 0:
+        return None
+    return now - (wall_ns - stamp) * 1e-9
+
+
+def _is_open(data: bytes) -> bool:
+    return len(data) > HEADER_SIZE and data[0] & 0xC0 == _CONTROL_BITS and data[5] == _OPEN
+
+
+class Demultiplexer:
+    """A server's receive batches, by source address (the batched layer's receiver for a
+    :class:`~tdtp.Server`): one clock read per batch; each datagram of a known session straight to
+    its core, in order; then one flush per session touched, with the loop's outbox held so that
+    what they all send leaves in one ``sendmmsg``. OPENs and datagrams from addresses no session
+    holds go to ``unattached`` (the server's front door), one at a time."""
+
+    def __init__(
+        self,
+        peers: dict[tuple[object, object], Endpoint],
+        unattached: Callable[[bytes, Address], None],
+        outbox: SocketOutbox | None,
+    ) -> None:
+        self._peers = peers
+        self._unattached = unattached
+        self._outbox = outbox
+
+    def __call__(
+        self,
+        datas: list[bytes],
+        addrs: list[Address],
+        stamps: list[int] | None,
+        classes: list[int] | None,
+    ) -> None:
+        now = monotonic()
+        wall = time.time_ns() if stamps is not None else 0
+        out = self._outbox
+        if out is not None:
+            out.owner.hold()
+        try:
+            peers = self._peers
+            touched: dict[Endpoint, None] = {}
+            last: Address | None = None
+            endpoint: Endpoint | None = None
+            for i in range(len(datas)):
+                data = datas[i]
+                addr = addrs[i]
+                if addr is not last:  # the engine hands one tuple for a run from one source
+                    last = addr
+                    endpoint = peers.get((addr[0], addr[1]))
+                if endpoint is None or _is_open(data) or endpoint._conn.state is State.CLOSED:
+                    self._unattached(data, addr)
+                    last = None  # the table may have changed
+                    continue
+                conn = endpoint._conn
+                conn.receive_datagram(
+                    data,
+                    addr,
+                    now=now,
+                    rx_time=rx_time_of(stamps[i], now, wall) if stamps is not None else None,
+                    ecn=classes[i] & 3 if classes is not None and classes[i] >= 0 else None,
+                )
+                if conn.state is State.CLOSED:
+                    endpoint._flush(now)  # released: later datagrams from there are strangers
+                    touched.pop(endpoint, None)
+                    last = None
+                else:
+                    touched[endpoint] = None
+            for endpoint in touched:
+                endpoint._flush(now)
+        finally:
+            if out is not None:
+                out.owner.release()
+
+
 class Endpoint:
     """A master's or slave's end of one association. Create it with :func:`tdtp.connect` or take it
     from a :class:`tdtp.Server`; do not construct it directly."""
@@ -104,9 +188,14 @@ class Endpoint:
         transport_closed: Callable[[], Awaitable[None]] | None = None,
         reconnect: ReconnectPolicy | None = None,
         new_connection: Callable[[], Connection] | None = None,
+        outbox: SocketOutbox | None = None,
     ) -> None:
         self._conn = conn
         self._transport = transport
+        # On the batched datagram layer: the socket's outbox, which takes what is sent while the
+        # loop serves a wake-up (tdtp.aio.outbox) and sends it with one sendmmsg at its end.
+        self._out = outbox
+        self._queue_out = outbox.append if outbox is not None else None
         self._connected = connected
         loop = asyncio.get_running_loop()
         self._loop = loop
@@ -261,11 +350,21 @@ class Endpoint:
         """
         now = monotonic()
         conn = self._conn
+        out = self._out
+        queue_out = self._queue_out
+        if out is not None and not out.owner.depth:
+            # On the batched layer, outside a wake-up of ours (an application task): what this
+            # pass of the loop sends leaves in one sendmmsg once the callbacks ready now ran.
+            out.owner.hold_until_ready_ran(self._loop)
         try:
-            # The common case leaves at once: encoded and handed to the socket before the
-            # connection's bookkeeping (the round trip does not wait for it).
+            # The common case leaves at once: encoded and handed to the socket (or, on the batched
+            # layer, to the outbox sent at the end of the wake-up) before the connection's
+            # bookkeeping (the round trip does not wait for it).
             sent = conn.send_direct(
-                payload, self._transport.sendto, connected=self._connected, now=now
+                payload,
+                queue_out if out is not None and queue_out is not None else self._transport.sendto,
+                connected=self._connected,
+                now=now,
             )
         except ConnectionClosedError as exc:
             event = exc.event
@@ -434,6 +533,36 @@ class Endpoint:
         self._conn.receive_datagram(data, addr, now=now)
         self._flush(now)
 
+    def receive_batch(
+        self,
+        datas: list[bytes],
+        addrs: list[Address],
+        stamps: list[int] | None,
+        classes: list[int] | None,
+    ) -> None:
+        """A batch from the datagram layer (one ``recvmmsg``), oldest first: one clock read, every
+        datagram handed to the core in order, one flush. ``stamps`` are the kernel's receive times
+        (``SO_TIMESTAMPNS``, ns on the realtime clock) and ``classes`` the TOS / traffic class
+        bytes, parallel to ``datas`` (-1 where the kernel gave none), or ``None``."""
+        now = monotonic()
+        wall = time.time_ns() if stamps is not None else 0
+        out = self._out
+        if out is not None:
+            out.owner.hold()  # a wake-up: what this batch makes us send leaves in one sendmmsg
+        try:
+            conn = self._conn
+            for i in range(len(datas)):
+                rx_time = rx_time_of(stamps[i], now, wall) if stamps is not None else None
+                ecn = classes[i] & 3 if classes is not None and classes[i] >= 0 else None
+                conn.receive_datagram(datas[i], addrs[i], now=now, rx_time=rx_time, ecn=ecn)
+                if conn.state is State.CLOSED:
+                    self._flush(now)  # ended (or reopening): what follows finds the next session
+                    conn = self._conn
+            self._flush(now)
+        finally:
+            if out is not None:
+                out.owner.release()
+
     def pause_writing(self) -> None:
         """The socket's send buffer is backed up: hold data until :meth:`resume_writing`."""
         if not self._conn.sending_paused:
@@ -475,7 +604,10 @@ class Endpoint:
     def _flush(self, now: float | None = None) -> None:
         conn = self._conn
         datagrams = conn.datagrams_to_send(now=monotonic() if now is None else now)
-        if datagrams:
+        out = self._out
+        if datagrams and out is not None and out.owner.depth:
+            out.extend(datagrams, self._connected)  # one sendmmsg when the wake-up ends
+        elif datagrams:
             sendto = self._transport.sendto
             connected = self._connected
             for data, addr in datagrams:
@@ -522,6 +654,10 @@ class Endpoint:
                     conn.stats.events_discarded += 1
                 queue.append(event)
                 if self._data_waiters:
+                    out = self._out
+                    if out is not None and out.owner.depth:
+                        # The readers woken now answer within this wake-up's batch.
+                        out.owner.hold_until_ready_ran(self._loop)
                     self._wake(self._data_waiters)
             elif isinstance(event, ControlReceived | ControlExpired):
                 self._on_control_event(event)

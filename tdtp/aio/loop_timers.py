@@ -23,6 +23,7 @@ from typing import Final
 
 from mypy_extensions import mypyc_attr
 
+from tdtp.aio.outbox import current_outbox
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
 
 __all__ = ["LoopTimers", "TickGroup", "TimerEntry", "loop_timers", "tick_group"]
@@ -136,15 +137,23 @@ class LoopTimers:
                 entry.deadline = _NEVER
                 due.append(entry)
         # Callbacks run after the heap is settled: they re-arm their entries, earlier ones first.
-        # One that raises is reported and the others still run: they share this wake-up.
-        for entry in due:
-            if not entry.closed:
-                try:
-                    entry._callback()
-                except Exception as exc:  # reported, as asyncio reports a callback's
-                    self._loop.call_exception_handler(
-                        {"message": "a tdtp timer callback raised", "exception": exc}
-                    )
+        # One that raises is reported and the others still run: they share this wake-up, and on
+        # the batched datagram layer one sendmmsg per socket (tdtp.aio.outbox) when it ends.
+        outbox = current_outbox(self._loop) if due else None
+        if outbox is not None:
+            outbox.hold()
+        try:
+            for entry in due:
+                if not entry.closed:
+                    try:
+                        entry._callback()
+                    except Exception as exc:  # reported, as asyncio reports a callback's
+                        self._loop.call_exception_handler(
+                            {"message": "a tdtp timer callback raised", "exception": exc}
+                        )
+        finally:
+            if outbox is not None:
+                outbox.release()
         heap = self._heap  # a callback may have compacted it
         while heap and heap[0][2].deadline != heap[0][0]:
             heapq.heappop(heap)  # stale tops, so the timer is armed at a live deadline
@@ -221,6 +230,11 @@ class TickGroup:
             for waiter in self._waiters.pop(tick):
                 if not waiter.done():
                     waiter.set_result(None)
+        outbox = current_outbox(self._loop) if due else None
+        if outbox is not None:
+            # The tasks just woken run next, one after the other; what they send leaves in one
+            # sendmmsg per socket once all of them have (tdtp.aio.outbox).
+            outbox.hold_until_ready_ran(self._loop)
         if self._waiters:
             self._timer.arm(self.deadline(min(self._waiters)))
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 from collections.abc import AsyncIterator, Callable
 
 from tdtp.aio.loop_timers import TickGroup, tick_group
@@ -101,14 +102,26 @@ class Ticker:
             def deadline_of(tick: int) -> float:
                 return group.deadline(first + tick)
 
+            # The common tick inline (a slave runs one of these per master, every period): the
+            # same deadline as group.deadline() to the bit, the same accounting as _deliver().
+            anchor, period, rate = group.anchor, group.period, self.rate
+            catch_up = self._max_catch_up
+            clock = time.monotonic  # = tdtp.aio.timer.monotonic, without a call in between
             index = 0
             while True:
-                deadline = deadline_of(index)
-                now = monotonic()
+                deadline = anchor + (first + index) * period
+                now = clock()
                 if now < deadline:
                     await group.wait(first + index)
-                    now = monotonic()
-                index = self._deliver(now, index, deadline_of)
+                    now = clock()
+                late = now - deadline
+                if int(late * rate) > catch_up:
+                    index = self._deliver(now, index, deadline_of)
+                else:
+                    if late > self.max_lateness:
+                        self.max_lateness = late
+                    self.ticks += 1
+                    self.deadline = deadline
                 yield index
                 index += 1
         finally:

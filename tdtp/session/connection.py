@@ -129,6 +129,7 @@ class Connection(ConnectionView):
         )
         self._state = State.IDLE if role is Role.MASTER else State.LISTENING
         self._peer: Address | None = None
+        self.last_rx_time: float | None = None  # receive_datagram(rx_time=) of the last one
         self._path = PeerPath(config, stats)  # the peer's address: validated, or under the 3x limit
         # The peer's packet protection, once keyed (Handshake.keys; ours is the outbox's sealer).
         self._opener: PacketOpener | None = None
@@ -176,7 +177,6 @@ class Connection(ConnectionView):
             config, events=self._events, stats=stats, rtt=recovery.rtt
         )
         self._ages = delivery.ages
-        self._opening_sent_at = math.nan  # our last OPEN (master) or OPEN_ACK (slave)
 
     # ------------------------------------------------------------------ caller API
 
@@ -295,8 +295,21 @@ class Connection(ConnectionView):
 
     # ------------------------------------------------------------------ input
 
-    def receive_datagram(self, data: bytes, addr: Address, *, now: float) -> None:
-        """Take one datagram from the network. Never raises on its content."""
+    def receive_datagram(
+        self,
+        data: bytes,
+        addr: Address,
+        *,
+        now: float,
+        rx_time: float | None = None,
+        ecn: int | None = None,
+    ) -> None:
+        """Take one datagram from the network. Never raises on its content.
+
+        Optional inputs a driver may know: ``rx_time``, when the kernel received it (on the same
+        clock as ``now``; kept as :attr:`last_rx_time` for a controller that wants the exact
+        one-way delay), and ``ecn``, the IP header's ECN field (0-3; ``3``, Congestion
+        Experienced, is counted in ``stats.ecn_ce``). The core reads no clock for either."""
         stats = self._stats
         stats.datagrams_in += 1
         if self._state is State.CLOSED:
@@ -306,6 +319,10 @@ class Connection(ConnectionView):
         if peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
             stats.count_drop(DropReason.WRONG_ADDRESS)
             return
+        if rx_time is not None:
+            self.last_rx_time = rx_time
+        if ecn == 3:
+            stats.ecn_ce += 1
         size = len(data)
         if size < HEADER_SIZE:
             stats.count_drop(DropReason.TRUNCATED)
@@ -366,7 +383,7 @@ class Connection(ConnectionView):
         size = len(data)
         if self._handshake.confirming:
             # The master's first packet of the session: it has our OPEN_ACK and (keyed) the keys.
-            self._opening_round_trip(now)
+            self._delivery.on_opened(now)
             self._establish(now)
         # The header, decoded in place (wire/header.py's layout) rather than into a Header tuple.
         b1 = data[1]
@@ -621,7 +638,7 @@ class Connection(ConnectionView):
                 self._open_session(verdict, addr, now)
             elif verdict is Reaction.ANSWER_AGAIN:
                 self._queue_open_ack()
-                self._opening_sent_at = now
+                self._delivery.opening_sent_at = now
             elif verdict is Reaction.REPLACED:
                 self._terminate(
                     CloseCause.REPLACED, "the master opened a new connection from the same address"
@@ -666,12 +683,12 @@ class Connection(ConnectionView):
         handshake.open_deadline = now + self.config.open_timeout
         self._liveness.last_send = now
         self._queue_open_ack()
-        self._opening_sent_at = now
+        self._delivery.opening_sent_at = now
 
     def _on_opened(self, initial_seq: int, now: float) -> None:
         """A master's OPEN_ACK (already counted): the session opens, unless the slave's payloads
         are too small for us."""
-        self._opening_round_trip(now)
+        self._delivery.on_opened(now)
         self._install_protection()
         peer_max_payload = self._handshake.peer_max_payload
         if peer_max_payload < self.config.min_peer_payload:
@@ -692,13 +709,6 @@ class Connection(ConnectionView):
         # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
         liveness = self._liveness
         liveness.last_send = now - 2.0 * liveness.keepalive
-
-    def _opening_round_trip(self, now: float) -> None:
-        """The opening's round trip: our last OPEN (OPEN_ACK) to the OPEN_ACK (the master's first
-        packet). If an earlier copy was answered it reads short, as TCP's handshake sample can."""
-        sent_at = self._opening_sent_at
-        if not math.isnan(sent_at) and now >= sent_at:
-            self._delivery.opening_rtt = now - sent_at
 
     def _install_protection(self) -> None:
         """A keyed session's keys, derived at the open, protect every datagram from now on."""
@@ -847,7 +857,7 @@ class Connection(ConnectionView):
         self._outbox.emit_control(
             out, datagram, self._peer_address(), now, handshake.tag_size, True
         )
-        self._opening_sent_at = now
+        self._delivery.opening_sent_at = now
 
     # ------------------------------------------------------------------ helpers
 

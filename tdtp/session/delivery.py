@@ -9,6 +9,8 @@ that waited is older by its wait). The ages go into a bounded histogram for ``st
 
 from __future__ import annotations
 
+import math
+
 from tdtp.config import ConnectionConfig
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import new_data_received
@@ -21,7 +23,16 @@ from tdtp.session.stats import ConnectionStats
 class SampleDelivery:
     """Hands the peer's samples to the event queue, in order and timed."""
 
-    __slots__ = ("_config", "_events", "_rtt", "_stats", "ages", "opening_rtt", "reorder")
+    __slots__ = (
+        "_config",
+        "_events",
+        "_rtt",
+        "_stats",
+        "ages",
+        "opening_rtt",
+        "opening_sent_at",
+        "reorder",
+    )
 
     def __init__(
         self,
@@ -40,6 +51,16 @@ class SampleDelivery:
         self.ages = SampleAgeHistogram()
         self.opening_rtt: float | None = None
         """The opening's round trip: all the receiving end of a one-way stream ever measures."""
+        self.opening_sent_at = math.nan
+        """When our last OPEN (master) or OPEN_ACK (slave) left."""
+
+    def on_opened(self, now: float) -> None:
+        """The opening's answer arrived: its round trip, from our last OPEN (OPEN_ACK) to the
+        OPEN_ACK (the master's first packet). If an earlier copy was answered it reads short, as
+        TCP's handshake sample can."""
+        sent_at = self.opening_sent_at
+        if not math.isnan(sent_at) and now >= sent_at:
+            self.opening_rtt = now - sent_at
 
     def open(self, initial_seq: int) -> None:
         """The peer's data starts at ``initial_seq``: deliver it in order, through a reorder wait,

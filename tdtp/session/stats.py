@@ -150,6 +150,9 @@ class ConnectionStats:
     """The reorder wait in force, seconds: adapted to the reordering measured, 0 while there is none."""
     peer_gaps: int = 0
     """Peer sequence numbers skipped at arrival (lost or not yet arrived), as this side saw them."""
+    ecn_ce: int = 0
+    """Datagrams from the peer that arrived marked ECN Congestion Experienced (RFC 3168 / 9331), as
+    the driver read the IP header's ECN field (``receive_datagram(..., ecn=3)``)."""
     migrations: int = 0
     """Times a slave's session followed its master to a new address (path migration, PROTOCOL.md
     5.8): a keyed datagram that authenticated from there, or an unkeyed PATH_RESPONSE."""

@@ -143,6 +143,7 @@ async def test_peer_that_disappears_is_reported_within_the_idle_timeout() -> Non
         slave = await server.accept()
         await _exchange(master, slave, 50)
         slave._transport = _BlackHole()  # the slave host drops off the network
+        slave._out = None  # (on the batched layer, its outbox too)
         closed = await asyncio.wait_for(master.wait_closed(), FAST_TIMEOUTS.idle_timeout + 2.0)
         assert closed.cause is CloseCause.IDLE_TIMEOUT
         assert master.is_closed
