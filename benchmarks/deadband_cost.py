@@ -48,7 +48,6 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NoReturn
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
@@ -375,15 +374,9 @@ def rows_for(profile_label: str, results: dict[str, list[dict[str, Json]]]) -> l
 # ---------------------------------------------------------------------------- command line
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        """Misuse: one line on stderr, exit status 2."""
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     doc = __doc__ or ""
-    p = _Parser(prog="deadband_cost.py", description=doc.splitlines()[0])
+    p = common.OneLineParser(prog="deadband_cost.py", description=doc.splitlines()[0])
     p.add_argument("--seconds", type=float, default=None, help="virtual seconds measured (10)")
     p.add_argument("--repeat", type=int, default=None, help="seeds per mode and path (3)")
     p.add_argument("--k", type=float, default=0.1, help="the deadband's Weber fraction (0.1)")

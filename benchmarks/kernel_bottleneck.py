@@ -45,7 +45,6 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NoReturn
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
@@ -297,11 +296,6 @@ def tdtp_figures(master: Json, slave: Json) -> Json:
 # ---------------------------------------------------------------------------- command line
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def parse_rate(text: str) -> float:
     """tc's rate syntax (bits per second), through tdtp's netem parser, which reads it as tc does."""
     from tdtp.netem import parse_netem  # noqa: PLC0415
@@ -313,7 +307,7 @@ def parse_rate(text: str) -> float:
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     doc = __doc__ or ""
-    p = _Parser(prog="kernel_bottleneck.py", description=doc.splitlines()[0])
+    p = common.OneLineParser(prog="kernel_bottleneck.py", description=doc.splitlines()[0])
     p.add_argument("--duration", type=float, default=20.0, help="seconds per run (20)")
     p.add_argument("--controllers", nargs="+", metavar="NAME", help="tdtp controllers (all)")
     p.add_argument("--rate", default="1mbit", help="the bottleneck, tc syntax (1mbit)")

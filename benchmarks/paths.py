@@ -60,7 +60,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
@@ -745,15 +745,9 @@ def rows_of(cells: list[Json], default: str) -> list[Row]:
 # ---------------------------------------------------------------------------- command line
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        """Misuse: one line on stderr, exit status 2."""
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     doc = __doc__ or ""
-    p = _Parser(prog="paths.py", description=doc.splitlines()[0])
+    p = common.OneLineParser(prog="paths.py", description=doc.splitlines()[0])
     p.add_argument("--duration", type=float, default=None, help="seconds per cell (10)")
     p.add_argument(
         "--quick",
