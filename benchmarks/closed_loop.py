@@ -198,7 +198,13 @@ def run_once(
         )
         handles.append(master)
         master.recv(SETUP_TIMEOUT)
-        warm_up = _warm_up(profile, transport, slave, master, warmup_timeout)
+        try:
+            warm_up = _warm_up(profile, transport, slave, master, warmup_timeout)
+        except StartupError:
+            for handle in (slave, master):  # a run of no ticks: both sides close and exit
+                with contextlib.suppress(OSError):
+                    handle.send({"start_at": time.monotonic(), "duration": 0.0})
+            raise
         start_at = time.monotonic() + 0.5
         for handle in (slave, master):
             handle.send({"start_at": start_at, "duration": seconds})
