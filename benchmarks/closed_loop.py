@@ -4,16 +4,18 @@ A position-force loop at 1 kHz, each side in its own process (``teleop_loop/``):
 operator's hand (an impedance following a seeded reach-press-slide motion) holds a haptic device and
 sends its position; on the slave a MuJoCo arm follows it under a position controller, meets a stiff
 wall, and sends back the contact force it measures, which the device renders. The transports (tdtp,
-raw UDP, TCP, Zenoh) each carry the loop through the same netem profile: tdtp through its in-process
-netem, the others through the relay ``tdtp netem-relay`` runs (UDP, Zenoh) or its per-segment
-counterpart for TCP (``teleop_loop/tcp_link.py``).
+tdtp with perceptual deadband, raw UDP, TCP, Zenoh) each carry the loop through the same netem
+profile: tdtp through its in-process netem, the others through the relay ``tdtp netem-relay`` runs
+(UDP, Zenoh) or its per-segment counterpart for TCP (``teleop_loop/tcp_link.py``). Before the clock
+starts, a warm-up waits (bounded) until a first sample has crossed each way.
 
 Per profile and transport: fingertip tracking RMSE (mm), force RMSE (N), deepest wall penetration
 (mm), packets/s each way, p99 age of the newest sample each way, and the energy the channel injected
 (a passivity observer). A Markdown table (stderr, and ``--out``/closed_loop.md), the JSON (``--json`` on
 stdout, and ``--out``/closed_loop.json), and a PNG per profile (position and force over time).
 
-    python benchmarks/closed_loop.py                 # every profile and transport (~4-5 min)
+    python benchmarks/closed_loop.py                 # every profile and transport (~6 min)
+    python benchmarks/closed_loop.py --repeat 3      # medians and min-max spreads (~20 min)
     python benchmarks/closed_loop.py --quick --json  # CI-sized
 """
 
