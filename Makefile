@@ -72,8 +72,9 @@ kernel-check: $(BUILD_STAMP)
 		{ apt-get update -q >/dev/null && apt-get install -y -q iperf3 >/dev/null; }; }
 	$(BIN)/python benchmarks/kernel_bottleneck.py
 
-# A bilateral haptic loop (operator model, MuJoCo arm against a wall) over tdtp, UDP, TCP and Zenoh
-# through the same netem profiles (~4-5 min on 2 cores): benchmarks/results/closed_loop/.
+# A bilateral haptic loop (operator model, MuJoCo arm against a wall) over tdtp (with and without
+# deadband), UDP, TCP and Zenoh through the same netem profiles (~6 min on 2 cores;
+# CLOSED_LOOP_ARGS="--repeat 3" for medians and spreads, ~20 min): benchmarks/results/closed_loop/.
 closed-loop: $(BENCH_STAMP) $(BUILD_STAMP)
 	nice -n 5 $(BIN)/python benchmarks/closed_loop.py $(CLOSED_LOOP_ARGS)
 

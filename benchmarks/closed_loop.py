@@ -4,16 +4,18 @@ A position-force loop at 1 kHz, each side in its own process (``teleop_loop/``):
 operator's hand (an impedance following a seeded reach-press-slide motion) holds a haptic device and
 sends its position; on the slave a MuJoCo arm follows it under a position controller, meets a stiff
 wall, and sends back the contact force it measures, which the device renders. The transports (tdtp,
-raw UDP, TCP, Zenoh) each carry the loop through the same netem profile: tdtp through its in-process
-netem, the others through the relay ``tdtp netem-relay`` runs (UDP, Zenoh) or its per-segment
-counterpart for TCP (``teleop_loop/tcp_link.py``).
+tdtp with perceptual deadband, raw UDP, TCP, Zenoh) each carry the loop through the same netem
+profile: tdtp through its in-process netem, the others through the relay ``tdtp netem-relay`` runs
+(UDP, Zenoh) or its per-segment counterpart for TCP (``teleop_loop/tcp_link.py``). Before the clock
+starts, a warm-up waits (bounded) until a first sample has crossed each way.
 
 Per profile and transport: fingertip tracking RMSE (mm), force RMSE (N), deepest wall penetration
 (mm), packets/s each way, p99 age of the newest sample each way, and the energy the channel injected
 (a passivity observer). A Markdown table (stderr, and ``--out``/closed_loop.md), the JSON (``--json`` on
 stdout, and ``--out``/closed_loop.json), and a PNG per profile (position and force over time).
 
-    python benchmarks/closed_loop.py                 # every profile and transport (~4-5 min)
+    python benchmarks/closed_loop.py                 # every profile and transport (~6 min)
+    python benchmarks/closed_loop.py --repeat 3      # medians and min-max spreads (~20 min)
     python benchmarks/closed_loop.py --quick --json  # CI-sized
 """
 
@@ -55,10 +57,18 @@ packets) with jitter; congested: a bottleneck below the stream's ~0.85 Mbit/s (1
 QUICK_SECONDS = 2.0
 SECONDS = 10.0
 SETUP_TIMEOUT = 30.0
+WARMUP_TIMEOUT = 20.0
+"""Seconds the warm-up may take before a run is given up: long enough for a session set-up that
+crosses a bursty link several times, short enough that a transport that never starts costs little."""
 
 
 class UsageError(Exception):
     pass
+
+
+class StartupError(Exception):
+    """A transport did not carry a first sample both ways within the warm-up: the cell has no
+    figures, the report says why, and the other cells still run."""
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -82,6 +92,18 @@ def _parse(argv: list[str]) -> argparse.Namespace:
         default=RESULTS / "closed_loop",
         help="where the table, JSON and PNGs go",
     )
+    p.add_argument(
+        "--deadband-k",
+        type=float,
+        default=0.1,
+        help="tdtp-deadband's Weber fraction: the relative change that sends a sample (0.1)",
+    )
+    p.add_argument(
+        "--warmup-timeout",
+        type=float,
+        default=WARMUP_TIMEOUT,
+        help=f"seconds a transport may take to carry its first sample each way ({WARMUP_TIMEOUT:g})",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the PNGs")
     p.add_argument(
         "--loop", choices=("auto", "uvloop", "asyncio"), default="auto", help="event loop (auto)"
@@ -95,6 +117,12 @@ def _parse(argv: list[str]) -> argparse.Namespace:
         raise UsageError(f"--seconds must be between 1 and 600, got {args.seconds:g}")
     if not 1 <= args.repeat <= 20:
         raise UsageError(f"--repeat must be between 1 and 20, got {args.repeat}")
+    if not 0.0 < args.deadband_k < 10.0:
+        raise UsageError(f"--deadband-k must be a fraction in (0, 10), got {args.deadband_k:g}")
+    if not 1.0 <= args.warmup_timeout <= 600:
+        raise UsageError(
+            f"--warmup-timeout must be between 1 and 600 seconds, got {args.warmup_timeout:g}"
+        )
     if args.loop == "auto":
         args.loop = "uvloop" if have_uvloop() else "asyncio"
     elif args.loop == "uvloop" and not have_uvloop():
@@ -125,16 +153,32 @@ def progress(message: str) -> None:
 
 
 def run_once(
-    profile: str, transport: str, seconds: float, netem_seed: int, motion_seed: int, loop: str
-) -> tuple[dict[str, Any], dict[str, Any]]:
-    """One run: the figures, and the logs for the plots."""
+    profile: str,
+    transport: str,
+    seconds: float,
+    netem_seed: int,
+    motion_seed: int,
+    loop: str,
+    options: dict[str, Any] | None = None,
+    warmup_timeout: float = WARMUP_TIMEOUT,
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """One run: the figures, the logs for the plots, and what each end's transport (and the relay)
+    counted, with how long the warm-up took. :class:`StartupError` when the transport carried no
+    sample one way or the other within ``warmup_timeout``."""
+    options = options or {}
     spec = PROFILES[profile]
     kind = TRANSPORTS[transport].impairment
     handles: list[WorkerHandle] = []
     relay: WorkerHandle | None = None
     try:
         slave = start_worker(
-            "slave", sides.slave, transport=transport, spec=spec, seed=netem_seed + 1, loop=loop
+            "slave",
+            sides.slave,
+            transport=transport,
+            spec=spec,
+            seed=netem_seed + 1,
+            loop=loop,
+            options=options,
         )
         handles.append(slave)
         port = slave.recv(SETUP_TIMEOUT)["port"]
@@ -152,9 +196,17 @@ def run_once(
             seed=netem_seed,
             motion_seed=motion_seed,
             loop=loop,
+            options=options,
         )
         handles.append(master)
         master.recv(SETUP_TIMEOUT)
+        try:
+            warm_up = _warm_up(profile, transport, slave, master, warmup_timeout)
+        except StartupError:
+            for handle in (slave, master):  # a run of no ticks: both sides close and exit
+                with contextlib.suppress(OSError):
+                    handle.send({"start_at": time.monotonic(), "duration": 0.0})
+            raise
         start_at = time.monotonic() + 0.5
         for handle in (slave, master):
             handle.send({"start_at": start_at, "duration": seconds})
@@ -176,7 +228,14 @@ def run_once(
         else:
             packets = {"m2s": m["packets_sent"], "s2m": s["packets_sent"]}
         figures = metrics.summarise(m["log"], s["log"], seconds, packets)
-        return figures, {"master": m["log"], "slave": s["log"]}
+        details: dict[str, Any] = {
+            "warm_up_s": warm_up,
+            "master": m["details"],
+            "slave": s["details"],
+        }
+        if after is not None:
+            details["relay"] = after
+        return figures, {"master": m["log"], "slave": s["log"]}, details
     finally:
         if relay is not None:
             with contextlib.suppress(Exception):
@@ -187,46 +246,89 @@ def run_once(
             handle.finish()
 
 
-def _median_cell(runs: list[dict[str, Any]]) -> dict[str, Any]:
-    """The median of every figure over the runs (nested dicts alike); ``spread`` gives min-max."""
+def _warm_up(
+    profile: str,
+    transport: str,
+    slave: WorkerHandle,
+    master: WorkerHandle,
+    timeout: float,
+) -> dict[str, float]:
+    """Wait until each side has received a first sample from the other (each says when), at most
+    ``timeout`` seconds in all; the seconds each side waited."""
+    deadline = time.monotonic() + timeout
+    waited: dict[str, float] = {}
+    for name, handle, way in (
+        ("slave", slave, "master->slave"),
+        ("master", master, "slave->master"),
+    ):
+        left = deadline - time.monotonic()
+        if left <= 0.0 or not handle.conn.poll(left):
+            raise StartupError(
+                f"{transport} on {profile}: no sample crossed {way} within {timeout:g} s of "
+                "warm-up (the transport's session never came up over this path)"
+            )
+        waited[name] = float(handle.recv(0.0)["warm"])
+    return waited
 
-    def merge(values: list[Any]) -> Any:
+
+def _median_cell(runs: list[dict[str, Any]], failures: list[str]) -> dict[str, Any]:
+    """The median of every figure over the runs that started (nested dicts alike); with more than
+    one, ``spread`` has the same shape with ``[min, max]`` in place of each figure. ``failed``
+    lists why the others did not start; a cell where none started has only that."""
+
+    def merge(values: list[Any], pick: Any) -> Any:
         first = values[0]
         if isinstance(first, dict):
-            return {k: merge([v[k] for v in values]) for k in first}
+            return {k: merge([v[k] for v in values], pick) for k in first}
         numbers = [v for v in values if v is not None]
-        return round(statistics.median(numbers), 4) if numbers else None
+        return pick(numbers) if numbers else None
 
-    cell: dict[str, Any] = merge(runs)
-    if len(runs) > 1:
-        cell["spread"] = {
-            key: [min(r[key] for r in runs), max(r[key] for r in runs)]
-            for key in ("position_rmse_mm", "force_rmse_n")
-        }
+    cell: dict[str, Any] = {}
+    if runs:
+        cell = merge(runs, lambda xs: round(statistics.median(xs), 4))
+        if len(runs) > 1:
+            cell["spread"] = merge(runs, lambda xs: [min(xs), max(xs)])
     cell["runs"] = len(runs)
+    if failures:
+        cell["failed"] = failures
     return cell
 
 
 def markdown(report: dict[str, Any]) -> str:
+    """The table: medians, with ``(min-max)`` after the RMSEs when a cell has several runs."""
     lines = [
         "| profile | transport | position RMSE (mm) | force RMSE (N) | penetration max (mm) "
-        "| packets/s M->S / S->M | newest sample age p99 (ms) M->S / S->M | channel energy injected (J) |",
-        "|---|---|---:|---:|---:|---:|---:|---:|",
+        "| packets/s M->S / S->M | newest sample age p99 (ms) M->S / S->M "
+        "| channel energy injected (J) | runs |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
 
     def pair(d: dict[str, Any], digits: int) -> str:
         return " / ".join("-" if d[k] is None else f"{d[k]:.{digits}f}" for k in ("m2s", "s2m"))
 
+    def with_spread(c: dict[str, Any], key: str) -> str:
+        text = f"{c[key]:.2f}"
+        if "spread" in c:
+            lo, hi = c["spread"][key]
+            text += f" ({lo:.2f}-{hi:.2f})"
+        return text
+
     for profile, cells in report["profiles"].items():
         for transport, c in cells.items():
-            rmse = f"{c['position_rmse_mm']:.2f}"
-            if "spread" in c:
-                lo, hi = c["spread"]["position_rmse_mm"]
-                rmse += f" ({lo:.2f}-{hi:.2f})"
+            runs = f"{c['runs']}" + (
+                f" ({len(c['failed'])} did not start)" if "failed" in c else ""
+            )
+            if not c["runs"]:
+                lines.append(
+                    f"| {profile} | {transport} | did not start: {c['failed'][0]} "
+                    f"| - | - | - | - | - | {runs} |"
+                )
+                continue
             lines.append(
-                f"| {profile} | {transport} | {rmse} | {c['force_rmse_n']:.2f} "
+                f"| {profile} | {transport} | {with_spread(c, 'position_rmse_mm')} "
+                f"| {with_spread(c, 'force_rmse_n')} "
                 f"| {c['penetration_max_mm']:.2f} | {pair(c['packets_per_s'], 0)} "
-                f"| {pair(c['age_p99_ms'], 1)} | {c['channel_energy_j']['injected']:.3f} |"
+                f"| {pair(c['age_p99_ms'], 1)} | {c['channel_energy_j']['injected']:.3f} | {runs} |"
             )
     return "\n".join(lines)
 
@@ -282,10 +384,12 @@ def main(argv: list[str] | None = None) -> int:
         "seconds": args.seconds,
         "repeat": args.repeat,
         "seed": args.seed,
+        "deadband_k": args.deadband_k,
         "loop": args.loop,
         "environment": environment(),
         "specs": {p: PROFILES[p] for p in args.profiles},
         "profiles": {},
+        "details": {},
     }
     args.out.mkdir(parents=True, exist_ok=True)
     total = len(args.profiles) * len(args.transports) * args.repeat
@@ -293,31 +397,42 @@ def main(argv: list[str] | None = None) -> int:
     for profile in args.profiles:
         cells: dict[str, Any] = {}
         logs: dict[str, dict[str, Any]] = {}
+        details: dict[str, list[dict[str, Any]]] = {}
         for transport in args.transports:
             runs = []
+            failures: list[str] = []
             for rep in range(args.repeat):
                 done += 1
                 progress(
                     f"[{done}/{total}] {profile} ({PROFILES[profile]}) over {transport}, run {rep + 1}"
                 )
-                figures, run_logs = run_once(
-                    profile,
-                    transport,
-                    args.seconds,
-                    args.seed * 1000 + rep * 10,
-                    args.seed,
-                    args.loop,
-                )
+                try:
+                    figures, run_logs, run_details = run_once(
+                        profile,
+                        transport,
+                        args.seconds,
+                        args.seed * 1000 + rep * 10,
+                        args.seed,
+                        args.loop,
+                        {"deadband_k": args.deadband_k},
+                        args.warmup_timeout,
+                    )
+                except StartupError as exc:
+                    progress(f"    did not start: {exc}")
+                    failures.append(str(exc))
+                    continue
                 progress(
                     f"    position RMSE {figures['position_rmse_mm']:.2f} mm, force RMSE "
                     f"{figures['force_rmse_n']:.2f} N, packets/s {figures['packets_per_s']}"
                 )
                 runs.append(figures)
-                if rep == 0:
+                details.setdefault(transport, []).append(run_details)
+                if transport not in logs:
                     logs[transport] = run_logs
-            cells[transport] = _median_cell(runs)
+            cells[transport] = _median_cell(runs, failures)
         report["profiles"][profile] = cells
-        if not args.no_plots:
+        report["details"][profile] = details
+        if not args.no_plots and logs:
             path = args.out / f"closed_loop_{profile}.png"
             plot(profile, logs, path)
             progress(f"    wrote {path}")

@@ -152,3 +152,70 @@ def test_tcp_path_delivers_in_order_through_loss() -> None:
     received, counts = asyncio.run(run())
     assert received == bytes(range(256)) * 40
     assert counts["lost"] > 0 and counts["retransmissions"] >= counts["lost"]
+
+
+def test_newest_sample_takes_the_run_over_the_warm_up() -> None:
+    """Warm-up samples are numbered just below the run's first, modulo 2**32."""
+    sides = importlib.import_module("teleop_loop.sides")
+    newest = transports.NewestSample()
+
+    def sample(index: int) -> bytes:
+        return struct.pack(">dI", 0.0, index) + bytes(88)
+
+    newest.offer(sample(sides.WARMUP_INDEX + 7))
+    newest.offer(sample(0))
+    assert newest.payload == sample(0)
+    newest.offer(sample(sides.WARMUP_INDEX + 8))  # a late warm-up sample
+    assert newest.payload == sample(0)
+
+
+class _Wire:
+    """An in-memory channel: what one end sends, the other reads as its newest sample."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def send(self, payload: bytes) -> None:
+        self.sent.append(payload)
+
+    def latest(self) -> bytes | None:
+        return self.sent[-1] if self.sent else None
+
+    def packets_sent(self) -> int | None:
+        return len(self.sent)
+
+    def details(self) -> dict[str, int]:
+        return {}
+
+    async def close(self) -> None:
+        pass
+
+
+def test_deadband_sends_velocity_changes_and_the_slave_extrapolates(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    deadband_channel = importlib.import_module("teleop_loop.deadband_channel")
+    haptic = importlib.import_module("tdtp.teleop.haptic_sample")
+    wire = _Wire()
+    master = deadband_channel.DeadbandChannel(wire, sends="command")  # type: ignore[arg-type]
+    slave = deadband_channel.DeadbandChannel(wire, sends="force")  # type: ignore[arg-type]
+    clock = [0.0]
+    monkeypatch.setattr(deadband_channel.tdtp, "monotonic", lambda: clock[0])
+    v = 0.1  # m/s along x, 50 ticks
+    for tick in range(50):
+        clock[0] = tick * workspace.TICK
+        position = (0.35 + v * tick * workspace.TICK, 0.0, 0.0)
+        master.send(haptic.HapticSample(clock[0], tick, position, (0.0, 0.0, 0.0)).encode(100))
+        slave.latest()
+    # At rest, then moving: two samples; a constant velocity sends nothing more within max_hold.
+    assert len(wire.sent) == 2 and master.sender.stats.offered == 50
+    # The slave reads the command extrapolated along the slope of the two it received.
+    clock[0] = 0.049
+    command = haptic.HapticSample.decode(slave.latest())
+    assert command.position[0] == pytest.approx(0.35 + v * 0.049, abs=1e-6)
+    # The master holds the force it received; a 10 % change of it is not sent.
+    slave.send(haptic.HapticSample(0.05, 50, (0.45, 0.0, 0.0), (-10.0, 0.0, 0.0)).encode(100))
+    slave.send(haptic.HapticSample(0.051, 51, (0.45, 0.0, 0.0), (-10.5, 0.0, 0.0)).encode(100))
+    assert len(wire.sent) == 3
+    force = haptic.HapticSample.decode(master.latest()).force
+    assert force[0] == pytest.approx(-10.0)

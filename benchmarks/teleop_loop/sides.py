@@ -1,9 +1,15 @@
 """The two ends of the bilateral loop, each a worker process running a 1 kHz control loop.
 
 Protocol with the parent (a :func:`_common.start_worker` pipe): the slave sends ``{"port": N}`` once it
-listens, the master ``{"ready": True}`` once connected; both then get ``{"start_at": T, "duration": D}``
-(``tdtp.monotonic`` seconds, the host's shared monotonic clock), run their loop from ``T`` for ``D``
-seconds on a :class:`tdtp.Ticker`, and send back their log (one row per tick) and their packet counts.
+listens, the master ``{"ready": True}`` once connected. Then the **warm-up**: both sides send a
+warm-up sample every millisecond (the device at rest, no force) and each says ``{"warm": S}`` once
+the first sample from its peer has arrived, ``S`` seconds into the warm-up (a transport whose session
+set-up crosses the impaired link, as Zenoh's does, may need several tries on a bursty one); the
+parent bounds the wait. Both then get ``{"start_at": T, "duration": D}`` (``tdtp.monotonic`` seconds,
+the host's shared monotonic clock), keep warming up until ``T``, run their loop from ``T`` for ``D``
+seconds on a :class:`tdtp.Ticker`, and send back their log (one row per tick), their packet counts
+and what their transport counted. Warm-up samples are numbered just below the run's first (the
+counter wraps), so a receiver that keeps the newest by counter takes the run's samples over them.
 
 Every sample is a :class:`~tdtp.teleop.haptic_sample.HapticSample` padded to
 :data:`~teleop_loop.transports.FRAME` bytes: the master sends the device's position, the slave the
@@ -36,28 +42,63 @@ SLAVE_COLUMNS = ("t", "cx", "cy", "x", "y", "vx", "vy", "fx", "fy", "penetration
 penetration into the wall, the newest command's age."""
 
 
+WARMUP_INDEX = (1 << 32) - (1 << 24)
+"""The first warm-up sample's counter: 2**24 warm-up samples (4.6 hours) before the run's 0."""
+
+
 def _run(loop_name: str, coroutine: Any) -> None:
     with asyncio.Runner(loop_factory=loop_factory(loop_name)) as runner:
         runner.run(coroutine)
 
 
-async def _wait_for_start(conn: multiprocessing.connection.Connection) -> tuple[float, float]:
-    go: dict[str, float] = await asyncio.to_thread(conn.recv)
-    start_at, duration = go["start_at"], go["duration"]
-    await asyncio.sleep(max(0.0, start_at - tdtp.monotonic()))
+async def _warm_up_then_start(
+    conn: multiprocessing.connection.Connection, channel: Channel, out: HapticSample
+) -> tuple[float, float]:
+    """Send ``out`` (renumbered) every millisecond, say ``{"warm": seconds}`` once a sample from the
+    peer has arrived, and carry on until the start time the parent sends; then the start time and
+    the duration."""
+    go: asyncio.Task[dict[str, float]] = asyncio.get_running_loop().create_task(
+        asyncio.to_thread(conn.recv)
+    )
+    began = tdtp.monotonic()
+    warm = False
+    index = WARMUP_INDEX
+    async for _ in tdtp.Ticker(round(1 / TICK)):
+        if go.done():
+            break
+        if not warm and channel.latest() is not None:
+            warm = True
+            conn.send({"warm": round(tdtp.monotonic() - began, 3)})
+        sample = HapticSample(tdtp.monotonic(), index, out.position, out.force)
+        _send(channel, sample.encode(FRAME))
+        index = (index + 1) & 0xFFFFFFFF
+    message = await go
+    start_at, duration = message["start_at"], message["duration"]
+    while tdtp.monotonic() < start_at:  # keep the path warm until the run starts
+        sample = HapticSample(tdtp.monotonic(), index, out.position, out.force)
+        _send(channel, sample.encode(FRAME))
+        index = (index + 1) & 0xFFFFFFFF
+        await asyncio.sleep(min(TICK, max(0.0, start_at - tdtp.monotonic())))
     return start_at, duration
 
 
 def slave(
-    conn: multiprocessing.connection.Connection, transport: str, spec: str, seed: int, loop: str
+    conn: multiprocessing.connection.Connection,
+    transport: str,
+    spec: str,
+    seed: int,
+    loop: str,
+    options: dict[str, Any] | None = None,
 ) -> None:
     from teleop_loop.arm import Arm  # noqa: PLC0415 - MuJoCo: only the slave needs it
 
     async def main() -> None:
-        channel, port = await TRANSPORTS[transport].slave(0, spec, seed)
+        chosen = TRANSPORTS[transport]
+        channel, port = await chosen.slave(0, spec, seed, **chosen.pick(options or {}))
         conn.send({"port": port})
         arm = Arm()
-        _, duration = await _wait_for_start(conn)
+        rest = HapticSample(0.0, 0, (*arm.tip(), 0.0), (0.0, 0.0, 0.0))
+        _, duration = await _warm_up_then_start(conn, channel, rest)
         ticks = round(duration / TICK)
         log = np.full((ticks, len(SLAVE_COLUMNS)), math.nan)
         sent_before = channel.packets_sent()
@@ -79,7 +120,13 @@ def slave(
             log[n] = (now, command[0], command[1], x, y, vx, vy, fx, fy, arm.penetration(), age)
             n += 1
         sent_after = channel.packets_sent()
-        conn.send({"log": log[:n], "packets_sent": _delta(sent_before, sent_after)})
+        conn.send(
+            {
+                "log": log[:n],
+                "packets_sent": _delta(sent_before, sent_after),
+                "details": channel.details(),
+            }
+        )
         await channel.close()
 
     _run(loop, main())
@@ -93,11 +140,14 @@ def master(
     seed: int,
     motion_seed: int,
     loop: str,
+    options: dict[str, Any] | None = None,
 ) -> None:
     async def main() -> None:
-        channel = await TRANSPORTS[transport].master(port, spec, seed)
+        chosen = TRANSPORTS[transport]
+        channel = await chosen.master(port, spec, seed, **chosen.pick(options or {}))
         conn.send({"ready": True})
-        _, duration = await _wait_for_start(conn)
+        rest = HapticSample(0.0, 0, (*REST, 0.0), (0.0, 0.0, 0.0))
+        _, duration = await _warm_up_then_start(conn, channel, rest)
         operator = Operator(ReferenceMotion(motion_seed, duration))
         ticks = round(duration / TICK)
         log = np.full((ticks, len(MASTER_COLUMNS)), math.nan)
@@ -121,7 +171,13 @@ def master(
             log[n] = (now, x, y, vx, vy, fx, fy, age)
             n += 1
         sent_after = channel.packets_sent()
-        conn.send({"log": log[:n], "packets_sent": _delta(sent_before, sent_after)})
+        conn.send(
+            {
+                "log": log[:n],
+                "packets_sent": _delta(sent_before, sent_after),
+                "details": channel.details(),
+            }
+        )
         await channel.close()
 
     _run(loop, main())

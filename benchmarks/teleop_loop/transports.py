@@ -13,14 +13,15 @@ jittery link reorders behind a newer one never replaces it). A transport is a pa
 * ``zenoh``: eclipse-zenoh peers, best-effort express publications over its UDP link, through
   ``tdtp netem-relay``; loopback only, no scouting.
 
-A variant is one entry: ``"tdtp-deadband": Transport(partial(tdtp_master, deadband=0.1), ...)``
-once tdtp has a deadband option (``tdtp.connect``/``tdtp.listen`` take the options as keywords).
+* ``tdtp-deadband``: tdtp as above, each side's samples through a perceptual deadband
+  (:mod:`teleop_loop.deadband_channel`; ``deadband_k``, the Weber fraction, is its option).
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import math
 import socket
 import struct
 from collections.abc import Awaitable, Callable
@@ -40,6 +41,10 @@ class Channel(Protocol):
     def latest(self) -> bytes | None: ...
     def packets_sent(self) -> int | None:
         """Datagrams (or segments) this end put on the wire, when the transport can tell."""
+        ...
+
+    def details(self) -> dict[str, Any]:
+        """What the transport knows about the run (its own counters), for the JSON; may be empty."""
         ...
 
     async def close(self) -> None: ...
@@ -81,6 +86,9 @@ class TdtpChannel:
     def packets_sent(self) -> int | None:
         return self.ep.stats.sent.datagrams
 
+    def details(self) -> dict[str, Any]:
+        return tdtp_details(self.ep)
+
     async def close(self) -> None:
         await self.ep.close()
         if self._server is not None:
@@ -102,6 +110,52 @@ async def tdtp_slave(port: int, spec: str, seed: int, **options: Any) -> tuple[C
 async def tdtp_master(port: int, spec: str, seed: int, **options: Any) -> Channel:
     ep = await tdtp.connect("127.0.0.1", port, netem=spec, netem_seed=seed, **options)
     return TdtpChannel(ep)
+
+
+def tdtp_details(ep: tdtp.Endpoint) -> dict[str, Any]:
+    """An endpoint's counters, its controller's view of the path, and its emulated link's counters."""
+    stats = ep.stats.as_dict()
+    out: dict[str, Any] = {
+        key: stats[key]
+        for key in (
+            "samples_offered",
+            "samples_superseded",
+            "samples_blocked",
+            "samples_delivered",
+            "samples_skipped",
+            "packets_acked",
+            "packets_lost",
+            "packets_reordered",
+            "loss_events",
+            "reordered",
+            "reorder_held",
+            "reorder_wait",
+            "drops",
+            "srtt",
+            "rttvar",
+            "min_rtt",
+            "loss_event_rate",
+            "rate",
+            "rate_limit",
+        )
+    }
+    controller = getattr(ep.connection, "_controller", None)
+    for name in (
+        "queue_delay",
+        "base_rtt",
+        "ceiling",
+        "delay_decrease_count",
+        "loss_decrease_count",
+        "losses_ignored",
+        "increase_count",
+    ):
+        value = getattr(controller, name, None)
+        if isinstance(value, int | float):
+            out[f"controller_{name}"] = None if value in (math.inf, -math.inf) else value
+    line = getattr(getattr(ep, "_transport", None), "line", None)  # an ImpairedTransport's
+    if line is not None:
+        out["netem"] = line.link.stats.as_dict()
+    return out
 
 
 class _Deferred:
@@ -126,6 +180,10 @@ class _Deferred:
     def packets_sent(self) -> int | None:
         channel = self._channel()
         return 0 if channel is None else channel.packets_sent()
+
+    def details(self) -> dict[str, Any]:
+        channel = self._channel()
+        return {} if channel is None else channel.details()
 
     async def close(self) -> None:
         channel = self._channel()
@@ -166,6 +224,9 @@ class UdpChannel:
 
     def packets_sent(self) -> int | None:
         return self._sent
+
+    def details(self) -> dict[str, Any]:
+        return {"datagrams_received": self._proto.newest.received}
 
     async def close(self) -> None:
         self._transport.close()
@@ -223,6 +284,9 @@ class TcpChannel:
 
     def packets_sent(self) -> int | None:
         return None  # segments are counted by the relay, where the impairment sees them
+
+    def details(self) -> dict[str, Any]:
+        return {"frames_read": self.newest.received}
 
     async def close(self) -> None:
         self._reader.cancel()
@@ -298,6 +362,9 @@ class ZenohChannel:
     def packets_sent(self) -> int | None:
         return None  # zenoh's datagrams (with its keep-alives) are counted by the relay
 
+    def details(self) -> dict[str, Any]:
+        return {"samples_received": self.newest.received}
+
     async def close(self) -> None:
         await asyncio.to_thread(self._session.close)
 
@@ -326,6 +393,26 @@ def _free_udp_port() -> int:
         return port
 
 
+# --- tdtp with perceptual deadband --------------------------------------------------------------
+
+
+async def tdtp_deadband_slave(
+    port: int, spec: str, seed: int, *, deadband_k: float = 0.1
+) -> tuple[Channel, int]:
+    from teleop_loop.deadband_channel import DeadbandChannel  # noqa: PLC0415 - it imports this module
+
+    channel, port = await tdtp_slave(port, spec, seed)
+    return DeadbandChannel(channel, sends="force", k=deadband_k), port
+
+
+async def tdtp_deadband_master(
+    port: int, spec: str, seed: int, *, deadband_k: float = 0.1
+) -> Channel:
+    from teleop_loop.deadband_channel import DeadbandChannel  # noqa: PLC0415 - it imports this module
+
+    return DeadbandChannel(await tdtp_master(port, spec, seed), sends="command", k=deadband_k)
+
+
 # --- the registry ------------------------------------------------------------------------------
 
 Impairment = Literal["in-process", "udp-relay", "tcp-relay"]
@@ -333,17 +420,28 @@ Impairment = Literal["in-process", "udp-relay", "tcp-relay"]
 
 @dataclass(frozen=True)
 class Transport:
-    slave: Callable[[int, str, int], Awaitable[tuple[Channel, int]]]
-    """Listen on the port (0: any), impaired by the spec when in-process; the channel and the port."""
-    master: Callable[[int, str, int], Awaitable[Channel]]
-    """Connect to the port (the slave's, or the relay's in front of it)."""
+    slave: Callable[..., Awaitable[tuple[Channel, int]]]
+    """``slave(port, spec, seed, **options)``: listen on the port (0: any), impaired by the spec
+    when in-process; the channel and the port."""
+    master: Callable[..., Awaitable[Channel]]
+    """``master(port, spec, seed, **options)``: connect to the port (the slave's, or the relay's in
+    front of it)."""
     impairment: Impairment
     needs: str | None = None
     """The module it imports (its extra), for a clear message when it is missing."""
+    options: tuple[str, ...] = ()
+    """The keyword options both factories take (the benchmark's flags that tune this transport)."""
+
+    def pick(self, options: dict[str, Any]) -> dict[str, Any]:
+        """The options that apply to this transport."""
+        return {key: value for key, value in options.items() if key in self.options}
 
 
 TRANSPORTS: dict[str, Transport] = {
     "tdtp": Transport(tdtp_slave, tdtp_master, "in-process"),
+    "tdtp-deadband": Transport(
+        tdtp_deadband_slave, tdtp_deadband_master, "in-process", options=("deadband_k",)
+    ),
     "udp": Transport(udp_slave, udp_master, "udp-relay"),
     "tcp": Transport(tcp_slave, tcp_master, "tcp-relay"),
     "zenoh": Transport(zenoh_slave, zenoh_master, "udp-relay", needs="zenoh"),

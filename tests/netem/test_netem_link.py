@@ -163,6 +163,44 @@ def test_rate_queues_behind_the_last_packet_still_held() -> None:
     assert times == pytest.approx([0.011, 0.012])
 
 
+def test_rate_with_jitter_follows_the_kernel_and_does_not_accumulate_jitter() -> None:
+    """With a rate, the kernel (netem_enqueue) takes the tail packet still queued as its reference:
+    ``delay -= T_tail - now`` (the time bonus), clamped at 0, then ``time_to_send = T_tail + delay +
+    transmit time``, i.e. ``max(now + delay, T_tail) + transmit``. So a packet waits behind a
+    longer-delayed one (head-of-line), but the wait is bounded by the jitter's range: jitter does not
+    pile up while the rate has room. Here the same arithmetic, step by step, against the link."""
+    spec = parse_netem("delay 40ms 10ms rate 2mbit limit 100")
+    assert spec.rate is not None
+    transmit = spec.rate.transmit_time(105)
+    link = NetemLink(spec, seed=4)
+    draws = NetemLink(parse_netem("delay 40ms 10ms"), seed=4)  # the same delay draws, no rate
+    sent = [i * 0.001 for i in range(5000)]  # 1000 packets/s of 105 bytes (0.42 ms at 2 Mbit/s)
+    due: dict[object, float] = {}  # by the packet's send time, when it left the link
+    delay: dict[object, float] = {}
+    for i, now in enumerate(sent):
+        link.send(bytes(105), now, now)
+        draws.send(b"", now, now)
+        until = sent[i + 1] if i + 1 < len(sent) else math.inf
+        due.update((tag, t) for t, _, tag in drain(link, now, until))
+        for t, _, tag in drain(draws, now, until):
+            assert isinstance(tag, float)
+            delay[tag] = t - tag
+    tail = -math.inf
+    for now in sent:
+        wait = delay[now]
+        if tail > now:  # a packet is still queued: the kernel's time bonus
+            wait = max(wait - (tail - now), 0.0)
+            start = tail
+        else:
+            start = now
+        tail = start + wait + transmit
+        assert due[now] == pytest.approx(tail, abs=1e-9)
+        assert (
+            due[now] - now <= 0.050 + transmit + 1e-9
+        )  # never more than delay + jitter + 1 packet
+    assert max(due[now] - now for now in sent) > 0.049  # the head-of-line wait is real
+
+
 def test_rate_overheads_and_cells() -> None:
     # tc-netem(8): a 50-byte packet on ATM (48-byte cells with 5 bytes of header) takes 2 cells,
     # 106 bytes on the wire.
