@@ -63,6 +63,8 @@ NOISE_GAIN: Final = 0.125
 """Gain of the moving average of the standing RTT's interval-to-interval change."""
 NOISE_CAP: Final = 0.005
 """One interval's change counts at most this much (s) in it: a queue building up is not noise."""
+DEEP_QUEUE: Final = 3.0
+"""A queue this many times the threshold is congestion at once, without a second interval."""
 JITTER_GAIN: Final = 1.0 / 16.0
 """Gain of the moving average of the difference between consecutive RTT samples (RFC 3550's
 interarrival jitter, on round trips)."""
@@ -526,7 +528,11 @@ class TeleopController(RateController):
         return self._jitter
 
     def _nominal_interval(self) -> float:
-        return max(self._srtt, self._cfg.interval)
+        """One srtt, at least ``interval``; at most twice the base RTT once it is known: a queue
+        that stretches the RTT must not slow down the very decisions that would drain it."""
+        srtt = self._srtt
+        cap = 2.0 * min(self._base_now, self._base_old)
+        return max(srtt if srtt < cap else cap, self._cfg.interval)
 
     def _start_interval(self, now: float) -> None:
         self._iv_start = now
@@ -573,7 +579,9 @@ class TeleopController(RateController):
             self._last_congestion = now
             self._congested_once = True
             draining = queue < previous - 0.5 * target
-            sustained = previous > target  # two intervals in a row: not one jittery floor
+            # Two intervals in a row: not one jittery floor; or one so far above the target (a
+            # start-up that overshot a bottleneck) that no jitter the margin allows explains it.
+            sustained = previous > target or queue > DEEP_QUEUE * target
             if sustained and not draining and now - self._last_decrease >= self._srtt:
                 base = self._rate_in_use()
                 if delivered > 0.0:

@@ -123,6 +123,29 @@ def test_the_same_rise_without_jitter_is_a_queue() -> None:
     assert controller.delay_decrease_count >= 1
 
 
+def test_a_queue_far_above_the_target_is_cut_after_one_interval() -> None:
+    # A start-up into a bottleneck: the standing RTT jumps 30 ms (six times the 5 ms target) in
+    # one interval; jitter cannot explain that, so it is cut without waiting for a second.
+    controller = TeleopController()
+    end = drive(controller, duration=1.0, rtt=flat(0.040))
+    nominal = max(0.040, controller.config.interval)
+    drive(controller, start=end, duration=2.6 * nominal, rtt=flat(0.070))
+    assert controller.delay_decrease_count == 1
+
+
+def test_a_control_interval_is_at_most_twice_the_base_rtt() -> None:
+    # A queue that stretches the RTT to 200 ms does not stretch the decisions that drain it.
+    controller = TeleopController()
+    end = drive(controller, duration=1.0, rtt=flat(0.030))
+    drive(controller, start=end, duration=0.3, rtt=lambda t: 0.030 + (t - end) * 0.6)
+    assert controller.base_rtt == pytest.approx(0.030, abs=0.002)
+    assert controller.delay_decrease_count >= 1
+    controller.on_ack(
+        now=end + 0.31, acked=1, rtt_sample=0.2, srtt=0.2, rttvar=0.0, loss_event_rate=0
+    )
+    assert controller._nominal_interval() == pytest.approx(0.060, abs=0.004)  # not srtt's 200 ms
+
+
 def test_queue_below_the_target_does_not_cut() -> None:
     controller = TeleopController(TeleopConfig(target_queue_delay=0.010))
     end = drive(controller, duration=2.0, rtt=flat(0.040))
