@@ -226,3 +226,28 @@ def test_a_duplicate_goes_up_as_it_came_only_when_asked_for(deliver_duplicates: 
         assert pair.slave.received[-1].payload == data[-50][5:]
     else:
         assert stats.samples_delivered == before and stats.drops["duplicate"] == 1
+
+
+def test_the_newest_held_sample_is_offered_to_latest_value_readers_until_delivered() -> None:
+    # Every 25th packet is 3 ms late: the ones behind it wait, and meanwhile the connection offers
+    # the newest of them to a latest-value reader; once delivered in order it is no longer offered.
+    path = Direction(extra_delay=lambda i: 0.003 if i % 25 == 10 else 0.0)
+    pair = Pair(UNLIMITED, UNLIMITED, ms=path)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    conn = pair.slave.conn
+    seen = 0
+    end = pair.now + 2.0
+    while pair.now < end:
+        pair.run_for(0.0005)
+        held = conn.newest_held
+        if held is not None:
+            seen += 1
+            delivered = [event.seq for event in pair.slave.received]
+            assert not delivered or held.seq > max(delivered)  # newer than anything delivered
+            assert held.seq in conn._delivery.reorder.held  # type: ignore[union-attr]
+    assert seen > 20
+    pair.drain()
+    assert conn.newest_held is None
+    seqs = [event.seq for event in pair.slave.received]
+    assert seqs == sorted(set(seqs))

@@ -415,14 +415,22 @@ class Endpoint:
     # ------------------------------------------------------------------ reading
 
     def latest(self) -> DataReceived | None:
-        """The newest sample received so far, without waiting; ``None`` before the first.
+        """The newest sample received so far, without waiting; ``None`` before the first. Newest by
+        sequence number: one the reorder wait still holds behind a gap counts
+        (:attr:`Connection.newest_held`), so a control loop never waits for a gap.
 
         It returns the same sample again until a newer one arrives (compare ``seq`` to tell). Unread
         older samples are skipped, and counted in ``stats.samples_skipped``: this is the read for a
         control loop that runs at its own rate.
         """
         self._take_newest()
-        return self._newest
+        newest = self._newest
+        # A sample held by the reorder wait is newer than anything delivered: a latest-value
+        # reader gets it now instead of a gap's wait later (it is still delivered in order).
+        held = self._conn.newest_held
+        if held is not None and (newest is None or held.seq > newest.seq):
+            self._newest = newest = held
+        return newest
 
     async def recv_latest(self) -> DataReceived:
         """Wait for a sample newer than any read before and return the newest, skipping (and
@@ -642,7 +650,9 @@ class Endpoint:
         queue = self._queue
         while (event := conn.next_event()) is not None:
             if isinstance(event, DataReceived):
-                self._newest = event
+                newest = self._newest
+                if newest is None or event.seq > newest.seq:
+                    self._newest = event
                 if on_data is not None:
                     try:
                         on_data(event)

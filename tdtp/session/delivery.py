@@ -13,7 +13,7 @@ import math
 
 from tdtp.config import ConnectionConfig
 from tdtp.session.event_queue import EventQueue
-from tdtp.session.events import new_data_received
+from tdtp.session.events import DataReceived, new_data_received
 from tdtp.session.reorder_buffer import ReorderBuffer
 from tdtp.session.rtt import RttEstimator
 from tdtp.session.sample_age import SampleAgeHistogram
@@ -29,6 +29,7 @@ class SampleDelivery:
         "_rtt",
         "_stats",
         "ages",
+        "newest_held",
         "opening_rtt",
         "opening_sent_at",
         "reorder",
@@ -51,6 +52,9 @@ class SampleDelivery:
         self.ages = SampleAgeHistogram()
         self.opening_rtt: float | None = None
         """The opening's round trip: all the receiving end of a one-way stream ever measures."""
+        self.newest_held: DataReceived | None = None
+        """The newest sample that arrived and waits in the reorder wait behind a gap, if it is
+        newer than every sample delivered: a latest-value reader wants it now, not in order."""
         self.opening_sent_at = math.nan
         """When our last OPEN (master) or OPEN_ACK (slave) left."""
 
@@ -81,6 +85,12 @@ class SampleDelivery:
         held = not reorder.accept(seq, payload, now, sent_at)
         if not held:
             self.deliver(payload, seq, now, now, sent_at)
+        else:
+            newest = self.newest_held
+            if newest is None or seq > newest.seq:
+                self.newest_held = new_data_received(
+                    payload, seq, self._estimate(now, now), now, sent_at
+                )
         if reorder.held:
             self.release(now)
         return held
@@ -107,14 +117,10 @@ class SampleDelivery:
         ``sent_at`` when its header timed it)."""
         stats = self._stats
         stats.samples_delivered += 1
-        rtt = self._rtt
-        if rtt.has_sample:
-            estimate: float | None = rtt.srtt / 2
-        else:
-            opening = self.opening_rtt
-            estimate = None if opening is None else opening / 2
-        if estimate is not None:
-            estimate += now - arrival  # the reorder wait it spent
+        estimate = self._estimate(arrival, now)
+        newest = self.newest_held
+        if newest is not None and seq >= newest.seq:
+            self.newest_held = None  # delivered in order now
         if sent_at is not None:
             # Timed by its own header: the middle of the round trip (PROTOCOL.md 3.6).
             age: float | None = now - sent_at
@@ -124,3 +130,15 @@ class SampleDelivery:
         if age is not None:
             self.ages.add(age)
         self._events.push_data(new_data_received(payload, seq, estimate, now, sent_at))
+
+    def _estimate(self, arrival: float, now: float) -> float | None:
+        """Half the smoothed RTT (or of the opening's round trip), plus the reorder wait spent."""
+        rtt = self._rtt
+        if rtt.has_sample:
+            estimate: float | None = rtt.srtt / 2
+        else:
+            opening = self.opening_rtt
+            estimate = None if opening is None else opening / 2
+        if estimate is not None:
+            estimate += now - arrival  # the reorder wait it spent
+        return estimate

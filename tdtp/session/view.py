@@ -13,8 +13,9 @@ from tdtp.control.base import RateController
 from tdtp.protection.keys import PresharedKey
 from tdtp.session.ack_scheduler import AckScheduler
 from tdtp.session.control_channel import ControlChannel
+from tdtp.session.delivery import SampleDelivery
 from tdtp.session.event_queue import EventQueue
-from tdtp.session.events import Address, ConnectionClosed
+from tdtp.session.events import Address, ConnectionClosed, DataReceived
 from tdtp.session.handshake import Handshake
 from tdtp.session.liveness import Liveness
 from tdtp.session.recovery import LossRecovery
@@ -44,6 +45,7 @@ class ConnectionView:
     _channel: ControlChannel
     _close_event: ConnectionClosed | None
     _ages: SampleAgeHistogram
+    _delivery: SampleDelivery
 
     # ------------------------------------------------------------------ introspection
 
@@ -144,6 +146,13 @@ class ConnectionView:
         count against the control channel's receive bound (``control_window``). (The one call here
         that changes anything; it only tells the channel.)"""
         self._channel.app_unread = count
+
+    @property
+    def newest_held(self) -> DataReceived | None:
+        """The newest sample that has arrived but waits in the reorder wait behind a gap, when it
+        is newer than every sample delivered (``None`` otherwise): what a latest-value reader wants
+        now. It is still delivered in order later, as a :class:`DataReceived` event like any other."""
+        return self._delivery.newest_held
 
     @property
     def control_unacked(self) -> int:
