@@ -523,7 +523,8 @@ class Connection(ConnectionView):
                 return
             echo = self._recovery.echo
         arrival = self._acks.on_arrival(window, seq, now)
-        reorder = self._delivery.reorder
+        delivery = self._delivery
+        in_order = delivery.reorder is not None  # through the reorder wait, else as it came
         if arrival is not Arrival.NEW:
             if arrival is Arrival.STALE:
                 self._heard(now)
@@ -531,12 +532,9 @@ class Connection(ConnectionView):
                 return
             if arrival is Arrival.LATE:
                 stats.reordered += 1
-                if reorder is not None:
-                    reorder.on_late(window.last_seq, now)
-                    stats.reorder_wait = reorder.wait
-                    if window.last_seq < reorder.next_seq:
-                        reorder = None  # its gap was given up before it came: late after all
-                if reorder is None and not self._deliver_late:
+                # False once its gap was given up: late after all.
+                in_order = in_order and delivery.on_late(window.last_seq, now)
+                if not in_order and not self._deliver_late:
                     self._heard(now)
                     stats.count_drop(DropReason.LATE)
                     return
@@ -545,10 +543,9 @@ class Connection(ConnectionView):
                 stats.count_drop(DropReason.DUPLICATE)
                 return
             else:
-                reorder = None  # a duplicate the application asked for goes up as it came
-        elif reorder is not None and window.last_gap:
-            full = window.last_seq
-            reorder.on_gap(full - window.last_gap, full, now)
+                in_order = False  # a duplicate the application asked for goes up as it came
+        elif in_order and window.last_gap:
+            delivery.on_gap(window.last_seq, window.last_gap, now)
         received = stats.received
         received.datagrams += 1
         received.bytes += size + self._overhead
@@ -561,9 +558,9 @@ class Connection(ConnectionView):
         if liveness.silent_since is not None:
             self._on_peer_resumed(now)
         sent_at = None if echo is None else now - echo / 2
-        if reorder is None:  # no wait, or a duplicate the application asked for: as it came
-            self._delivery.deliver(data[HEADER_SIZE:], window.last_seq, now, now, sent_at)
-        elif self._delivery.arrive(data[HEADER_SIZE:], window.last_seq, now, sent_at):
+        if not in_order:
+            delivery.deliver(data[HEADER_SIZE:], window.last_seq, now, now, sent_at)
+        elif delivery.arrive(data[HEADER_SIZE:], window.last_seq, now, sent_at):
             self._hint.value = -math.inf  # held: the reorder wait has a deadline
 
     def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:

@@ -75,11 +75,27 @@ class SampleDelivery:
         else:
             self.reorder = ReorderBuffer(initial_seq, config.max_reorder_wait)
 
-    def arrive(self, payload: bytes, seq: int, now: float, sent_at: float | None) -> bool:
-        """A sample taken in: deliver it, or hold it for a gap below it. True if it was held
-        (the caller's timer may have moved)."""
+    def on_gap(self, seq: int, gap: int, now: float) -> None:
+        """A new sample ``seq`` skipped the ``gap`` sequence numbers below it (reorder wait on)."""
+        reorder = self.reorder
+        if reorder is not None:
+            reorder.on_gap(seq - gap, seq, now)
+
+    def on_late(self, seq: int, now: float) -> bool:
+        """A sample arrived after a newer one (reorder wait on): measure its displacement. True if
+        its gap is still open (it goes up in order), False if the gap was given up (it is late)."""
         reorder = self.reorder
         if reorder is None:
+            return False
+        reorder.on_late(seq, now)
+        self._stats.reorder_wait = reorder.wait
+        return seq >= reorder.next_seq
+
+    def arrive(self, payload: bytes, seq: int, now: float, sent_at: float | None) -> bool:
+        """A sample taken in while the reorder wait is on: deliver it, or hold it for a gap below
+        it. True if it was held (the caller's timer may have moved)."""
+        reorder = self.reorder
+        if reorder is None:  # (the caller delivers directly when the wait is off)
             self.deliver(payload, seq, now, now, sent_at)
             return False
         held = not reorder.accept(seq, payload, now, sent_at)

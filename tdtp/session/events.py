@@ -79,7 +79,7 @@ class DataReceived:
     assumed symmetric), or half the opening handshake's round trip while this side has no RTT
     sample (the receiving end of a one-way stream never gets one). ``None`` before either exists."""
     received_at: float
-    """The ``now`` it arrived at."""
+    """The ``now`` it was delivered at: its arrival, or the end of its reorder wait."""
     sent_at: float | None = None
     """When the peer sent it, on this side's clock (the clock of ``received_at``), from the
     acknowledgement its own header carries; ``None`` when the header carries none that times it."""
