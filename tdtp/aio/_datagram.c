@@ -9,6 +9,18 @@
  * so an idle socket costs one system call per wake-up. Sending: send(data, addr) is one sendto,
  * send_batch([(data, addr), ...]) one sendmmsg per `batch` datagrams.
  *
+ * Coalescing (Linux, segmentation=True): send_batch sends a run of datagrams to one destination
+ * with equal lengths (the last may be shorter) as one message with UDP_SEGMENT (GSO): the kernel
+ * carries them through its stack as one buffer and cuts them into datagrams of that size at the
+ * end (in the network card, the loopback's receiver, or in software), so up to MAX_SEGMENTS
+ * datagrams cost one pass through the stack instead of one each. On the wire they are ordinary
+ * datagrams. A kernel that refuses a segmented send (no checksum offload on the route, IPsec, an
+ * old kernel) turns coalescing off for the engine, and the refused run is sent again datagram by
+ * datagram. The receiver asks for UDP_GRO: the kernel may then hand over a run of equal datagrams
+ * from one source as one buffer (with the segment size), which drain() cuts back into datagrams;
+ * for that every receive slot is MAX_BUFFER bytes (allocated once, touched only as far as data
+ * arrives), and a datagram longer than buffer_size is still dropped and counted.
+ *
  * Nothing a peer does raises: kernel errors are counted (stats()) and reported to on_error(exc)
  * as asyncio's error_received would be; a full send buffer hands the unsent datagrams to
  * on_blocked(list) (the Python layer queues a bounded number and waits for writability).
@@ -36,6 +48,17 @@
 #define MAX_TOTAL (16 * 1024 * 1024)
 #define CONTROL_SPACE 128
 #define DEFAULT_ROUNDS 16
+#define MAX_SEGMENTS 64 /* the kernel's UDP_MAX_SEGMENTS on every kernel that has UDP_SEGMENT */
+#define MAX_COALESCED 65000 /* bytes of one segmented send: below 65535 minus IP and UDP headers */
+#ifndef SOL_UDP
+#define SOL_UDP 17
+#endif
+#ifndef UDP_SEGMENT
+#define UDP_SEGMENT 103
+#endif
+#ifndef UDP_GRO
+#define UDP_GRO 104
+#endif
 
 typedef struct {
     unsigned long long datagrams_received;
@@ -52,6 +75,9 @@ typedef struct {
     unsigned long long too_big;
     unsigned long long no_buffer;
     unsigned long long blocked;
+    unsigned long long coalesced_sends;    /* segmented messages sent (each >= 2 datagrams) */
+    unsigned long long coalesced_received; /* buffers the kernel coalesced (each >= 2 datagrams) */
+    unsigned long long segmentation_refused; /* segmented sends refused (coalescing then off) */
 } Counters;
 
 typedef struct {
@@ -65,6 +91,9 @@ typedef struct {
     int rounds;
     int paused;
     int closed;
+    int segment; /* coalesce sends with UDP_SEGMENT */
+    int gro;     /* the socket has UDP_GRO: receive slots are MAX_BUFFER bytes */
+    int slot;    /* bytes per receive slot */
     PyObject *on_batch;
     PyObject *on_error;
     PyObject *on_blocked;
@@ -83,6 +112,14 @@ typedef struct {
     struct iovec *siov;
     struct sockaddr_storage *snames;
     Py_buffer *sbufs;
+    char *scontrol;     /* one UDP_SEGMENT control message per outgoing message */
+    int *sfirst;        /* the first item of each outgoing message */
+    int *scount;        /* how many items each outgoing message carries */
+    PyObject **sdest;   /* each item's destination object (borrowed), to group runs */
+    /* receive side, per message of the last recvmmsg: segment size, timestamp, traffic class */
+    int *rseg;
+    long long *rns;
+    int *rtos;
     /* the last destination object and its socket address */
     PyObject *last_dest;
     struct sockaddr_storage last_dest_name;
@@ -313,70 +350,125 @@ check_open(Engine *self)
 
 /* ------------------------------------------------------------------------- receiving */
 
+/* What the kernel said of message i: its timestamp, traffic class and, for a coalesced buffer,
+ * the segment size (0 when it is one datagram). */
+static void
+read_control(Engine *self, int i)
+{
+    struct msghdr *h = &self->rmsgs[i].msg_hdr;
+    long long ns = -1;
+    int tos = -1, seg = 0;
+    if (h->msg_controllen > 0) {
+        for (struct cmsghdr *cm = CMSG_FIRSTHDR(h); cm != NULL; cm = CMSG_NXTHDR(h, cm)) {
+            if (cm->cmsg_level == SOL_SOCKET && cm->cmsg_type == SO_TIMESTAMPNS) {
+                struct timespec ts;
+                memcpy(&ts, CMSG_DATA(cm), sizeof(ts));
+                ns = (long long)ts.tv_sec * 1000000000LL + ts.tv_nsec;
+            } else if (cm->cmsg_level == IPPROTO_IP && cm->cmsg_type == IP_TOS) {
+                tos = *(unsigned char *)CMSG_DATA(cm);
+            } else if (cm->cmsg_level == IPPROTO_IPV6 && cm->cmsg_type == IPV6_TCLASS) {
+                int v;
+                memcpy(&v, CMSG_DATA(cm), sizeof(v));
+                tos = v & 0xff;
+            } else if (cm->cmsg_level == SOL_UDP && cm->cmsg_type == UDP_GRO) {
+                int v = 0;
+                if (cm->cmsg_len >= CMSG_LEN(sizeof(int)))
+                    memcpy(&v, CMSG_DATA(cm), sizeof(int));
+                else if (cm->cmsg_len >= CMSG_LEN(sizeof(uint16_t))) {
+                    uint16_t v16;
+                    memcpy(&v16, CMSG_DATA(cm), sizeof(v16));
+                    v = v16;
+                }
+                seg = v;
+            }
+        }
+    }
+    self->rns[i] = ns;
+    self->rtos[i] = tos;
+    self->rseg[i] = seg;
+}
+
 static PyObject *
 deliver(Engine *self, int n)
 {
-    PyObject *datas = PyList_New(n), *addrs = PyList_New(n);
+    /* first pass: how many datagrams the n messages hold (a coalesced buffer holds several) */
+    Py_ssize_t total = 0;
+    for (int i = 0; i < n; i++) {
+        read_control(self, i);
+        unsigned int len = self->rmsgs[i].msg_len;
+        int seg = self->rseg[i];
+        if (self->rmsgs[i].msg_hdr.msg_flags & MSG_TRUNC)
+            continue;
+        if (seg > 0 && (unsigned int)seg < len) {
+            total += (len + (unsigned int)seg - 1) / (unsigned int)seg;
+            self->c.coalesced_received++;
+        } else {
+            self->rseg[i] = 0;
+            total += 1;
+        }
+    }
+    PyObject *datas = PyList_New(total), *addrs = PyList_New(total);
     PyObject *stamps = NULL, *classes = NULL;
     if (datas == NULL || addrs == NULL)
         goto fail;
-    if (self->timestamps && (stamps = PyList_New(n)) == NULL)
+    if (self->timestamps && (stamps = PyList_New(total)) == NULL)
         goto fail;
-    if (self->tclass && (classes = PyList_New(n)) == NULL)
+    if (self->tclass && (classes = PyList_New(total)) == NULL)
         goto fail;
-    int kept = 0;
+    Py_ssize_t kept = 0;
     for (int i = 0; i < n; i++) {
         struct msghdr *h = &self->rmsgs[i].msg_hdr;
         unsigned int len = self->rmsgs[i].msg_len;
         if (h->msg_flags & MSG_TRUNC) {
-            self->c.truncated++; /* larger than buffer_size: lost and counted */
+            self->c.truncated++; /* larger than the slot: lost and counted */
             continue;
         }
-        PyObject *data = PyBytes_FromStringAndSize((const char *)self->riov[i].iov_base, len);
-        if (data == NULL)
-            goto fail;
-        PyObject *addr = source_address(self, &self->rnames[i], h->msg_namelen);
-        if (addr == NULL) {
-            Py_DECREF(data);
-            goto fail;
-        }
-        PyList_SET_ITEM(datas, kept, data);
-        PyList_SET_ITEM(addrs, kept, addr);
-        if (stamps != NULL || classes != NULL) {
-            long long ns = -1;
-            int tos = -1;
-            for (struct cmsghdr *cm = CMSG_FIRSTHDR(h); cm != NULL; cm = CMSG_NXTHDR(h, cm)) {
-                if (cm->cmsg_level == SOL_SOCKET && cm->cmsg_type == SO_TIMESTAMPNS) {
-                    struct timespec ts;
-                    memcpy(&ts, CMSG_DATA(cm), sizeof(ts));
-                    ns = (long long)ts.tv_sec * 1000000000LL + ts.tv_nsec;
-                } else if (cm->cmsg_level == IPPROTO_IP && cm->cmsg_type == IP_TOS) {
-                    tos = *(unsigned char *)CMSG_DATA(cm);
-                } else if (cm->cmsg_level == IPPROTO_IPV6 && cm->cmsg_type == IPV6_TCLASS) {
-                    int v;
-                    memcpy(&v, CMSG_DATA(cm), sizeof(v));
-                    tos = v & 0xff;
-                }
+        const char *base = (const char *)self->riov[i].iov_base;
+        /* a coalesced buffer holds datagrams of rseg bytes (the last may be shorter) */
+        unsigned int seg = self->rseg[i] > 0 ? (unsigned int)self->rseg[i] : len;
+        unsigned int pieces = self->rseg[i] > 0 ? (len + seg - 1) / seg : 1;
+        PyObject *addr = NULL;
+        for (unsigned int k = 0; k < pieces; k++) {
+            unsigned int off = k * seg;
+            unsigned int piece = len - off < seg ? len - off : seg;
+            if (piece > (unsigned int)self->buffer_size) {
+                self->c.truncated++; /* longer than buffer_size: lost and counted */
+                continue;
             }
+            PyObject *data = PyBytes_FromStringAndSize(base + off, piece);
+            if (data == NULL)
+                goto fail;
+            if (addr == NULL) {
+                addr = source_address(self, &self->rnames[i], h->msg_namelen);
+                if (addr == NULL) {
+                    Py_DECREF(data);
+                    goto fail;
+                }
+            } else {
+                Py_INCREF(addr);
+            }
+            PyList_SET_ITEM(datas, kept, data);
+            PyList_SET_ITEM(addrs, kept, addr);
             if (stamps != NULL) {
-                PyObject *o = PyLong_FromLongLong(ns);
+                PyObject *o = PyLong_FromLongLong(self->rns[i]);
                 if (o == NULL)
                     goto fail;
                 PyList_SET_ITEM(stamps, kept, o);
             }
             if (classes != NULL)
-                PyList_SET_ITEM(classes, kept, PyLong_FromLong(tos)); /* small ints: cached */
+                PyList_SET_ITEM(classes, kept, PyLong_FromLong(self->rtos[i])); /* small: cached */
+            kept++;
+            self->c.datagrams_received++;
+            self->c.bytes_received += piece;
         }
-        kept++;
-        self->c.datagrams_received++;
-        self->c.bytes_received += len;
     }
-    if (kept < n) { /* truncated ones left holes at the end: shrink the lists */
-        if (PyList_SetSlice(datas, kept, n, NULL) < 0 || PyList_SetSlice(addrs, kept, n, NULL) < 0)
+    if (kept < total) { /* dropped ones left holes at the end: shrink the lists */
+        if (PyList_SetSlice(datas, kept, total, NULL) < 0 ||
+            PyList_SetSlice(addrs, kept, total, NULL) < 0)
             goto fail;
-        if (stamps && PyList_SetSlice(stamps, kept, n, NULL) < 0)
+        if (stamps && PyList_SetSlice(stamps, kept, total, NULL) < 0)
             goto fail;
-        if (classes && PyList_SetSlice(classes, kept, n, NULL) < 0)
+        if (classes && PyList_SetSlice(classes, kept, total, NULL) < 0)
             goto fail;
     }
     if (kept == 0) {
@@ -408,7 +500,7 @@ fail:
 static void
 reset_receive(Engine *self)
 {
-    int want_control = self->timestamps || self->tclass;
+    int want_control = self->timestamps || self->tclass || self->gro;
     for (int i = 0; i < self->batch; i++) {
         struct msghdr *h = &self->rmsgs[i].msg_hdr;
         h->msg_name = &self->rnames[i];
@@ -582,6 +674,72 @@ Engine_send(Engine *self, PyObject *const *args, Py_ssize_t nargs)
     Py_RETURN_FALSE;
 }
 
+/* Group items [0, count) of the chunk into outgoing messages: with segmentation, a run to one
+ * destination (the same object, or the same socket address) whose datagrams have one length,
+ * the last possibly shorter, becomes one message with a UDP_SEGMENT control message. Returns the
+ * number of messages. */
+static int
+build_messages(Engine *self, Py_ssize_t count)
+{
+    int m = 0;
+    Py_ssize_t k = 0;
+    while (k < count) {
+        Py_ssize_t first = k;
+        size_t size = self->siov[k].iov_len;
+        size_t bytes = size;
+        k++;
+        if (self->segment && size > 0) {
+            struct msghdr *fh = &self->smsgs[first].msg_hdr;
+            while (k < count && k - first < MAX_SEGMENTS) {
+                size_t next = self->siov[k].iov_len;
+                if (next == 0 || next > size || bytes + next > MAX_COALESCED)
+                    break;
+                struct msghdr *kh = &self->smsgs[k].msg_hdr;
+                if (self->sdest[k] != self->sdest[first] &&
+                    (kh->msg_namelen != fh->msg_namelen ||
+                     memcmp(kh->msg_name, fh->msg_name, kh->msg_namelen) != 0))
+                    break;
+                bytes += next;
+                k++;
+                if (next < size)
+                    break; /* a shorter datagram ends the run */
+            }
+        }
+        /* the message's header: the first item's name; its iovecs are the run's, in place */
+        struct mmsghdr *msg = &self->smsgs[m];
+        if (m != first)
+            msg->msg_hdr = self->smsgs[first].msg_hdr; /* m <= first: that header is not needed again */
+        msg->msg_hdr.msg_iov = &self->siov[first];
+        msg->msg_hdr.msg_iovlen = (size_t)(k - first);
+        msg->msg_hdr.msg_control = NULL;
+        msg->msg_hdr.msg_controllen = 0;
+        if (k - first > 1) {
+            char *buf = self->scontrol + (size_t)m * CMSG_SPACE(sizeof(uint16_t));
+            msg->msg_hdr.msg_control = buf;
+            msg->msg_hdr.msg_controllen = CMSG_SPACE(sizeof(uint16_t));
+            struct cmsghdr *cm = CMSG_FIRSTHDR(&msg->msg_hdr);
+            cm->cmsg_level = SOL_UDP;
+            cm->cmsg_type = UDP_SEGMENT;
+            cm->cmsg_len = CMSG_LEN(sizeof(uint16_t));
+            uint16_t gso = (uint16_t)size;
+            memcpy(CMSG_DATA(cm), &gso, sizeof(gso));
+        }
+        self->sfirst[m] = (int)first;
+        self->scount[m] = (int)(k - first);
+        m++;
+    }
+    return m;
+}
+
+/* A kernel refusing a segmented send says so with one of these: the route cannot checksum in
+ * hardware or is IPsec (EIO), the segment does not fit the route's MTU or the socket opted out of
+ * checksums (EINVAL), the kernel has no UDP_SEGMENT (ENOPROTOOPT, EOPNOTSUPP). */
+static int
+segmentation_refused(int err)
+{
+    return err == EIO || err == EINVAL || err == ENOPROTOOPT || err == EOPNOTSUPP;
+}
+
 /* send_batch(items) -> how many the kernel took. items: a list of (data, addr or None). */
 static PyObject *
 Engine_send_batch(Engine *self, PyObject *items)
@@ -617,6 +775,7 @@ Engine_send_batch(Engine *self, PyObject *items)
             PyObject *addr = PyTuple_GET_ITEM(item, 1);
             struct msghdr *h = &self->smsgs[filled].msg_hdr;
             memset(h, 0, sizeof(*h));
+            self->sdest[filled] = addr;
             if (addr != Py_None) {
                 socklen_t sl;
                 if (destination(self, addr, &self->snames[filled], &sl) < 0)
@@ -628,20 +787,25 @@ Engine_send_batch(Engine *self, PyObject *items)
                 goto fail;
             self->siov[filled].iov_base = self->sbufs[filled].buf;
             self->siov[filled].iov_len = (size_t)self->sbufs[filled].len;
-            h->msg_iov = &self->siov[filled];
-            h->msg_iovlen = 1;
         }
-        /* send the chunk; an error belongs to the first datagram not sent */
-        Py_ssize_t done = 0;
-        int blocked = 0;
-        while (done < chunk) {
-            int r = sendmmsg(self->fd, self->smsgs + done, (unsigned int)(chunk - done), MSG_DONTWAIT);
+        int messages = build_messages(self, chunk);
+        /* send the chunk's messages; an error belongs to the first message not sent */
+        int done = 0;
+        int blocked = 0, resend = 0;
+        while (done < messages) {
+            int r = sendmmsg(self->fd, self->smsgs + done, (unsigned int)(messages - done),
+                             MSG_DONTWAIT);
             self->c.send_calls++;
             if (r > 0) {
-                for (int k = 0; k < r; k++)
-                    self->c.bytes_sent += self->siov[done + k].iov_len;
-                self->c.datagrams_sent += (unsigned long long)r;
-                sent += r;
+                for (int m = done; m < done + r; m++) {
+                    int first = self->sfirst[m], count = self->scount[m];
+                    for (int k = first; k < first + count; k++)
+                        self->c.bytes_sent += self->siov[k].iov_len;
+                    self->c.datagrams_sent += (unsigned long long)count;
+                    if (count > 1)
+                        self->c.coalesced_sends++;
+                    sent += count;
+                }
                 done += r;
                 continue;
             }
@@ -652,21 +816,29 @@ Engine_send_batch(Engine *self, PyObject *items)
                 blocked = 1;
                 break;
             }
+            if (self->scount[done] > 1 && segmentation_refused(err)) {
+                /* this route or kernel does not segment: send one by one from here on */
+                self->segment = 0;
+                self->c.segmentation_refused++;
+                resend = 1;
+                break;
+            }
             if (report_error(self, err, 1) < 0) {
                 for (Py_ssize_t k = 0; k < chunk; k++)
                     PyBuffer_Release(&self->sbufs[k]);
                 return NULL;
             }
-            done++; /* that datagram is lost; go on with the next */
+            done++; /* that message's datagrams are lost; go on with the next */
         }
+        Py_ssize_t next = done < messages ? self->sfirst[done] : chunk;
         for (Py_ssize_t k = 0; k < chunk; k++)
             PyBuffer_Release(&self->sbufs[k]);
         if (blocked) {
-            if (hand_back(self, items, start + done, total) < 0)
+            if (hand_back(self, items, start + next, total) < 0)
                 return NULL;
             break;
         }
-        start += chunk;
+        start += resend ? next : chunk; /* a refused run goes again, unsegmented */
         continue;
     fail:
         for (Py_ssize_t k = 0; k < filled; k++)
@@ -683,12 +855,14 @@ Engine_stats(Engine *self, PyObject *Py_UNUSED(ignored))
 {
     Counters *c = &self->c;
     return Py_BuildValue(
-        "{sKsKsKsKsKsKsKsKsKsKsKsKsKsK}", "datagrams_received", c->datagrams_received,
+        "{sKsKsKsKsKsKsKsKsKsKsKsKsKsKsKsKsKsisi}", "datagrams_received", c->datagrams_received,
         "bytes_received", c->bytes_received, "batches_received", c->batches_received, "recv_calls",
         c->recv_calls, "truncated", c->truncated, "receive_errors", c->receive_errors,
         "port_unreachable", c->port_unreachable, "datagrams_sent", c->datagrams_sent, "bytes_sent",
         c->bytes_sent, "send_calls", c->send_calls, "send_errors", c->send_errors, "too_big",
-        c->too_big, "no_buffer", c->no_buffer, "blocked", c->blocked);
+        c->too_big, "no_buffer", c->no_buffer, "blocked", c->blocked, "coalesced_sends",
+        c->coalesced_sends, "coalesced_received", c->coalesced_received, "segmentation_refused",
+        c->segmentation_refused, "segmenting", self->segment, "receive_coalescing", self->gro);
 }
 
 static PyObject *
@@ -732,6 +906,17 @@ free_buffers(Engine *self)
     PyMem_Free(self->siov);
     PyMem_Free(self->snames);
     PyMem_Free(self->sbufs);
+    PyMem_Free(self->scontrol);
+    PyMem_Free(self->sfirst);
+    PyMem_Free(self->scount);
+    PyMem_Free(self->sdest);
+    PyMem_Free(self->rseg);
+    PyMem_Free(self->rns);
+    PyMem_Free(self->rtos);
+    self->scontrol = NULL;
+    self->sfirst = self->scount = self->rseg = self->rtos = NULL;
+    self->sdest = NULL;
+    self->rns = NULL;
     self->buffers = self->control = NULL;
     self->rmsgs = self->smsgs = NULL;
     self->riov = self->siov = NULL;
@@ -774,14 +959,14 @@ static int
 Engine_init(Engine *self, PyObject *args, PyObject *kwds)
 {
     static char *kwlist[] = {"fd", "family", "batch", "buffer_size", "on_batch", "on_error",
-                             "on_blocked", "timestamps", "traffic_class", NULL};
-    int fd, family, batch, buffer_size, timestamps = 0, tclass = 0;
+                             "on_blocked", "timestamps", "traffic_class", "coalesce", NULL};
+    int fd, family, batch, buffer_size, timestamps = 0, tclass = 0, coalesce = 0;
     PyObject *on_batch, *on_error = Py_None, *on_blocked = Py_None;
     if (load_errors() < 0)
         return -1;
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "iiiiO|$OOpp", kwlist, &fd, &family, &batch,
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "iiiiO|$OOppp", kwlist, &fd, &family, &batch,
                                      &buffer_size, &on_batch, &on_error, &on_blocked, &timestamps,
-                                     &tclass))
+                                     &tclass, &coalesce))
         return -1;
     if (fd < 0) {
         PyErr_Format(InvalidArgumentError, "fd must be an open file descriptor, got %d", fd);
@@ -813,7 +998,15 @@ Engine_init(Engine *self, PyObject *args, PyObject *kwds)
     }
     free_buffers(self);
     size_t b = (size_t)batch;
-    self->buffers = PyMem_Malloc(b * (size_t)buffer_size);
+    /* Receive coalescing needs slots that hold a whole coalesced buffer; where the batch cannot
+     * have them within MAX_TOTAL, or the kernel has no UDP_GRO, the socket receives one by one. */
+    int gro = 0;
+    if (coalesce && (long long)batch * MAX_BUFFER <= MAX_TOTAL) {
+        int on = 1;
+        gro = setsockopt(fd, SOL_UDP, UDP_GRO, &on, sizeof(on)) == 0;
+    }
+    int slot = gro ? MAX_BUFFER : buffer_size;
+    self->buffers = PyMem_Malloc(b * (size_t)slot);
     self->control = PyMem_Calloc(b, CONTROL_SPACE);
     self->rmsgs = PyMem_Calloc(b, sizeof(struct mmsghdr));
     self->riov = PyMem_Calloc(b, sizeof(struct iovec));
@@ -822,15 +1015,24 @@ Engine_init(Engine *self, PyObject *args, PyObject *kwds)
     self->siov = PyMem_Calloc(b, sizeof(struct iovec));
     self->snames = PyMem_Calloc(b, sizeof(struct sockaddr_storage));
     self->sbufs = PyMem_Calloc(b, sizeof(Py_buffer));
+    self->scontrol = PyMem_Calloc(b, CMSG_SPACE(sizeof(uint16_t)));
+    self->sfirst = PyMem_Calloc(b, sizeof(int));
+    self->scount = PyMem_Calloc(b, sizeof(int));
+    self->sdest = PyMem_Calloc(b, sizeof(PyObject *));
+    self->rseg = PyMem_Calloc(b, sizeof(int));
+    self->rns = PyMem_Calloc(b, sizeof(long long));
+    self->rtos = PyMem_Calloc(b, sizeof(int));
     if (!self->buffers || !self->control || !self->rmsgs || !self->riov || !self->rnames ||
-        !self->smsgs || !self->siov || !self->snames || !self->sbufs) {
+        !self->smsgs || !self->siov || !self->snames || !self->sbufs || !self->scontrol ||
+        !self->sfirst || !self->scount || !self->sdest || !self->rseg || !self->rns ||
+        !self->rtos) {
         free_buffers(self);
         PyErr_NoMemory();
         return -1;
     }
     for (size_t i = 0; i < b; i++) {
-        self->riov[i].iov_base = self->buffers + i * (size_t)buffer_size;
-        self->riov[i].iov_len = (size_t)buffer_size;
+        self->riov[i].iov_base = self->buffers + i * (size_t)slot;
+        self->riov[i].iov_len = (size_t)slot;
     }
     self->fd = fd;
     self->family = family;
@@ -839,6 +1041,9 @@ Engine_init(Engine *self, PyObject *args, PyObject *kwds)
     self->timestamps = timestamps;
     self->tclass = tclass;
     self->rounds = DEFAULT_ROUNDS;
+    self->segment = coalesce;
+    self->gro = gro;
+    self->slot = slot;
     self->paused = 0;
     self->closed = 0;
     Py_XSETREF(self->on_batch, Py_NewRef(on_batch));
@@ -869,6 +1074,10 @@ static PyMemberDef Engine_members[] = {
     {"buffer_size", T_INT, offsetof(Engine, buffer_size), READONLY, "bytes per receive buffer"},
     {"rounds", T_INT, offsetof(Engine, rounds), 0, "full batches per drain() at most"},
     {"paused", T_INT, offsetof(Engine, paused), READONLY, "whether sends are handed back"},
+    {"segmenting", T_INT, offsetof(Engine, segment), READONLY,
+     "whether send_batch coalesces runs with UDP_SEGMENT"},
+    {"receive_coalescing", T_INT, offsetof(Engine, gro), READONLY,
+     "whether the socket receives coalesced runs (UDP_GRO)"},
     {NULL, 0, 0, 0, NULL},
 };
 
@@ -904,7 +1113,8 @@ PyInit__datagram(void)
         PyModule_AddIntConstant(m, "MAX_BATCH", MAX_BATCH) < 0 ||
         PyModule_AddIntConstant(m, "MIN_BUFFER", MIN_BUFFER) < 0 ||
         PyModule_AddIntConstant(m, "MAX_BUFFER", MAX_BUFFER) < 0 ||
-        PyModule_AddIntConstant(m, "MAX_TOTAL", MAX_TOTAL) < 0) {
+        PyModule_AddIntConstant(m, "MAX_TOTAL", MAX_TOTAL) < 0 ||
+        PyModule_AddIntConstant(m, "MAX_SEGMENTS", MAX_SEGMENTS) < 0) {
         Py_DECREF(m);
         return NULL;
     }

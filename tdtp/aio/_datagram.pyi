@@ -8,12 +8,15 @@ MAX_BATCH: int
 MIN_BUFFER: int
 MAX_BUFFER: int
 MAX_TOTAL: int
+MAX_SEGMENTS: int
 
 class Engine:
     batch: int
     buffer_size: int
     rounds: int
     paused: int
+    segmenting: int
+    receive_coalescing: int
     def __init__(
         self,
         fd: int,
@@ -26,6 +29,7 @@ class Engine:
         on_blocked: Callable[[list[tuple[bytes, Address | None]]], None] | None = None,
         timestamps: bool = False,
         traffic_class: bool = False,
+        coalesce: bool = False,
     ) -> None: ...
     def drain(self) -> int: ...
     def send(

@@ -15,6 +15,20 @@ parallel to the datagrams when asked for (``timestamps=True``, ``ecn=True``), el
 the kernel gave none. :meth:`DatagramLayer.send_batch` sends a list of ``(data, addr)`` with one
 ``sendmmsg`` per ``batch``; :meth:`DatagramLayer.sendto` is one ``sendto``.
 
+Coalescing (``coalesce=True``, the default; compiled engine, Linux). In ``send_batch`` a run of
+datagrams to one destination with one length (the last may be shorter) leaves as one message with
+``UDP_SEGMENT``: the kernel carries it through its stack once and cuts it into ordinary datagrams at
+the end, so a burst costs one pass through the stack instead of one per datagram (the sender's
+kernel time per datagram falls several times over on loopback). The socket also asks for
+``UDP_GRO``: the kernel may hand a run from one source over as one buffer, which the engine cuts back
+into datagrams, so ``on_receive`` sees exactly the datagrams that were sent. A route or kernel that
+refuses segmentation turns it off for the layer and the refused run is sent again one by one
+(``segmentation_refused``); ``coalesced_sends``, ``coalesced_received``, ``segmenting`` and
+``receive_coalescing`` in :attr:`DatagramLayer.stats` say what happened. Receive coalescing makes every
+receive slot 64 KiB (``batch`` x 64 KiB of address space, allocated once; pages are only touched as
+far as data arrives) and is left off where that exceeds the 16 MiB bound. The pure engine sends and
+receives one datagram at a time.
+
 Errors. Nothing a peer or the network does raises: every kernel error is counted
 (:attr:`DatagramLayer.stats`) and, like asyncio's ``error_received``, reported to ``on_error``:
 ECONNREFUSED (an ICMP port unreachable, on a connected socket) as :class:`ConnectionRefusedError`
@@ -31,8 +45,8 @@ Engines. The compiled engine runs where setup.py could build it; the pure-Python
 could not, with ``TDTP_PURE_PYTHON=1``, or with ``engine="pure"``. :func:`datagram_build_info` says
 which one a process gets by default.
 
-This round the layer stands alone (benchmarks/datagram.py measures it); the endpoints and the server
-still use the loop's transport.
+``tdtp.connect`` and ``tdtp.listen`` run on this layer wherever the compiled engine is built
+(:mod:`tdtp.aio.datagram_transport`; ``TDTP_DATAGRAM_LAYER=0`` selects the loop's own transport).
 """
 
 from __future__ import annotations
@@ -174,6 +188,7 @@ class DatagramLayer:
         buffer_size: int,
         timestamps: bool,
         ecn: bool,
+        coalesce: bool,
         engine: EngineChoice,
         max_pending: int,
     ) -> None:
@@ -206,6 +221,7 @@ class DatagramLayer:
                 on_blocked=self._blocked,
                 timestamps=timestamps,
                 traffic_class=ecn,
+                coalesce=coalesce,
             )
             self.engine = "compiled"
         else:
@@ -423,6 +439,7 @@ async def open_datagram_endpoint(
     buffer_size: int = DEFAULT_BUFFER_SIZE,
     timestamps: bool = False,
     ecn: bool = False,
+    coalesce: bool = True,
     reuse_port: bool = False,
     engine: EngineChoice = "auto",
     max_pending: int | None = None,
@@ -453,6 +470,7 @@ async def open_datagram_endpoint(
         raise InvalidArgumentError("give local_addr, remote_addr or both")
     timestamps = _check_flag("timestamps", timestamps)
     ecn = _check_flag("ecn", ecn)
+    coalesce = _check_flag("coalesce", coalesce)
     reuse_port = _check_flag("reuse_port", reuse_port)
     if reuse_port and not hasattr(socket, "SO_REUSEPORT"):
         raise InvalidArgumentError("reuse_port=True needs SO_REUSEPORT, which this system lacks")
@@ -508,6 +526,7 @@ async def open_datagram_endpoint(
             buffer_size=buffer_size,
             timestamps=timestamps,
             ecn=ecn,
+            coalesce=coalesce,
             engine=choice,
             max_pending=max_pending,
         )
