@@ -17,13 +17,17 @@ Variants, interleaved (repetition i runs each once):
   then ``await asyncio.sleep(0)``; a counter in ``datagram_received``. No batching.
 - ``layer C``: :func:`tdtp.aio.datagram.open_datagram_endpoint` on uvloop, compiled engine: one
   ``send_batch`` of 64 (one ``sendmmsg``) then ``await asyncio.sleep(0)``; the receive callback adds
-  ``len(datagrams)`` per ``recvmmsg`` batch (64).
+  ``len(datagrams)`` per ``recvmmsg`` batch (64). Coalescing, as by default: the 64 leave as one
+  ``UDP_SEGMENT`` message and arrive as one ``UDP_GRO`` buffer that the engine cuts back into 64.
+- ``layer C, coalesce=False``: the same, one message per datagram each way.
 - ``layer pure``: the same with ``engine="pure"`` (``recvfrom``/``sendto`` per datagram, one
   callback per batch).
 - ``C limit``: a C program written for this benchmark (the source is in this file), compiled with the
   system's ``cc -O2`` into a temporary directory at run time: blocking ``sendmmsg`` of 64 in a loop,
   and ``recvmmsg`` of 64 (both ways: non-blocking, alternating). No Python, no event loop: what this
-  machine's kernel carries, the physical limit the others are measured against.
+  machine's kernel carries, the physical limit the others are measured against. ``C limit,
+  UDP_SEGMENT + UDP_GRO``: the same program sending the 64 as one segmented message and receiving
+  with ``UDP_GRO``: the limit of the coalescing layer (its ratio is taken against this one).
 
 This measures the I/O layer alone, not tdtp's protocol (throughput.py and latency.py measure tdtp on
 it: its endpoints run on the layer by default where the C engine is built).
@@ -54,27 +58,38 @@ WARMUP = 0.3
 VARIANTS: dict[str, tuple[str, bool]] = {
     "raw-uvloop": ("raw", False),
     "layer-c": ("compiled", False),
+    "layer-c-plain": ("compiled-plain", False),
     "layer-pure": ("pure", False),
     "c-limit": ("c", False),
+    "c-limit-seg": ("c-seg", False),
     "raw-uvloop-both": ("raw", True),
     "layer-c-both": ("compiled", True),
+    "layer-c-plain-both": ("compiled-plain", True),
     "layer-pure-both": ("pure", True),
     "c-limit-both": ("c", True),
+    "c-limit-seg-both": ("c-seg", True),
 }
 LABELS = {
     "raw-uvloop": "raw uvloop DatagramProtocol, one way",
-    "layer-c": "datagram layer, C engine (uvloop), one way",
+    "layer-c": "datagram layer, C engine, coalescing (uvloop), one way",
+    "layer-c-plain": "datagram layer, C engine, coalesce=False (uvloop), one way",
     "layer-pure": "datagram layer, pure engine (uvloop), one way",
     "c-limit": "C recvmmsg/sendmmsg (no Python), one way",
+    "c-limit-seg": "C recvmmsg/sendmmsg, UDP_SEGMENT + UDP_GRO (no Python), one way",
     "raw-uvloop-both": "raw uvloop DatagramProtocol, both ways",
-    "layer-c-both": "datagram layer, C engine (uvloop), both ways",
+    "layer-c-both": "datagram layer, C engine, coalescing (uvloop), both ways",
+    "layer-c-plain-both": "datagram layer, C engine, coalesce=False (uvloop), both ways",
     "layer-pure-both": "datagram layer, pure engine (uvloop), both ways",
     "c-limit-both": "C recvmmsg/sendmmsg (no Python), both ways",
+    "c-limit-seg-both": "C recvmmsg/sendmmsg, UDP_SEGMENT + UDP_GRO (no Python), both ways",
 }
+C_IMPLS = ("c", "c-seg")
 
 C_PEER = r"""
 /* The kernel's limit for this benchmark: a UDP peer with recvmmsg/sendmmsg and nothing else.
- * usage: peer CPU LOCAL_PORT REMOTE_PORT SEND RECV WARMUP SECONDS
+ * usage: peer CPU LOCAL_PORT REMOTE_PORT SEND RECV WARMUP SECONDS SEGMENT
+ * SEGMENT 1: the 64 datagrams of a send are one message with UDP_SEGMENT, and the socket receives
+ * with UDP_GRO (a coalesced buffer counts as the datagrams it holds).
  * Prints one JSON line: received in the window, window length, sent, CPU seconds in the window. */
 #define _GNU_SOURCE
 #include <arpa/inet.h>
@@ -88,26 +103,42 @@ C_PEER = r"""
 #include <sys/socket.h>
 #include <time.h>
 #define B 64
+#ifndef SOL_UDP
+#define SOL_UDP 17
+#endif
+#define UDP_SEGMENT_OPT 103
+#define UDP_GRO_OPT 104
 static double now(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec + t.tv_nsec / 1e9; }
 static double cpu(void) { struct rusage u; getrusage(RUSAGE_SELF, &u);
     return u.ru_utime.tv_sec + u.ru_utime.tv_usec / 1e6 + u.ru_stime.tv_sec + u.ru_stime.tv_usec / 1e6; }
 int main(int argc, char **argv) {
-    if (argc != 8) return 2;
+    if (argc != 9) return 2;
     int cpu_id = atoi(argv[1]), lport = atoi(argv[2]), rport = atoi(argv[3]);
     int do_send = atoi(argv[4]), do_recv = atoi(argv[5]);
     double warmup = atof(argv[6]), seconds = atof(argv[7]);
+    int segment = atoi(argv[8]);
     if (cpu_id >= 0) { cpu_set_t s; CPU_ZERO(&s); CPU_SET(cpu_id, &s); sched_setaffinity(0, sizeof(s), &s); }
     int fd = socket(AF_INET, SOCK_DGRAM, 0);
     struct sockaddr_in a = {0}; a.sin_family = AF_INET; a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
     a.sin_port = htons(lport); if (bind(fd, (void *)&a, sizeof(a))) return 3;
     a.sin_port = htons(rport); if (connect(fd, (void *)&a, sizeof(a))) return 4;
     struct timeval tv = {0, 200000}; setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
-    static char out[100], in[B][2048]; memset(out, 0x5a, sizeof(out));
+    static char out[100], in[B][65536], rc[B][64], sc[64]; memset(out, 0x5a, sizeof(out));
     struct mmsghdr sm[B], rm[B]; struct iovec si[B], ri[B];
     memset(sm, 0, sizeof(sm)); memset(rm, 0, sizeof(rm));
     for (int i = 0; i < B; i++) {
         si[i].iov_base = out; si[i].iov_len = sizeof(out); sm[i].msg_hdr.msg_iov = &si[i]; sm[i].msg_hdr.msg_iovlen = 1;
-        ri[i].iov_base = in[i]; ri[i].iov_len = sizeof(in[i]); rm[i].msg_hdr.msg_iov = &ri[i]; rm[i].msg_hdr.msg_iovlen = 1;
+        ri[i].iov_base = in[i]; ri[i].iov_len = segment ? sizeof(in[i]) : 2048; rm[i].msg_hdr.msg_iov = &ri[i]; rm[i].msg_hdr.msg_iovlen = 1;
+    }
+    int sends = B;
+    if (segment) {
+        int on = 1; setsockopt(fd, SOL_UDP, UDP_GRO_OPT, &on, sizeof(on));
+        sm[0].msg_hdr.msg_iovlen = B; sm[0].msg_hdr.msg_control = sc;
+        sm[0].msg_hdr.msg_controllen = CMSG_SPACE(sizeof(unsigned short));
+        struct cmsghdr *cm = CMSG_FIRSTHDR(&sm[0].msg_hdr);
+        cm->cmsg_level = SOL_UDP; cm->cmsg_type = UDP_SEGMENT_OPT; cm->cmsg_len = CMSG_LEN(sizeof(unsigned short));
+        unsigned short gso = sizeof(out); memcpy(CMSG_DATA(cm), &gso, sizeof(gso));
+        sends = 1;
     }
     long long received = 0, sent = 0, win_rx = 0, win_tx = 0; double start = now(), first = -1, t0 = -1, c0 = 0, t1 = -1, c1 = 0;
     double cap = warmup + seconds + 30;
@@ -115,10 +146,20 @@ int main(int argc, char **argv) {
     for (;;) {
         double t = now();
         if (t - start > cap) break;
-        if (do_send) { int n = sendmmsg(fd, sm, B, flags); if (n > 0) sent += n; }
+        if (do_send) { int n = sendmmsg(fd, sm, sends, flags); if (n > 0) sent += segment ? (long long)n * B : n; }
         if (do_recv) {
+            for (int i = 0; i < B; i++) { rm[i].msg_hdr.msg_control = rc[i]; rm[i].msg_hdr.msg_controllen = segment ? sizeof(rc[i]) : 0; }
             int n = recvmmsg(fd, rm, B, flags ? MSG_DONTWAIT : MSG_WAITFORONE, NULL);
-            if (n > 0) { received += n; if (first < 0) first = t; }
+            if (n > 0) {
+                for (int i = 0; i < n; i++) {
+                    int seg = 0;
+                    if (segment)
+                        for (struct cmsghdr *cm = CMSG_FIRSTHDR(&rm[i].msg_hdr); cm; cm = CMSG_NXTHDR(&rm[i].msg_hdr, cm))
+                            if (cm->cmsg_level == SOL_UDP && cm->cmsg_type == UDP_GRO_OPT) memcpy(&seg, CMSG_DATA(cm), sizeof(int));
+                    received += seg > 0 ? (rm[i].msg_len + seg - 1) / seg : 1;
+                }
+                if (first < 0) first = t;
+            }
         }
         if (first >= 0 && t0 < 0 && t - first >= warmup) { t0 = t; c0 = cpu(); win_rx = received; win_tx = sent; }
         if (t0 >= 0 && t - t0 >= seconds) { t1 = t; c1 = cpu(); break; }
@@ -193,8 +234,9 @@ async def _python_peer(
             on_receive,
             local_addr=("127.0.0.1", lport),
             remote_addr=("127.0.0.1", rport),
-            engine=impl,  # type: ignore[arg-type]
+            engine="pure" if impl == "pure" else "compiled",
             batch=BATCH,
+            coalesce=impl == "compiled",
         )
         items: list[tuple[bytes, Any]] = [(PAYLOAD, None)] * BATCH
         send_batch = layer.send_batch
@@ -269,7 +311,7 @@ def run_pair(variant: str, seconds: float, binary: Path | None) -> Json:
     others = common.OthersMeter()
     cpus = common.usable_cpus()
     sides = [(a_port, b_port, True, both), (b_port, a_port, both, True)]  # (sender, receiver)
-    if impl == "c":
+    if impl in C_IMPLS:
         assert binary is not None
         procs: list[subprocess.Popen[str]] = []
         for slot, (lp, rp, send, recv) in reversed(list(enumerate(sides))):  # receiver first
@@ -277,7 +319,9 @@ def run_pair(variant: str, seconds: float, binary: Path | None) -> Json:
             args = [str(binary), str(cpu), str(lp), str(rp), str(int(send)), str(int(recv))]
             procs.append(
                 subprocess.Popen(
-                    [*args, str(WARMUP), str(seconds)], stdout=subprocess.PIPE, text=True
+                    [*args, str(WARMUP), str(seconds), str(int(impl == "c-seg"))],
+                    stdout=subprocess.PIPE,
+                    text=True,
                 )
             )
             time.sleep(0.1)
@@ -323,7 +367,9 @@ def build_rows(runs: dict[str, list[Json]]) -> list[Row]:
     for variant, results in runs.items():
         both = VARIANTS[variant][1]
         base = "raw-uvloop-both" if both else "raw-uvloop"
-        limit = "c-limit-both" if both else "c-limit"
+        limit = ("c-limit-seg" if VARIANTS[variant][0] == "compiled" else "c-limit") + (
+            "-both" if both else ""
+        )
         good = common.clean(results)
         row = Row("datagram", LABELS[variant], "pkt/s", Stat.of([r["rate"] for r in good]))
         row.note = common.left_out(results)
@@ -365,20 +411,20 @@ def main(argv: list[str] | None = None) -> int:
     variants = args.variants or list(VARIANTS)
     if not common.have_uvloop():
         print("uvloop is not installed: skipping the Python variants", file=sys.stderr)
-        variants = [v for v in variants if VARIANTS[v][0] == "c"]
+        variants = [v for v in variants if VARIANTS[v][0] in C_IMPLS]
     from tdtp.aio.datagram import datagram_build_info  # noqa: PLC0415
 
     if not datagram_build_info().compiled:
         print(
             f"datagram layer: {datagram_build_info().describe()}: no C engine rows", file=sys.stderr
         )
-        variants = [v for v in variants if VARIANTS[v][0] != "compiled"]
+        variants = [v for v in variants if not VARIANTS[v][0].startswith("compiled")]
     with tempfile.TemporaryDirectory(prefix="tdtp-dgbench-") as tmp:
         binary = (
-            _compile_c_peer(Path(tmp)) if any(VARIANTS[v][0] == "c" for v in variants) else None
+            _compile_c_peer(Path(tmp)) if any(VARIANTS[v][0] in C_IMPLS for v in variants) else None
         )
         if binary is None:
-            variants = [v for v in variants if VARIANTS[v][0] != "c"]
+            variants = [v for v in variants if VARIANTS[v][0] not in C_IMPLS]
         runs: dict[str, list[Json]] = {v: [] for v in variants}
         retrier = common.Retrier(args.repeat)
         for rep in range(args.repeat):
