@@ -515,13 +515,15 @@ reset_receive(Engine *self)
 
 /* The reader: drain the socket, one callback per recvmmsg batch. Returns how many datagrams
  * were delivered. Stops at a short batch (the socket is empty), EAGAIN, or after `rounds` full
- * batches (so that other readers on the loop get their turn; the loop calls again). */
+ * batches (so that other readers on the loop get their turn; the loop calls again); with receive
+ * coalescing, also once rounds x batch datagrams were delivered (a full batch of coalesced buffers
+ * holds up to MAX_SEGMENTS times as many, so a turn is at most one such batch). */
 static PyObject *
 Engine_drain(Engine *self, PyObject *Py_UNUSED(ignored))
 {
     if (self->closed)
         return PyLong_FromLong(0);
-    long delivered = 0;
+    unsigned long long before = self->c.datagrams_received;
     for (int round = 0; round < self->rounds; round++) {
         reset_receive(self);
         /* non-blocking: no need to release the GIL */
@@ -548,11 +550,13 @@ Engine_drain(Engine *self, PyObject *Py_UNUSED(ignored))
         if (r == NULL)
             return NULL;
         Py_DECREF(r);
-        delivered += n;
         if (n < self->batch || self->closed)
             break;
+        /* coalesced buffers hold many datagrams each: the turn ends after rounds x batch of them */
+        if (self->gro && self->c.datagrams_received - before >= (unsigned long long)self->rounds * (unsigned long long)self->batch)
+            break;
     }
-    return PyLong_FromLong(delivered);
+    return PyLong_FromUnsignedLongLong(self->c.datagrams_received - before);
 }
 
 /* ------------------------------------------------------------------------- sending */

@@ -168,3 +168,20 @@ async def test_ipv6_runs_are_coalesced_too() -> None:
 async def test_coalesce_must_be_a_bool() -> None:
     with pytest.raises(ArgumentTypeError):
         await _open(Recorder(), coalesce=1)
+
+
+async def test_one_drain_of_coalesced_buffers_is_bounded() -> None:
+    """A full batch of coalesced buffers holds up to 64 datagrams each: one turn of the reader
+    ends after that batch instead of reading on for `rounds` more (other readers wait meanwhile)."""
+    rec = Recorder()
+    async with await _open(Recorder()) as tx, await _open(rec, batch=2) as rx:
+        if not rx.stats["receive_coalescing"]:
+            pytest.skip("this kernel does not coalesce received datagrams (UDP_GRO)")
+        dest: Address = ("127.0.0.1", rx.sockname[1])
+        sent = _numbered(256, 100)
+        assert tx.send_batch([(d, dest) for d in sent]) == 256  # four runs of 64, queued now
+        engine = rx._impl
+        assert engine.drain() == 128  # two buffers of 64, then the turn ends (2 x 16 < 128)
+        assert rx.stats["coalesced_received"] == 2
+        await eventually(lambda: len(rec.datagrams) == 256)
+        assert rec.datagrams == sent
