@@ -15,6 +15,7 @@ import sys
 import time
 
 import pytest
+from datagram_recorder import Recorder
 
 from tdtp.aio.datagram import (
     DatagramLayer,
@@ -50,29 +51,6 @@ def _has_ipv6() -> bool:
     except OSError:
         return False
     return True
-
-
-class Recorder:
-    """What on_receive was handed: one entry per callback."""
-
-    def __init__(self) -> None:
-        self.batches: list[
-            tuple[list[bytes], list[Address], list[int] | None, list[int] | None]
-        ] = []
-        self.errors: list[OSError] = []
-
-    def __call__(
-        self,
-        datas: list[bytes],
-        addrs: list[Address],
-        stamps: list[int] | None,
-        classes: list[int] | None,
-    ) -> None:
-        self.batches.append((datas, addrs, stamps, classes))
-
-    @property
-    def datagrams(self) -> list[bytes]:
-        return [d for batch in self.batches for d in batch[0]]
 
 
 async def _open(
