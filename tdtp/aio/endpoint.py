@@ -132,8 +132,14 @@ class Demultiplexer:
         now = monotonic()
         wall = time.time_ns() if stamps is not None else 0
         out = self._outbox
-        if out is not None:
-            out.owner.hold()
+        owner = out.owner if out is not None else None
+        # One datagram: nothing to batch its answers with; they leave at once (LoopOutbox.direct).
+        single = len(datas) == 1
+        if owner is not None:
+            if single:
+                owner.direct += 1
+            else:
+                owner.hold()
         try:
             peers = self._peers
             touched: dict[Endpoint, None] = {}
@@ -166,8 +172,11 @@ class Demultiplexer:
             for endpoint in touched:
                 endpoint._flush(now)
         finally:
-            if out is not None:
-                out.owner.release()
+            if owner is not None:
+                if single:
+                    owner.direct -= 1
+                else:
+                    owner.release()
 
 
 class Endpoint:
@@ -352,20 +361,21 @@ class Endpoint:
         conn = self._conn
         out = self._out
         queue_out = self._queue_out
-        if out is not None and not out.owner.depth:
-            # On the batched layer, outside a wake-up of ours (an application task): what this
-            # pass of the loop sends leaves in one sendmmsg once the callbacks ready now ran.
-            out.owner.hold_until_ready_ran(self._loop)
+        transmit = self._transport.sendto
+        if out is not None and queue_out is not None:
+            owner = out.owner
+            if owner.depth:
+                transmit = queue_out  # leaves with the rest of the wake-up in one sendmmsg
+            elif not owner.direct:
+                # On the batched layer, outside a wake-up of ours (an application task): what this
+                # pass of the loop sends leaves in one sendmmsg once the callbacks ready now ran.
+                owner.hold_until_ready_ran(self._loop)
+                transmit = queue_out
+            # else: answering the one datagram this wake-up received: to the socket at once
         try:
-            # The common case leaves at once: encoded and handed to the socket (or, on the batched
-            # layer, to the outbox sent at the end of the wake-up) before the connection's
-            # bookkeeping (the round trip does not wait for it).
-            sent = conn.send_direct(
-                payload,
-                queue_out if out is not None and queue_out is not None else self._transport.sendto,
-                connected=self._connected,
-                now=now,
-            )
+            # The common case leaves at once: encoded and handed to the socket (or to the outbox)
+            # before the connection's bookkeeping (the round trip does not wait for it).
+            sent = conn.send_direct(payload, transmit, connected=self._connected, now=now)
         except ConnectionClosedError as exc:
             event = exc.event
             if event is None:
@@ -555,8 +565,13 @@ class Endpoint:
         now = monotonic()
         wall = time.time_ns() if stamps is not None else 0
         out = self._out
-        if out is not None:
-            out.owner.hold()  # a wake-up: what this batch makes us send leaves in one sendmmsg
+        owner = out.owner if out is not None else None
+        single = len(datas) == 1
+        if owner is not None:
+            if single:
+                owner.direct += 1  # nothing to batch with: answers leave at once
+            else:
+                owner.hold()  # a wake-up: what this batch makes us send leaves in one sendmmsg
         try:
             conn = self._conn
             for i in range(len(datas)):
@@ -568,8 +583,11 @@ class Endpoint:
                     conn = self._conn
             self._flush(now)
         finally:
-            if out is not None:
-                out.owner.release()
+            if owner is not None:
+                if single:
+                    owner.direct -= 1
+                else:
+                    owner.release()
 
     def pause_writing(self) -> None:
         """The socket's send buffer is backed up: hold data until :meth:`resume_writing`."""

@@ -10,7 +10,9 @@ outbox that holds datagrams is sent with one ``send_batch`` (one ``sendmmsg``).
 
 Nothing waits for a batch to fill: the flush comes at the end of the wake-up that produced the
 datagrams, so a ping-pong's answer leaves as soon as the receive batch that asked for it has been
-handled. A send from anywhere else (an application task, a callback of its own) goes to the socket at
+handled. A receive batch of one datagram is not held at all (:attr:`LoopOutbox.direct`): with
+nothing to batch its answer with, the answer goes to the socket at once, and the sender's
+bookkeeping and the rest of the wake-up run while it travels. A send from anywhere else (an application task, a callback of its own) goes to the socket at
 once, as before.
 """
 
@@ -88,6 +90,10 @@ class LoopOutbox:
         # No reference to the loop: the registry below maps the loop to this object weakly.
         self.depth = 0
         """Wake-ups in progress (nested: a receive batch inside a timer's callback, ...)."""
+        self.direct = 0
+        """Wake-ups in progress for a single received datagram, outside any other wake-up: what
+        they send goes to the socket at once, before the bookkeeping that follows the send (a
+        ping-pong's answer does not wait for it; one datagram in, one system call out, as before)."""
         self.dirty: list[SocketOutbox] = []
         self.batches = 0
         """``send_batch`` calls made by flushes."""
