@@ -144,6 +144,44 @@ async def test_replies_of_every_session_leave_in_one_flush(transport: str) -> No
 
 
 @pytest.mark.asyncio
+async def test_the_answer_to_a_lone_datagram_goes_to_the_socket_at_once(transport: str) -> None:
+    """A receive batch of one datagram is not held: what the slave's on_data sends is handed to
+    the socket during the callback, not queued for the end of the wake-up; a batch of several is
+    held and answered through the outbox. Either way every answer arrives."""
+    if transport == "stock":
+        pytest.skip("the outbox exists on the batched layer only")
+    seen: list[tuple[int, int, int]] = []  # (datagrams in the wake-up's batch, depth, direct)
+    async with listen("127.0.0.1", 0, config=UNLIMITED) as server:
+        masters, slaves = await _masters(server, 3)
+        owner = loop_outbox(asyncio.get_running_loop())
+        server_layer = server._transport.layer  # type: ignore[union-attr]
+        assert server_layer is not None
+
+        def echo(sample: DataReceived, ep: Endpoint) -> None:
+            sent_before = server_layer.stats["datagrams_sent"]
+            ep.send(sample.payload)
+            left = server_layer.stats["datagrams_sent"] - sent_before
+            seen.append((left, owner.depth, owner.direct))
+
+        for slave in slaves:
+            slave.set_data_callback(lambda sample, ep=slave: echo(sample, ep))
+        masters[0].send(b"lone" + bytes(96))
+        await eventually(lambda: masters[0].stats.received.data_packets == 1)
+        assert seen == [(1, 0, 1)]  # sent during the callback, outside any held wake-up
+        seen.clear()
+        for master in masters:  # no yield in between: one receive batch of three at the server
+            master.send(b"many" + bytes(96))
+        await eventually(lambda: [m.stats.received.data_packets for m in masters] == [2, 1, 1])
+        assert len(seen) == 3
+        if all(depth for _, depth, _ in seen):  # the three came in one batch: held, sent at its end
+            assert all(left == 0 and direct == 0 for left, _, direct in seen)
+        for index, master in enumerate(masters):
+            got = [(await master.recv()).payload[:4] for _ in range(master.unread)]
+            assert got == ([b"lone"] if index == 0 else []) + [b"many"]
+            await master.close()
+
+
+@pytest.mark.asyncio
 async def test_a_tick_group_wake_up_sends_every_session_in_one_flush(transport: str) -> None:
     """Slaves that send from one Ticker each share the tick group's wake-ups; on the layer what
     they send at one tick leaves through the outbox, and every sample sent arrives."""
