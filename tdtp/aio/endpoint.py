@@ -278,6 +278,30 @@ class Endpoint:
         return self._timer.kind
 
     @property
+    def sockets(self) -> str:
+        """What carries this endpoint's datagrams: ``"datagram layer (compiled, coalescing)"``
+        (the C engine, segmenting bursts; :mod:`tdtp.aio.datagram`), ``"datagram layer
+        (compiled)"``, ``"datagram layer (pure)"``, or ``"loop's transport"``."""
+        layer = getattr(self._transport, "layer", None)
+        if layer is None:
+            return "loop's transport"
+        engine: str = layer.engine
+        if engine == "compiled" and layer.stats.get("segmenting"):
+            return "datagram layer (compiled, coalescing)"
+        return f"datagram layer ({engine})"
+
+    @property
+    def datagram_layer_stats(self) -> dict[str, int] | None:
+        """The datagram layer's counters for this endpoint's socket (system calls, datagrams and
+        bytes each way, coalesced sends and receives, errors by kind; shared by every session of
+        a :class:`~tdtp.Server`), or ``None`` on the loop's transport."""
+        layer = getattr(self._transport, "layer", None)
+        if layer is None:
+            return None
+        stats: dict[str, int] = layer.stats
+        return stats
+
+    @property
     def established(self) -> bool:
         """Whether the association was established (it may have closed since)."""
         return self._established.done() and self._established.exception() is None

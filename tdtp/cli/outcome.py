@@ -99,7 +99,7 @@ def header_line(args: argparse.Namespace, ep: Endpoint) -> str:
     return (
         f"tdtp {args.command}: {args.rate:g} samples/s of {args.size} B each way, "
         f"{args.controller}, {mode}, {security}, loop {loop}, timer {ep.timer_kind}, "
-        f"core {build_info().describe()}"
+        f"core {build_info().describe()}, sockets {ep.sockets}"
     )
 
 
@@ -118,6 +118,8 @@ def settings_report(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
         "loop": type(asyncio.get_running_loop()).__module__.split(".")[0],
         "timer": ep.timer_kind,
         "core": build_info().as_dict(),
+        "sockets": ep.sockets,
+        "datagram_layer": ep.datagram_layer_stats,
         "keyed": ep.connection.keyed,
         "encrypted": ep.connection.encrypted,
         "netem_ms": None if ms is None else str(ms),

@@ -35,6 +35,19 @@ def test_demo_json_reports_both_directions(extra: tuple[str, ...]) -> None:
 
     # Which build of the core ran: the same as in this process (the same environment).
     assert summary["core"] == tdtp.build_info().as_dict()
+    # What carried the datagrams, and the layer's own account of the master's socket.
+    layer = summary["datagram_layer"]
+    if summary["sockets"] == "loop's transport":
+        assert layer is None
+    else:
+        assert str(summary["sockets"]).startswith("datagram layer (")
+        assert isinstance(layer, dict)
+        m2s = summary["master_to_slave"]
+        assert isinstance(m2s, dict)
+        assert layer["datagrams_sent"] >= m2s["packets_sent"]  # data, plus ACKs and CONTROL
+        assert (
+            layer["send_calls"] <= layer["datagrams_sent"] + layer["send_errors"] + layer["blocked"]
+        )
     for key in ("master_to_slave", "slave_to_master"):
         direction = summary[key]
         assert isinstance(direction, dict)
