@@ -17,8 +17,8 @@ import enum
 from collections import deque
 from typing import Final, NamedTuple
 
-from tdtp.wire.header import SACK_BITS, SACK_MASK
-from tdtp.wire.seqnum import SEQ_MODULUS, expand_seq
+from tdtp.wire.header import SACK_BITS, SACK_MASK, SEQ_MASK
+from tdtp.wire.seqnum import SEQ_HALF, SEQ_MODULUS
 
 WINDOW: Final = 64
 _WINDOW_MASK: Final = (1 << WINDOW) - 1
@@ -53,6 +53,14 @@ class Arrival(enum.Enum):
     DUPLICATE = "duplicate"
     STALE = "stale"
     """Older than the window: its fate cannot be checked, so it is not trusted."""
+
+
+# Enum members as module constants for the per-packet paths: reading one off its class goes through
+# the enum metaclass (about 0.1 us in either build on Python 3.11), a module constant does not.
+NEW: Final = Arrival.NEW
+LATE: Final = Arrival.LATE
+DUPLICATE: Final = Arrival.DUPLICATE
+STALE: Final = Arrival.STALE
 
 
 class ReceiveWindow:
@@ -119,7 +127,11 @@ class ReceiveWindow:
         sequence number and the gap are left in :attr:`last_seq` and :attr:`last_gap`."""
         highest = self.highest
         self.last_gap = 0
-        seq = expand_seq(truncated_seq, highest + 1)
+        # expand_seq(truncated_seq, highest + 1), inline: the one call per packet it would cost.
+        diff = (truncated_seq - highest - 1) & SEQ_MASK
+        if diff >= SEQ_HALF:
+            diff -= SEQ_MODULUS
+        seq = highest + 1 + diff
         distance = seq - highest
         # (new packets skip all of this)
         if distance <= 0 and (
@@ -137,7 +149,7 @@ class ReceiveWindow:
                 distance = seq - highest
             elif distance <= -WINDOW:
                 self.last_seq = seq
-                return Arrival.STALE
+                return STALE
         if distance > 0:
             if self._coverage:
                 reach = seq - SACK_SPAN  # the lowest sequence number an ACK of ``seq`` describes
@@ -163,12 +175,12 @@ class ReceiveWindow:
                 self.unreported_since = now
             self.last_seq = seq
             self.last_gap = distance - 1
-            return Arrival.NEW
+            return NEW
         self.last_seq = seq
         behind = -distance
         bit = 1 << behind
         if self._mask & bit:
-            return Arrival.DUPLICATE
+            return DUPLICATE
         self._mask |= bit
         if self._coverage:
             if behind <= SACK_SPAN:
@@ -182,7 +194,7 @@ class ReceiveWindow:
                 self.held.append(HeldAck(seq, self.sack_below(seq), now))
         if self.unreported_since is None:
             self.unreported_since = now
-        return Arrival.LATE
+        return LATE
 
     def sack_below(self, seq: int) -> int:
         """SACK bits for the six sequence numbers below ``seq`` (which must be within the window)."""
