@@ -21,7 +21,14 @@ from typing import Final
 from tdtp.config import AckMode, ConnectionConfig
 from tdtp.session.events import Address
 from tdtp.session.outbox import Datagrams, Outbox
-from tdtp.session.receive_window import DUPLICATE, NEW, STALE, Arrival, ReceiveWindow
+from tdtp.session.receive_window import (
+    DUPLICATE,
+    NEW,
+    SACK_SPAN,
+    STALE,
+    Arrival,
+    ReceiveWindow,
+)
 from tdtp.session.stats import ConnectionStats
 from tdtp.session.timer_hint import TimerHint
 from tdtp.wire.hold import HOLD_NO_ACK, encode_hold
@@ -122,8 +129,12 @@ class AckScheduler:
         window = self.window
         assert window is not None
         if self.mode is _BIDIRECTIONAL:
-            if window.unreported_since is not None and (
-                now >= window.unreported_since + self._ack_delay or window.coverage_exhausted()
+            since = window.unreported_since
+            # (window.coverage_exhausted(), inline: this runs after every datagram received.)
+            low = window.pending_low
+            if since is not None and (
+                now >= since + self._ack_delay
+                or (low is not None and window.highest - low >= SACK_SPAN)
             ):
                 ack, sack, hold = self.piggyback(window, now)
                 outbox.emit_ack(out, seq, ack, sack, hold, peer, now)

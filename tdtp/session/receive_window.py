@@ -69,6 +69,7 @@ class ReceiveWindow:
         "_mask",
         "_stale_next",
         "_stale_run",
+        "has_data",
         "held",
         "highest",
         "highest_arrival",
@@ -93,6 +94,8 @@ class ReceiveWindow:
         """Full sequence number of the newest data received (initial - 1 before any)."""
         self.highest_arrival = 0.0
         self._mask = 0
+        self.has_data = False
+        """Whether any data arrived (the mask is not empty; a plain attribute, read per packet)."""
         self.last_reported = initial_seq - 1
         """The highest ACK value already sent to the peer."""
         self.unreported_since: float | None = None
@@ -112,10 +115,6 @@ class ReceiveWindow:
         """After this long without a new packet, a run of consecutive numbers that look like
         duplicates or late packets re-anchors the window like a stale run (the connection passes
         its ``silence_timeout``)."""
-
-    @property
-    def has_data(self) -> bool:
-        return self._mask != 0
 
     def on_data(self, truncated_seq: int, now: float) -> tuple[Arrival, int, int]:
         """Classify an arriving data packet; returns (arrival kind, full sequence number, gap)."""
@@ -171,6 +170,7 @@ class ReceiveWindow:
             self._mask = ((self._mask << distance) | 1) & _WINDOW_MASK if distance < WINDOW else 1
             self.highest = seq
             self.highest_arrival = now
+            self.has_data = True
             if self.unreported_since is None:
                 self.unreported_since = now
             self.last_seq = seq
@@ -182,6 +182,7 @@ class ReceiveWindow:
         if self._mask & bit:
             return DUPLICATE
         self._mask |= bit
+        self.has_data = True
         if self._coverage:
             if behind <= SACK_SPAN:
                 # Within reach of an ACK of the highest: the next one must report it.
