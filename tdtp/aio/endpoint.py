@@ -56,7 +56,7 @@ from tdtp.session.events import (
     PeerResumed,
     PeerSilent,
 )
-from tdtp.session.state import State
+from tdtp.session.state import CLOSED, State
 from tdtp.session.stats import ConnectionStats
 from tdtp.wire.control import ControlCode
 from tdtp.wire.header import HEADER_SIZE, PacketType
@@ -151,7 +151,7 @@ class Demultiplexer:
                 if addr is not last:  # the engine hands one tuple for a run from one source
                     last = addr
                     endpoint = peers.get((addr[0], addr[1]))
-                if endpoint is None or _is_open(data) or endpoint._conn.state is State.CLOSED:
+                if endpoint is None or _is_open(data) or endpoint._conn.state is CLOSED:
                     self._unattached(data, addr)
                     last = None  # the table may have changed
                     continue
@@ -163,7 +163,7 @@ class Demultiplexer:
                     rx_time=rx_time_of(stamps[i], now, wall) if stamps is not None else None,
                     ecn=classes[i] & 3 if classes is not None and classes[i] >= 0 else None,
                 )
-                if conn.state is State.CLOSED:
+                if conn.state is CLOSED:
                     endpoint._flush(now)  # released: later datagrams from there are strangers
                     touched.pop(endpoint, None)
                     last = None
@@ -602,7 +602,7 @@ class Endpoint:
                 rx_time = rx_time_of(stamps[i], now, wall) if stamps is not None else None
                 ecn = classes[i] & 3 if classes is not None and classes[i] >= 0 else None
                 conn.receive_datagram(datas[i], addrs[i], now=now, rx_time=rx_time, ecn=ecn)
-                if conn.state is State.CLOSED:
+                if conn.state is CLOSED:
                     self._flush(now)  # ended (or reopening): what follows finds the next session
                     conn = self._conn
             self._flush(now)
@@ -679,7 +679,7 @@ class Endpoint:
             # being asked after every input). Only an earlier deadline re-arms: most inputs push
             # deadlines *later* (keep-alive and watchdog move with every packet); an expiry at the
             # older, earlier time just runs handle_timer, which is harmless, and re-arms then.
-            if conn.state is State.CLOSED:
+            if conn.state is CLOSED:
                 self._release()
                 return
             deadline = conn.get_timer()

@@ -47,11 +47,11 @@ from tdtp.session.handshake import Handshake, Reaction, close_reason_text
 from tdtp.session.liveness import Liveness
 from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
-from tdtp.session.receive_window import Arrival
+from tdtp.session.receive_window import LATE, NEW, STALE
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
-from tdtp.session.state import State, refusal
+from tdtp.session.state import CLOSED, ESTABLISHED, OPENING, State, refusal
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
 from tdtp.session.view import ConnectionView
@@ -205,7 +205,7 @@ class Connection(ConnectionView):
         """Offer the newest sample (bytes, bytearray or memoryview). It replaces any sample still
         waiting for the pacer or for the socket (which is counted as superseded): stale supermedia
         data is never queued or retransmitted."""
-        if self._state is not State.ESTABLISHED:
+        if self._state is not ESTABLISHED:
             raise refusal(self._state, self._close_event)
         self._sender.offer(payload, now)
 
@@ -228,7 +228,7 @@ class Connection(ConnectionView):
         :meth:`send`, and :meth:`datagrams_to_send` must run. Raises what :meth:`send` raises.
         """
         peer = self._peer
-        if self._state is not State.ESTABLISHED or peer is None or self._path.limited:
+        if self._state is not ESTABLISHED or peer is None or self._path.limited:
             self.send(payload, now=now)
             return False
         if not self._sender.send_direct(payload, transmit, peer, connected, now):
@@ -312,7 +312,7 @@ class Connection(ConnectionView):
         Experienced, is counted in ``stats.ecn_ce``). The core reads no clock for either."""
         stats = self._stats
         stats.datagrams_in += 1
-        if self._state is State.CLOSED:
+        if self._state is CLOSED:
             stats.count_drop(DropReason.CLOSED)
             return
         peer = self._peer
@@ -397,7 +397,7 @@ class Connection(ConnectionView):
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
         elif size > HEADER_SIZE and data[HEADER_SIZE] in MESSAGE_CODES:  # PROTOCOL.md 5.10
-            verdict = self._channel.receive(data, self._state is State.ESTABLISHED, now)
+            verdict = self._channel.receive(data, self._state is ESTABLISHED, now)
             if verdict is TAKEN:
                 self._accept(size, size - HEADER_SIZE, now)
             elif verdict is ALIVE:
@@ -505,7 +505,7 @@ class Connection(ConnectionView):
     def _on_data(self, data: bytes, seq: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
         window = self._acks.window
-        if self._state is not State.ESTABLISHED or window is None:
+        if self._state is not ESTABLISHED or window is None:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
         size = len(data)
@@ -525,12 +525,12 @@ class Connection(ConnectionView):
         arrival = self._acks.on_arrival(window, seq, now)
         delivery = self._delivery
         in_order = delivery.reorder is not None  # through the reorder wait, else as it came
-        if arrival is not Arrival.NEW:
-            if arrival is Arrival.STALE:
+        if arrival is not NEW:
+            if arrival is STALE:
                 self._heard(now)
                 stats.count_drop(DropReason.STALE)
                 return
-            if arrival is Arrival.LATE:
+            if arrival is LATE:
                 stats.reordered += 1
                 # False once its gap was given up: late after all.
                 in_order = in_order and delivery.on_late(window.last_seq, now)
@@ -565,7 +565,7 @@ class Connection(ConnectionView):
 
     def _on_ack_packet(self, size: int, ack: int, sack: int, hold: int, now: float) -> None:
         stats = self._stats
-        if self._state is not State.ESTABLISHED:
+        if self._state is not ESTABLISHED:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
@@ -737,12 +737,12 @@ class Connection(ConnectionView):
         hint = self._hint
         hint.value = math.inf
         state = self._state
-        if state is State.OPENING:
+        if state is OPENING:
             handshake = self._handshake
             if self.role is Role.SLAVE:
                 return handshake.open_deadline
             return min(handshake.open_next, handshake.open_deadline)
-        if state is not State.ESTABLISHED:
+        if state is not ESTABLISHED:
             return None
         # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
         # for a waiting sample; the next ACK; the next loss; the controller's own.
@@ -768,7 +768,7 @@ class Connection(ConnectionView):
         """Act on whatever is due at ``now``. Calling it early or late is harmless."""
         self._hint.value = -math.inf
         state = self._state
-        if state is State.OPENING:
+        if state is OPENING:
             if now >= self._handshake.open_deadline:
                 if self.role is Role.MASTER:
                     detail = f"no answer to OPEN within {self.config.open_timeout} s"
@@ -779,7 +779,7 @@ class Connection(ConnectionView):
                     )
                 self._terminate(CloseCause.OPEN_TIMEOUT, detail)
             return
-        if state is not State.ESTABLISHED:
+        if state is not ESTABLISHED:
             return
         liveness = self._liveness
         if liveness.idle_expired(now):
@@ -807,18 +807,17 @@ class Connection(ConnectionView):
         out: list[tuple[bytes, Address]] = []
         outbox = self._outbox
         state = self._state
-        if state is State.OPENING and self.role is Role.MASTER and self._handshake.open_due(now):
+        if state is OPENING and self.role is Role.MASTER and self._handshake.open_due(now):
             self._emit_open(out, now)
         path = self._path
-        if path.blocked(
-            outbox.control
-        ):  # the 3x limit of an unvalidated new path (PROTOCOL.md 5.8)
+        # The 3x limit of an unvalidated new path (PROTOCOL.md 5.8).
+        if path.limited and path.blocked(outbox.control):
             if self._sender.pending is not None or self._liveness.keepalive_due(now):
                 self._stats.path_limited += 1
             return out
         if outbox.control:
             outbox.flush(out, now)
-        if state is State.ESTABLISHED and self._state is State.ESTABLISHED:
+        if state is ESTABLISHED and self._state is ESTABLISHED:
             self._emit_session(out, now)
         if path.limited:
             path.on_sent(out)
@@ -831,13 +830,18 @@ class Connection(ConnectionView):
         assert peer is not None  # ESTABLISHED implies it
         sent = self._recovery.sent
         acks = self._acks
-        acks.emit_held(out, outbox, sent.next_seq, peer, now)  # before the sample: the jump rule
-        self._sender.take_due(out, peer, now)
-        acks.emit_due(out, outbox, sent.next_seq, peer, now)
+        window = acks.window
+        assert window is not None  # opened with the session
+        # Each piece is asked only when it may have something (its method's first test, inline).
+        if window.held:
+            acks.emit_held(out, outbox, sent.next_seq, peer, now)  # before the sample: jump rule
+        if self._sender.pending is not None:
+            self._sender.take_due(out, peer, now)
+        if window.unreported_since is not None or acks.separate:
+            acks.emit_due(out, outbox, sent.next_seq, peer, now)
         self._channel.emit(out, sent.next_seq, peer, now, self._path.limited)
-        if self._liveness.keepalive_due(now):
-            window = acks.window
-            assert window is not None
+        liveness = self._liveness
+        if now >= liveness.last_send + liveness.keepalive:  # Liveness.keepalive_due, inline
             ack, sack, hold = acks.piggyback(window, now)
             nonce = self._handshake.master_nonce
             outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, nonce, peer, now)

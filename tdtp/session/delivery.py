@@ -98,6 +98,11 @@ class SampleDelivery:
         if reorder is None:  # (the caller delivers directly when the wait is off)
             self.deliver(payload, seq, now, now, sent_at)
             return False
+        if seq == reorder.next_seq and not reorder.held:
+            # In order with nothing waiting (the common case): what accept() would say, without it.
+            reorder.next_seq = seq + 1
+            self.deliver(payload, seq, now, now, sent_at)
+            return False
         held = not reorder.accept(seq, payload, now, sent_at)
         if not held:
             self.deliver(payload, seq, now, now, sent_at)
@@ -133,7 +138,13 @@ class SampleDelivery:
         ``sent_at`` when its header timed it)."""
         stats = self._stats
         stats.samples_delivered += 1
-        estimate = self._estimate(arrival, now)
+        # self._estimate(arrival, now), inline (once per sample).
+        rtt = self._rtt
+        if rtt.has_sample:
+            estimate: float | None = rtt.srtt / 2 + (now - arrival)
+        else:
+            opening = self.opening_rtt
+            estimate = None if opening is None else opening / 2 + (now - arrival)
         newest = self.newest_held
         if newest is not None and seq >= newest.seq:
             self.newest_held = None  # delivered in order now

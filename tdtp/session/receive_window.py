@@ -17,8 +17,8 @@ import enum
 from collections import deque
 from typing import Final, NamedTuple
 
-from tdtp.wire.header import SACK_BITS, SACK_MASK
-from tdtp.wire.seqnum import SEQ_MODULUS, expand_seq
+from tdtp.wire.header import SACK_BITS, SACK_MASK, SEQ_MASK
+from tdtp.wire.seqnum import SEQ_HALF, SEQ_MODULUS
 
 WINDOW: Final = 64
 _WINDOW_MASK: Final = (1 << WINDOW) - 1
@@ -55,12 +55,21 @@ class Arrival(enum.Enum):
     """Older than the window: its fate cannot be checked, so it is not trusted."""
 
 
+# Enum members as module constants for the per-packet paths: reading one off its class goes through
+# the enum metaclass (about 0.1 us in either build on Python 3.11), a module constant does not.
+NEW: Final = Arrival.NEW
+LATE: Final = Arrival.LATE
+DUPLICATE: Final = Arrival.DUPLICATE
+STALE: Final = Arrival.STALE
+
+
 class ReceiveWindow:
     __slots__ = (
         "_coverage",
         "_mask",
         "_stale_next",
         "_stale_run",
+        "has_data",
         "held",
         "highest",
         "highest_arrival",
@@ -85,6 +94,8 @@ class ReceiveWindow:
         """Full sequence number of the newest data received (initial - 1 before any)."""
         self.highest_arrival = 0.0
         self._mask = 0
+        self.has_data = False
+        """Whether any data arrived (the mask is not empty; a plain attribute, read per packet)."""
         self.last_reported = initial_seq - 1
         """The highest ACK value already sent to the peer."""
         self.unreported_since: float | None = None
@@ -105,10 +116,6 @@ class ReceiveWindow:
         duplicates or late packets re-anchors the window like a stale run (the connection passes
         its ``silence_timeout``)."""
 
-    @property
-    def has_data(self) -> bool:
-        return self._mask != 0
-
     def on_data(self, truncated_seq: int, now: float) -> tuple[Arrival, int, int]:
         """Classify an arriving data packet; returns (arrival kind, full sequence number, gap)."""
         arrival = self.classify(truncated_seq, now)
@@ -119,7 +126,11 @@ class ReceiveWindow:
         sequence number and the gap are left in :attr:`last_seq` and :attr:`last_gap`."""
         highest = self.highest
         self.last_gap = 0
-        seq = expand_seq(truncated_seq, highest + 1)
+        # expand_seq(truncated_seq, highest + 1), inline: the one call per packet it would cost.
+        diff = (truncated_seq - highest - 1) & SEQ_MASK
+        if diff >= SEQ_HALF:
+            diff -= SEQ_MODULUS
+        seq = highest + 1 + diff
         distance = seq - highest
         # (new packets skip all of this)
         if distance <= 0 and (
@@ -137,7 +148,7 @@ class ReceiveWindow:
                 distance = seq - highest
             elif distance <= -WINDOW:
                 self.last_seq = seq
-                return Arrival.STALE
+                return STALE
         if distance > 0:
             if self._coverage:
                 reach = seq - SACK_SPAN  # the lowest sequence number an ACK of ``seq`` describes
@@ -159,17 +170,19 @@ class ReceiveWindow:
             self._mask = ((self._mask << distance) | 1) & _WINDOW_MASK if distance < WINDOW else 1
             self.highest = seq
             self.highest_arrival = now
+            self.has_data = True
             if self.unreported_since is None:
                 self.unreported_since = now
             self.last_seq = seq
             self.last_gap = distance - 1
-            return Arrival.NEW
+            return NEW
         self.last_seq = seq
         behind = -distance
         bit = 1 << behind
         if self._mask & bit:
-            return Arrival.DUPLICATE
+            return DUPLICATE
         self._mask |= bit
+        self.has_data = True
         if self._coverage:
             if behind <= SACK_SPAN:
                 # Within reach of an ACK of the highest: the next one must report it.
@@ -182,7 +195,7 @@ class ReceiveWindow:
                 self.held.append(HeldAck(seq, self.sack_below(seq), now))
         if self.unreported_since is None:
             self.unreported_since = now
-        return Arrival.LATE
+        return LATE
 
     def sack_below(self, seq: int) -> int:
         """SACK bits for the six sequence numbers below ``seq`` (which must be within the window)."""

@@ -91,7 +91,9 @@ class LossRecovery:
         if hold is not None:
             send_time = sent.send_time(full)
             if send_time is not None:
-                echo = max(now - send_time - hold, 0.0)
+                echo = now - send_time - hold
+                if echo < 0.0:  # (max(echo, 0.0) without the call)
+                    echo = 0.0
         self.echo = echo
         newly = sent.acknowledge(full, sack, hold, now)
         stats = self._stats

@@ -30,7 +30,7 @@ _MIDDLE: Final = math.sqrt(GROWTH)
 class SampleAgeHistogram:
     """Counts of sample ages in logarithmic bins; :meth:`quantile` reads them back."""
 
-    __slots__ = ("_bins", "_high", "_low", "count")
+    __slots__ = ("_bins", "_high", "_last", "_last_high", "_last_low", "_low", "count")
 
     def __init__(self) -> None:
         self._bins = [0] * BINS
@@ -38,9 +38,20 @@ class SampleAgeHistogram:
         self._high = -1
         self.count = 0
         """Ages added so far."""
+        # The bin of the last age added and the range of ages seen to fall in it: the bin is a
+        # monotonic function of the age, so any age inside that range falls in it too, and
+        # consecutive samples mostly do (the estimate is constant between RTT samples, a timed
+        # age moves by microseconds) -- counted without the logarithm.
+        self._last = -1  # no bin yet
+        self._last_low = math.inf
+        self._last_high = -math.inf
 
     def add(self, age: float) -> None:
         """Count one age in seconds (zero, negative or NaN ages land in the first bin)."""
+        if self._last_low <= age <= self._last_high:
+            self._bins[self._last] += 1
+            self.count += 1
+            return
         index = 0
         if age > FLOOR:
             index = int((math.log(age) - _LOG_FLOOR) / _LOG_GROWTH)
@@ -48,6 +59,14 @@ class SampleAgeHistogram:
                 index = BINS - 1
         self._bins[index] += 1
         self.count += 1
+        if index == self._last:
+            if age < self._last_low:
+                self._last_low = age
+            elif age > self._last_high:
+                self._last_high = age
+        else:
+            self._last = index
+            self._last_low = self._last_high = age
         if index < self._low:
             self._low = index
         if index > self._high:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Final
 
 from tdtp.config import AckMode, ConnectionConfig
 from tdtp.control.base import RateController
@@ -26,10 +27,14 @@ from tdtp.session.outbox import Datagrams, Outbox
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.stats import ConnectionStats
 from tdtp.session.timer_hint import TimerHint
+from tdtp.wire.control import RESET_ECHO_SIZE
 from tdtp.wire.header import HEADER_SIZE, PacketType, encode_header
 from tdtp.wire.hold import HOLD_NO_ACK, encode_hold
 
 _DATA = int(PacketType.DATA)
+_BIDIRECTIONAL: Final = (
+    AckMode.BIDIRECTIONAL
+)  # a module constant: no enum metaclass lookup per sample
 
 
 class SampleSender:
@@ -135,7 +140,7 @@ class SampleSender:
             self._controller.sample_waiting = False
         recovery = self._recovery
         seq = recovery.sent.next_seq
-        if acks.mode is AckMode.BIDIRECTIONAL and window.has_data:
+        if acks.mode is _BIDIRECTIONAL and window.has_data:
             window.mark_reported()
             header = encode_header(
                 _DATA,
@@ -155,7 +160,7 @@ class SampleSender:
             self.transmit_errors += 1
         guard = outbox.reset_guard
         if guard is not None:
-            guard.record(datagram)
+            guard.recent.append(datagram[:RESET_ECHO_SIZE])  # ResetGuard.record, inline
         # Bookkeeping, after the datagram has left.
         size = len(datagram)
         recovery.on_sent(now, size)

@@ -50,6 +50,8 @@ class SentPacketLog:
     __slots__ = (
         "_base",
         "_largest_send_time",
+        "_last_ack",
+        "_last_sack",
         "_max_tracked",
         "_recently_lost",
         "_recently_lost_order",
@@ -94,6 +96,8 @@ class SentPacketLog:
         """Once reordering has been seen, only the time threshold declares losses (RFC 8985): the
         packet-count threshold would take every reordered packet for a lost one."""
         self.reorder_window_scale = 1
+        self._last_ack = -1  # the last acknowledge()'s ACK and SACK fields (-1: none yet)
+        self._last_sack = -1
         """RFC 8985's reorder window multiplier: grows by one for each declared loss found received
         after all (a spurious loss: the window was too short), up to ``MAX_REORDER_SCALE``."""
 
@@ -141,7 +145,7 @@ class SentPacketLog:
         elapsed_hold = hold if hold is not None else 0.0
         candidate = full
         while candidate <= highest_sent:
-            send_time = self._send_time(candidate)
+            send_time = self.send_time(candidate)
             if send_time is not None:
                 error = abs(now - send_time - elapsed_hold - srtt)
                 if error < best_error:
@@ -151,9 +155,6 @@ class SentPacketLog:
 
     def send_time(self, seq: int) -> float | None:
         """When packet ``seq`` was sent, if it is still on record (or is the largest acknowledged)."""
-        return self._send_time(seq)
-
-    def _send_time(self, seq: int) -> float | None:
         index = seq - self._base
         if 0 <= index < len(self._records):
             return self._records[index].send_time
@@ -170,6 +171,17 @@ class SentPacketLog:
         """:meth:`on_ack` without the result tuple (the connection's per-packet path): returns the
         packets newly acknowledged and leaves the RTT sample and the spurious-loss count in
         :attr:`rtt_sample` and :attr:`spurious`."""
+        if ack == self._last_ack and sack == self._last_sack:
+            # The same fields as the last call (every datagram of a batch the peer sent before
+            # hearing from us carries them): it found every packet they name acknowledged, or
+            # marked missing, and forgot their spurious losses; only packets above the ACK were
+            # logged since, and records left the front only as acknowledged or with their SACK
+            # bit clear. It has nothing new to say.
+            self.rtt_sample = None
+            self.spurious = 0
+            return 0
+        self._last_ack = ack
+        self._last_sack = sack
         records = self._records
         base = self._base
         count = len(records)

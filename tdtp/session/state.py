@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from tdtp.errors import ConnectionClosedError, ConnectionStateError
 
@@ -22,6 +22,13 @@ class State(enum.Enum):
     """A master whose OPEN is not answered yet."""
     ESTABLISHED = "established"
     CLOSED = "closed"
+
+
+# The members the per-packet paths compare with, as module constants: reading one off its class
+# goes through the enum metaclass (about 0.1 us in either build on Python 3.11), a constant does not.
+OPENING: Final = State.OPENING
+ESTABLISHED: Final = State.ESTABLISHED
+CLOSED: Final = State.CLOSED
 
 
 def refusal(state: State, event: ConnectionClosed | None) -> ConnectionStateError:
