@@ -63,6 +63,7 @@ COMPILED = [
     "tdtp/aio/outbox.py",
     "tdtp/aio/loop_timers.py",
     "tdtp/aio/endpoint.py",
+    "tdtp/aio/demultiplexer.py",
 ]
 """The compiled core (tdtp/_build.py lists the same modules by name; a test checks they agree)."""
 

@@ -75,6 +75,7 @@ COMPILED_MODULES: Final = (
     "tdtp.aio.outbox",
     "tdtp.aio.loop_timers",
     "tdtp.aio.endpoint",
+    "tdtp.aio.demultiplexer",
 )
 """The modules setup.py compiles (a test checks that both lists agree)."""
 

@@ -37,7 +37,7 @@ import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
 from time import monotonic  # = tdtp.aio.timer.monotonic, called directly (per packet)
-from typing import Final, Protocol
+from typing import Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.outbox import SocketOutbox
@@ -58,8 +58,6 @@ from tdtp.session.events import (
 )
 from tdtp.session.state import CLOSED, State
 from tdtp.session.stats import ConnectionStats
-from tdtp.wire.control import ControlCode
-from tdtp.wire.header import HEADER_SIZE, PacketType
 
 __all__ = [
     "ControlCallback",
@@ -70,8 +68,6 @@ __all__ = [
     "WatchdogEvent",
 ]
 
-_CONTROL_BITS: Final = int(PacketType.CONTROL) << 6
-_OPEN: Final = int(ControlCode.OPEN)
 
 DataCallback = Callable[[DataReceived], None]
 WatchdogEvent = PeerSilent | PeerResumed
@@ -99,84 +95,6 @@ def rx_time_of(stamp: int, now: float, wall_ns: int) -> float | None:
     if stamp < 0:
         return None
     return now - (wall_ns - stamp) * 1e-9
-
-
-def _is_open(data: bytes) -> bool:
-    return len(data) > HEADER_SIZE and data[0] & 0xC0 == _CONTROL_BITS and data[5] == _OPEN
-
-
-class Demultiplexer:
-    """A server's receive batches, by source address (the batched layer's receiver for a
-    :class:`~tdtp.Server`): one clock read per batch; each datagram of a known session straight to
-    its core, in order; then one flush per session touched, with the loop's outbox held so that
-    what they all send leaves in one ``sendmmsg``. OPENs and datagrams from addresses no session
-    holds go to ``unattached`` (the server's front door), one at a time."""
-
-    def __init__(
-        self,
-        peers: dict[tuple[object, object], Endpoint],
-        unattached: Callable[[bytes, Address], None],
-        outbox: SocketOutbox | None,
-    ) -> None:
-        self._peers = peers
-        self._unattached = unattached
-        self._outbox = outbox
-
-    def __call__(
-        self,
-        datas: list[bytes],
-        addrs: list[Address],
-        stamps: list[int] | None,
-        classes: list[int] | None,
-    ) -> None:
-        now = monotonic()
-        wall = time.time_ns() if stamps is not None else 0
-        out = self._outbox
-        owner = out.owner if out is not None else None
-        # One datagram: nothing to batch its answers with; they leave at once (LoopOutbox.direct).
-        single = len(datas) == 1
-        if owner is not None:
-            if single:
-                owner.direct += 1
-            else:
-                owner.hold()
-        try:
-            peers = self._peers
-            touched: dict[Endpoint, None] = {}
-            last: Address | None = None
-            endpoint: Endpoint | None = None
-            for i in range(len(datas)):
-                data = datas[i]
-                addr = addrs[i]
-                if addr is not last:  # the engine hands one tuple for a run from one source
-                    last = addr
-                    endpoint = peers.get((addr[0], addr[1]))
-                if endpoint is None or _is_open(data) or endpoint._conn.state is CLOSED:
-                    self._unattached(data, addr)
-                    last = None  # the table may have changed
-                    continue
-                conn = endpoint._conn
-                conn.receive_datagram(
-                    data,
-                    addr,
-                    now=now,
-                    rx_time=rx_time_of(stamps[i], now, wall) if stamps is not None else None,
-                    ecn=classes[i] & 3 if classes is not None and classes[i] >= 0 else None,
-                )
-                if conn.state is CLOSED:
-                    endpoint._flush(now)  # released: later datagrams from there are strangers
-                    touched.pop(endpoint, None)
-                    last = None
-                else:
-                    touched[endpoint] = None
-            for endpoint in touched:
-                endpoint._flush(now)
-        finally:
-            if owner is not None:
-                if single:
-                    owner.direct -= 1
-                else:
-                    owner.release()
 
 
 class Endpoint:

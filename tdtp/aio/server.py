@@ -4,7 +4,7 @@ One UDP socket for any number of masters, up to ``max_peers``: an OPEN from an u
 through the shared :class:`~tdtp.admission.Admission` (cookie, rate limit, keys) before any state
 exists, and each admitted master gets an :class:`~tdtp.aio.endpoint.Endpoint`, found again by its
 address for every datagram that follows. On the batched datagram layer the server takes each
-``recvmmsg`` batch in one call (:class:`~tdtp.aio.endpoint.Demultiplexer`): one clock read, each datagram handed
+``recvmmsg`` batch in one call (:class:`~tdtp.aio.demultiplexer.Demultiplexer`): one clock read, each datagram handed
 to its session's core, then one flush per session touched and one ``sendmmsg`` for all of them.
 """
 
@@ -22,9 +22,9 @@ from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Re
 from tdtp.admission.path_migration import MigrationStats
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpoint
+from tdtp.aio.demultiplexer import Demultiplexer, is_open
 from tdtp.aio.endpoint import (
     DataCallback,
-    Demultiplexer,
     Endpoint,
     WatchdogCallback,
     format_address,
@@ -54,13 +54,10 @@ from tdtp.netem import NetemSpec
 from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
-from tdtp.wire.control import CloseReason, ControlCode, OpenFlags
-from tdtp.wire.header import HEADER_SIZE, PacketType
+from tdtp.wire.control import CloseReason, OpenFlags
 
 __all__ = ["Server", "ServerStats", "listen"]
 
-_CONTROL_TYPE_BITS = int(PacketType.CONTROL) << 6
-_OPEN = int(ControlCode.OPEN)
 
 logger = logging.getLogger("tdtp")
 
@@ -279,7 +276,7 @@ class Server:
         endpoint = self._peers.get(key)
         if endpoint is not None:
             endpoint.datagram_received(data, addr)
-            if key in self._peers or not _is_open(data):
+            if key in self._peers or not is_open(data):
                 return
             # The connection ended on this OPEN: its master restarted and opens anew.
         if self._closed:
@@ -287,7 +284,7 @@ class Server:
         # Only an OPEN may lead to state, and only once admitted. Anything else may be a master
         # whose address changed (path migration, within a bounded budget) or, when no session
         # claims it, a master whose session died with a restart of ours: it gets a RESET.
-        if not _is_open(data):
+        if not is_open(data):
             self.stats.datagrams_unattached += 1
             self._on_unattached(data, key, addr)
             return
@@ -431,10 +428,6 @@ class Server:
             del self._peers[_peer_key(peer)]
         if endpoint in self._pending:
             self._pending.remove(endpoint)
-
-
-def _is_open(data: bytes) -> bool:
-    return len(data) > HEADER_SIZE and data[0] & 0xC0 == _CONTROL_TYPE_BITS and data[5] == _OPEN
 
 
 def listen(

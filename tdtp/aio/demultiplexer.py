@@ -1,0 +1,107 @@
+"""A server's receive batches, handed to its sessions by source address (the batched datagram layer).
+
+One :class:`Demultiplexer` per :class:`~tdtp.Server` socket takes every ``recvmmsg`` batch in one call
+(the layer's ``on_receive``): one clock read per batch, each datagram of a known session straight to
+its core in order, then one flush per session touched, with the loop's outbox held so that what they
+all send leaves in one ``sendmmsg`` (a batch of one datagram is answered at once instead:
+:attr:`~tdtp.aio.outbox.LoopOutbox.direct`). OPENs and datagrams from addresses no session holds go to
+the server's front door, one at a time.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Final
+
+from tdtp.aio.endpoint import Endpoint, rx_time_of
+from tdtp.aio.outbox import SocketOutbox
+from tdtp.aio.timer import monotonic
+from tdtp.session.events import Address
+from tdtp.session.state import CLOSED
+from tdtp.wire.control import ControlCode
+from tdtp.wire.header import HEADER_SIZE, PacketType
+
+__all__ = ["Demultiplexer", "is_open"]
+
+_CONTROL_BITS: Final = int(PacketType.CONTROL) << 6
+_OPEN: Final = int(ControlCode.OPEN)
+
+
+def is_open(data: bytes) -> bool:
+    """Whether a datagram is an OPEN (a new master knocking), from its first six bytes."""
+    return len(data) > HEADER_SIZE and data[0] & 0xC0 == _CONTROL_BITS and data[5] == _OPEN
+
+
+class Demultiplexer:
+    """A server's receive batches, by source address (the batched layer's receiver for a
+    :class:`~tdtp.Server`): one clock read per batch; each datagram of a known session straight to
+    its core, in order; then one flush per session touched, with the loop's outbox held so that
+    what they all send leaves in one ``sendmmsg``. OPENs and datagrams from addresses no session
+    holds go to ``unattached`` (the server's front door), one at a time."""
+
+    def __init__(
+        self,
+        peers: dict[tuple[object, object], Endpoint],
+        unattached: Callable[[bytes, Address], None],
+        outbox: SocketOutbox | None,
+    ) -> None:
+        self._peers = peers
+        self._unattached = unattached
+        self._outbox = outbox
+
+    def __call__(
+        self,
+        datas: list[bytes],
+        addrs: list[Address],
+        stamps: list[int] | None,
+        classes: list[int] | None,
+    ) -> None:
+        now = monotonic()
+        wall = time.time_ns() if stamps is not None else 0
+        out = self._outbox
+        owner = out.owner if out is not None else None
+        # One datagram: nothing to batch its answers with; they leave at once (LoopOutbox.direct).
+        single = len(datas) == 1
+        if owner is not None:
+            if single:
+                owner.direct += 1
+            else:
+                owner.hold()
+        try:
+            peers = self._peers
+            touched: dict[Endpoint, None] = {}
+            last: Address | None = None
+            endpoint: Endpoint | None = None
+            for i in range(len(datas)):
+                data = datas[i]
+                addr = addrs[i]
+                if addr is not last:  # the engine hands one tuple for a run from one source
+                    last = addr
+                    endpoint = peers.get((addr[0], addr[1]))
+                if endpoint is None or is_open(data) or endpoint._conn.state is CLOSED:
+                    self._unattached(data, addr)
+                    last = None  # the table may have changed
+                    continue
+                conn = endpoint._conn
+                conn.receive_datagram(
+                    data,
+                    addr,
+                    now=now,
+                    rx_time=rx_time_of(stamps[i], now, wall) if stamps is not None else None,
+                    ecn=classes[i] & 3 if classes is not None and classes[i] >= 0 else None,
+                )
+                if conn.state is CLOSED:
+                    endpoint._flush(now)  # released: later datagrams from there are strangers
+                    touched.pop(endpoint, None)
+                    last = None
+                else:
+                    touched[endpoint] = None
+            for endpoint in touched:
+                endpoint._flush(now)
+        finally:
+            if owner is not None:
+                if single:
+                    owner.direct -= 1
+                else:
+                    owner.release()
