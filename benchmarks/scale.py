@@ -14,7 +14,8 @@ Method. Two processes on loopback, each pinned to its own CPU (on 2 cores the sl
   callback (``Ticker.call_each``), which the group's wake-up calls directly, one after the other;
   ``--serve task`` gives each its own task iterating ``async for index in ticker`` (as
   ``examples/slave.py``), which costs a future, a task step and an async generator step per session
-  per tick (about a quarter of the slave's CPU per session, below).
+  per tick (1.5-3 us of CPU per session-tick more on this VM, of the 25-35 us a session costs per
+  ms: benchmarks/README.md, "Why the slave's ticks are late").
 - the **masters**: N ``tdtp.connect`` endpoints in one process on uvloop; one shared 1 kHz ticker sends a
   100-byte sample to every endpoint per tick (one wake-up per period for all N, to keep the load
   generator cheap), and an ``on_data`` callback per endpoint takes the slave's samples.
@@ -40,7 +41,9 @@ virtual CPUs are resumed late by the host (the kernel runs ``cpuidle_haltpoll`` 
 ``guest_halt_poll_ns=0``: a CPU with nothing to do halts at once). A bare 1 kHz ``timerfd`` loop on
 an idle machine wakes more than 1 ms late 2-7 % of the time (p99 1.8-3.9 ms), 0.3-0.5 % when the CPU
 is kept from idling, so a slave whose core idles between ticks is late on that share of its ticks
-whatever it does, at 10 sessions as at 50 (benchmarks/README.md, "Scale"). The spin is CPU the
+whatever it does, at 10 sessions as at 50 (benchmarks/README.md, "Why the slave's ticks are late").
+Under contention spinning backfires (the busy-waiting process loses its time slice), hence not the
+default. The spin is CPU the
 slave burns on purpose: the slave's CPU column includes it, the column beside it says how much it
 was (``TickGroup.spun``), and the CPU per session row leaves it out (busy CPU only).
 
