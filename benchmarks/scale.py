@@ -1,15 +1,21 @@
 """How many concurrent 1 kHz bidirectional sessions does one tdtp slave process serve on uvloop?
 
 Usage: ``python benchmarks/scale.py [--seconds 2] [--repeat 2] [--ramp 2,5,10,15,20,30,50,100]
-[--controller trinomial|tfrc|fixed] [--workers 1,2] [--pure] [--json]``
+[--controller trinomial|tfrc|fixed] [--workers 1,2] [--pure] [--serve callback|task] [--spin S]
+[--json]``
 
 Method. Two processes on loopback, each pinned to its own CPU (on 2 cores the slave has one to itself):
 
 - the **slave**: ``tdtp.listen`` on uvloop, default connection config (trinomial flow control,
-  piggybacked ACKs). Each accepted master gets its own task, written as an application would (see
-  ``examples/slave.py``): an ``on_data`` callback takes the master's samples, and a ``tdtp.Ticker(1000)``
-  loop sends one 100-byte sample per tick with ``ep.send`` (without ``start=``, so every session's ticker
-  joins the loop's 1 kHz tick group: one wake-up per period for all of them).
+  piggybacked ACKs). Each accepted master is served as an application would: an ``on_data`` callback
+  takes the master's samples, and a ``tdtp.Ticker(1000)`` sends one 100-byte sample per tick with
+  ``ep.send`` (without ``start=``, so every session's ticker joins the loop's 1 kHz tick group: one
+  wake-up per period for all of them). ``--serve callback`` (the default) gives each session a tick
+  callback (``Ticker.call_each``), which the group's wake-up calls directly, one after the other;
+  ``--serve task`` gives each its own task iterating ``async for index in ticker`` (as
+  ``examples/slave.py``), which costs a future, a task step and an async generator step per session
+  per tick (1.5-3 us of CPU per session-tick more on this VM, of the 25-35 us a session costs per
+  ms: benchmarks/README.md, "Why the slave's ticks are late").
 - the **masters**: N ``tdtp.connect`` endpoints in one process on uvloop; one shared 1 kHz ticker sends a
   100-byte sample to every endpoint per tick (one wake-up per period for all N, to keep the load
   generator cheap), and an ``on_data`` callback per endpoint takes the slave's samples.
@@ -29,9 +35,25 @@ runs a ramp for each.
 
 ``--pure`` runs every process on tdtp's pure-Python build (``TDTP_PURE_PYTHON=1``).
 
+``--spin S`` gives the slave's and the masters' tickers ``Ticker(spin=S)``: the tick group's timer
+goes off S seconds before each deadline and the rest is waited on the CPU. Why: this VM's idle
+virtual CPUs are resumed late by the host (the kernel runs ``cpuidle_haltpoll`` with
+``guest_halt_poll_ns=0``: a CPU with nothing to do halts at once). A bare 1 kHz ``timerfd`` loop on
+an idle machine wakes more than 1 ms late 2-7 % of the time (p99 1.8-3.9 ms), 0.3-0.5 % when the CPU
+is kept from idling, so a slave whose core idles between ticks is late on that share of its ticks
+whatever it does, at 10 sessions as at 50 (benchmarks/README.md, "Why the slave's ticks are late").
+Under contention spinning backfires (the busy-waiting process loses its time slice), hence not the
+default. The spin is CPU the
+slave burns on purpose: the slave's CPU column includes it, the column beside it says how much it
+was (``TickGroup.spun``), and the CPU per session row leaves it out (busy CPU only).
+
 **Late**, the figure judged: a slave sample is late when the slave's ``Ticker`` hands it to ``ep.send``
 more than one period (1 ms) after its deadline, or when the ticker skipped its tick altogether (a stall
-longer than 10 periods). This is what the slave process controls: whether it keeps every session's 1 kHz
+longer than 10 periods). On the batched datagram layer the samples of one wake-up leave together, with
+one ``sendmmsg`` once the last session's callback (or task) has run, so the first sessions' samples
+leave later than they were handed over: by the time the rest of that wake-up took. The measure is
+therefore generous to the first sessions of a wake-up by at most one wake-up's work (which the last
+session's lateness includes, and the S->M arrival column, stamped before ``ep.send``, sees in full). This is what the slave process controls: whether it keeps every session's 1 kHz
 schedule while also taking in N x 1000 samples/s. It does not depend on the masters' process or on the
 path, so a busy load generator cannot make the slave look late. A step **passes** when at most 1 % of the
 slave's samples in the window are late and the load was really offered: the slave received at least 99 %
@@ -62,6 +84,7 @@ import math
 import resource
 import struct
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -70,8 +93,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
 from _common import Json, Row, Stat
 
-from tdtp import ConnectionClosedError, ConnectionConfig, DataReceived, Endpoint, Ticker
+from tdtp import ConnectionClosedError, ConnectionConfig, DataReceived, Endpoint, Ticker, TickHandle
 from tdtp.aio.api import connect, listen
+from tdtp.aio.loop_timers import tick_group
 from tdtp.aio.timer import monotonic
 from tdtp.control.fixed import FixedConfig
 
@@ -85,6 +109,8 @@ RATE = 1000.0
 PERIOD = 1.0 / RATE
 LATE = PERIOD  # more than one period behind
 MAX_LATE_FRACTION = 0.01
+DEFAULT_SPIN = 0.0
+QUANTILES = (0.5, 0.9, 0.99, 0.999)
 MIN_OFFERED_FRACTION = 0.99
 WARMUP = 0.5
 PAYLOAD_SIZE = 100
@@ -112,6 +138,8 @@ class Window:
     start: float = math.inf
     end: float = math.inf
     cpu: list[float] = field(default_factory=list)
+    spun: list[float] = field(default_factory=list)
+    """The slave's tick group's busy-wait (``Ticker(spin=)``) at the window's ends, seconds."""
 
     def covers(self, t: float) -> bool:
         return self.start <= t < self.end
@@ -163,15 +191,19 @@ class Inbox:
         return self.messages[key]
 
 
-async def _measure(window: Window, inbox: Inbox, seconds: float) -> None:
+async def _measure(
+    window: Window, inbox: Inbox, seconds: float, spun: Callable[[], float] = lambda: 0.0
+) -> None:
     """The window the coordinator sets once every session is up (one for every process: the
     monotonic clock is the machine's), and this process's CPU time over it."""
     window.start = await inbox.wait_for("start")
     window.end = window.start + seconds
     await asyncio.sleep(max(0.0, window.start - monotonic()))
     window.cpu.append(common.cpu_seconds())
+    window.spun.append(spun())
     await asyncio.sleep(max(0.0, window.end - monotonic()))
     window.cpu.append(common.cpu_seconds())
+    window.spun.append(spun())
     await asyncio.sleep(0.05)  # let the last ticks of the window be recorded
 
 
@@ -193,13 +225,22 @@ def _record_tick(ticks: Ticks, window: Window, deadline: float, now: float, gap:
             ticks.late_at.append(round(deadline - window.start, 4))
 
 
+def _quantiles_us(values: list[float]) -> Json:
+    """The lateness distribution of a step: p50, p90, p99, p99.9 and max, in us."""
+    ordered = sorted(values)
+    quantiles = {f"p{q * 100:g}": 1e6 * common.percentile(ordered, q) for q in QUANTILES}
+    return {**quantiles, "max": 1e6 * ordered[-1] if ordered else math.nan}
+
+
 # ---------------------------------------------------------------------------- slave
 
 
-async def _serve(ep: Endpoint, window: Window, ticks: Ticks, arrivals: Arrivals) -> None:
+async def _serve(
+    ep: Endpoint, window: Window, ticks: Ticks, arrivals: Arrivals, spin: float
+) -> None:
     ep.set_data_callback(arrivals.on_data)
     last = -1
-    ticker = Ticker(RATE)  # the default: the loop's tick group for 1 kHz, one wake-up for all
+    ticker = Ticker(RATE, spin=spin)  # the loop's tick group for 1 kHz, one wake-up for all
     with contextlib.suppress(ConnectionClosedError):
         async for index in ticker:
             now = monotonic()
@@ -210,8 +251,39 @@ async def _serve(ep: Endpoint, window: Window, ticks: Ticks, arrivals: Arrivals)
             ep.send(_payload(index))
 
 
+def _serve_each_tick(
+    ep: Endpoint, window: Window, ticks: Ticks, arrivals: Arrivals, spin: float
+) -> TickHandle:
+    """The same session on a tick callback (``Ticker.call_each``): the loop's tick group calls it
+    in its wake-up, one call per session, no task step."""
+    ep.set_data_callback(arrivals.on_data)
+    last = -1
+    ticker = Ticker(RATE, spin=spin)
+
+    def on_tick(index: int) -> None:
+        nonlocal last
+        now = monotonic()
+        _record_tick(ticks, window, ticker.deadline, now, max(0, index - last - 1))
+        last = index
+        if ep.is_closed or now > window.end + 0.2:
+            handle.cancel()
+            return
+        with contextlib.suppress(ConnectionClosedError):
+            ep.send(_payload(index))
+
+    handle = ticker.call_each(on_tick)
+    return handle
+
+
 async def _slave(
-    control: Any, sessions: int, seconds: float, controller: str, port: int, reuse_port: bool
+    control: Any,
+    sessions: int,
+    seconds: float,
+    controller: str,
+    port: int,
+    reuse_port: bool,
+    serve: str = "callback",
+    spin: float = 0.0,
 ) -> Json:
     window = Window()
     ticks = Ticks()
@@ -228,27 +300,37 @@ async def _slave(
     )
     control.send({"port": server.port})
     tasks: list[asyncio.Task[None]] = []
+    handles: list[TickHandle] = []
 
     async def accept() -> None:
         # With several slave processes on the port, this one cannot know how many of the masters
         # the kernel gives it: it serves every one that comes.
         while True:
             ep = await server.accept()
-            tasks.append(asyncio.create_task(_serve(ep, window, ticks, arrivals)))
+            if serve == "callback":
+                handles.append(_serve_each_tick(ep, window, ticks, arrivals, spin))
+            else:
+                tasks.append(asyncio.create_task(_serve(ep, window, ticks, arrivals, spin)))
+
+    def spun() -> float:
+        group = tick_group(asyncio.get_running_loop(), RATE, "auto", spin)
+        return group.spun
 
     acceptor = asyncio.create_task(accept())
-    await _measure(window, inbox, seconds)
+    await _measure(window, inbox, seconds, spun)
     span = window.end - window.start
     stats = [ep.stats for ep in server.endpoints]
     report = {
-        "sessions": len(tasks),
+        "sessions": len(tasks) + len(handles),
         "ticks": ticks.total,
         "late": ticks.late,
         "skipped": ticks.skipped,
         "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
         "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
+        "tick_lateness_us": _quantiles_us(ticks.lateness),
         "late_at": ticks.late_at,
         "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
+        "spin_percent": 100.0 * (window.spun[1] - window.spun[0]) / span,
         "received": arrivals.count,
         "received_rate": arrivals.count / span,
         "arrival_late": arrivals.late,
@@ -261,6 +343,8 @@ async def _slave(
     control.send({"window": report})
     await inbox.wait_for("stop")
     acceptor.cancel()
+    for handle in handles:
+        handle.cancel()
     for task in tasks:
         task.cancel()
     await asyncio.gather(acceptor, *tasks, return_exceptions=True)
@@ -277,11 +361,14 @@ def slave_worker(
     cpu_slot: int,
     port: int = 0,
     reuse_port: bool = False,
+    serve: str = "callback",
+    spin: float = 0.0,
 ) -> None:
     common.pin_to_cpu(cpu_slot)
     _raise_fd_limit()
     common.run_in_loop(
-        "uvloop", lambda: _slave(conn, sessions, seconds, controller, port, reuse_port)
+        "uvloop",
+        lambda: _slave(conn, sessions, seconds, controller, port, reuse_port, serve, spin),
     )
     conn.send({"final": True})
 
@@ -289,7 +376,9 @@ def slave_worker(
 # ---------------------------------------------------------------------------- masters
 
 
-async def _masters(control: Any, port: int, sessions: int, seconds: float, controller: str) -> Json:
+async def _masters(
+    control: Any, port: int, sessions: int, seconds: float, controller: str, spin: float
+) -> Json:
     window = Window()
     arrivals = Arrivals(window)
     ticks = Ticks()
@@ -303,7 +392,7 @@ async def _masters(control: Any, port: int, sessions: int, seconds: float, contr
     measure = asyncio.create_task(_measure(window, inbox, seconds))
     start = monotonic()
     last = -1
-    async for index in Ticker(RATE, start=start):
+    async for index in Ticker(RATE, start=start, spin=spin):
         now = monotonic()
         _record_tick(ticks, window, start + index * PERIOD, now, index - last - 1)
         last = index
@@ -330,12 +419,19 @@ async def _masters(control: Any, port: int, sessions: int, seconds: float, contr
 
 
 def masters_worker(
-    conn: Any, *, port: int, sessions: int, seconds: float, controller: str, cpu_slot: int
+    conn: Any,
+    *,
+    port: int,
+    sessions: int,
+    seconds: float,
+    controller: str,
+    cpu_slot: int,
+    spin: float = 0.0,
 ) -> None:
     common.pin_to_cpu(cpu_slot)
     _raise_fd_limit()
     report = common.run_in_loop(
-        "uvloop", lambda: _masters(conn, port, sessions, seconds, controller)
+        "uvloop", lambda: _masters(conn, port, sessions, seconds, controller, spin)
     )
     conn.send({"final": report})
 
@@ -362,6 +458,7 @@ def _combine(slaves: list[Json]) -> Json:
             (s["tick_lateness_p99_us"] for s in slaves if s["ticks"]), default=math.nan
         ),
         "cpu_percent": max(s["cpu_percent"] for s in slaves),
+        "spin_percent": max(slaves, key=lambda s: s["cpu_percent"])["spin_percent"],
         "received": received,
         "received_rate": sum(s["received_rate"] for s in slaves),
         "arrival_late": arrival_late,
@@ -377,11 +474,13 @@ def run_step(
     controller: str = "trinomial",
     workers: int = 1,
     pure: bool = False,
+    serve: str = "callback",
+    spin: float = 0.0,
 ) -> Json:
     """One step: ``workers`` slave processes on one port (``SO_REUSEPORT`` when more than one),
     ``sessions`` masters in another process, and the verdict."""
     others = common.OthersMeter()
-    kind = dict(sessions=sessions, seconds=seconds, controller=controller)
+    kind = dict(sessions=sessions, seconds=seconds, controller=controller, spin=spin)
     slaves: list[common.WorkerHandle] = []
     masters = None
     try:
@@ -395,6 +494,7 @@ def run_step(
                     cpu_slot=1 + i,
                     port=port,
                     reuse_port=workers > 1,
+                    serve=serve,
                     **kind,
                 )
             )
@@ -441,6 +541,8 @@ class Setup:
 
     workers: int = 1
     pure: bool = False
+    serve: str = "callback"
+    spin: float = 0.0
 
     @property
     def label(self) -> str:
@@ -465,12 +567,15 @@ def ramp(
                 file=sys.stderr,
                 flush=True,
             )
-            step = run_step(n, seconds, controller, setup.workers, setup.pure)
+            step = run_step(
+                n, seconds, controller, setup.workers, setup.pure, setup.serve, setup.spin
+            )
             step["attempt"] = attempt + 1
             others = step["slave"]["others_percent"]
             print(
                 f"  {step['verdict']}: slave late {step['slave']['late_fraction']:.2%}, "
-                f"CPU {step['slave']['cpu_percent']:.0f} %, other tenants {others:.0f} %",
+                f"CPU {step['slave']['cpu_percent']:.0f} % (spin "
+                f"{step['slave']['spin_percent']:.0f} %), other tenants {others:.0f} %",
                 file=sys.stderr,
             )
             if step["verdict"] == "pass" or not others > common.CONTENDED_PERCENT:
@@ -504,7 +609,8 @@ def cost_per_session(results: list[Json]) -> float:
     best = max(passed, key=lambda r: r["sessions"])
     workers = max(1, len(best["slave"]["workers"]))
     per_worker = best["sessions"] / workers  # the busiest has at least its share
-    return 10.0 * best["slave"]["cpu_percent"] / per_worker
+    busy = best["slave"]["cpu_percent"] - best["slave"].get("spin_percent", 0.0)
+    return 10.0 * busy / per_worker
 
 
 def stop_note(ramps: list[list[Json]]) -> str:
@@ -557,7 +663,23 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="run slaves and masters on tdtp's pure-Python build (TDTP_PURE_PYTHON=1)",
     )
+    p.add_argument(
+        "--serve",
+        default="callback",
+        choices=["callback", "task"],
+        help="how the slave runs each session's 1 kHz loop: a tick callback (Ticker.call_each, "
+        "the default) or a task iterating a Ticker",
+    )
+    p.add_argument(
+        "--spin",
+        type=float,
+        default=DEFAULT_SPIN,
+        help=f"Ticker(spin=) of slave and masters, seconds before each deadline spent waiting on "
+        f"the CPU (default {DEFAULT_SPIN}; 0 sleeps until the deadline)",
+    )
     args = p.parse_args(argv)
+    if not 0.0 <= args.spin <= PERIOD:
+        p.error(f"--spin takes 0 to {PERIOD} s, got {args.spin}")
     workers = common.as_list(args.workers)
     if not workers or min(workers) < 1:
         p.error(f"--workers takes counts of 1 or more, got {args.workers!r}")
@@ -572,15 +694,21 @@ def main(argv: list[str] | None = None) -> int:
         "lateness p99); sessions per worker as the kernel spread them.",
         "",
         "| workers | ramp | N | verdict (attempt) | sessions per worker | slave late % "
-        "| slave tick lateness p99 (us) | slave CPU % | slave rx (samples/s) "
+        "| slave tick lateness p99 (us) | slave CPU % (spin) | slave rx (samples/s) "
         "| M->S arrivals > 1 ms | S->M arrivals > 1 ms | masters late % | masters CPU % "
         "| other tenants CPU % |",
         "| ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
         "| ---: |",
     ]
-    details: Json = {"controller": args.controller, "pure": args.pure, "setups": []}
+    details: Json = {
+        "controller": args.controller,
+        "pure": args.pure,
+        "serve": args.serve,
+        "spin": args.spin,
+        "setups": [],
+    }
     for count in workers:
-        setup = Setup(count, args.pure)
+        setup = Setup(count, args.pure, args.serve, args.spin)
         ramps: list[list[Json]] = []
         for rep in range(args.repeat):
             ramp_steps = next_steps(steps, ramps[-1]) if ramps else steps
@@ -605,7 +733,8 @@ def main(argv: list[str] | None = None) -> int:
                 value,
                 target=target,
                 meets=meets,
-                note=f"{args.controller}, ramp {args.ramp}"
+                note=f"{args.controller}, {args.serve}s, spin {1e6 * args.spin:.0f} us, "
+                f"ramp {args.ramp}"
                 + (", masters share a core with a slave" if count > 1 and shared else "")
                 + f"; {stop_note(ramps)}",
                 digits=0,
@@ -621,7 +750,8 @@ def main(argv: list[str] | None = None) -> int:
                     "1 kHz session, at the largest step that passed",
                     "us per ms",
                     cost,
-                    note=f"one core at this cost: about {1000 / cost.median:.0f} sessions",
+                    note=f"busy CPU (spin excluded); one core at this cost: about "
+                    f"{1000 / cost.median:.0f} sessions",
                     digits=1,
                 )
             )
@@ -642,6 +772,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"| {count} | {i + 1} | {r['sessions']} | {r['verdict']} ({r.get('attempt', 1)}) "
                     f"| {spread} | {100 * s['late_fraction']:.2f} "
                     f"| {s['tick_lateness_p99_us']:.0f} | {s['cpu_percent']:.0f} "
+                    f"({s.get('spin_percent', 0.0):.0f}) "
                     f"| {s['received_rate']:,.0f} | {100 * s['arrival_late_fraction']:.2f} % "
                     f"| {100 * m['arrival_late_fraction']:.2f} % | {100 * m['late_fraction']:.2f} "
                     f"| {m['cpu_percent']:.0f} | {s['others_percent']:.0f} |"

@@ -13,7 +13,7 @@ from tdtp._moved_modules import install as _install_moved_modules
 from tdtp.aio.api import Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.reconnect import ReconnectPolicy, ReconnectRecord
-from tdtp.aio.ticker import Ticker
+from tdtp.aio.ticker import Ticker, TickHandle
 from tdtp.aio.timer import monotonic
 from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, ControllerName, Role
 from tdtp.errors import (
@@ -110,6 +110,7 @@ __all__ = [
     "ServerStats",
     "State",
     "TdtpError",
+    "TickHandle",
     "Ticker",
     "__version__",
     "build_info",

@@ -9,24 +9,27 @@ together are served in one wake-up.
 
 The same reasoning applies to applications that sample at a fixed rate: a :class:`TickGroup` wakes once
 per period for every :class:`~tdtp.aio.ticker.Ticker` of the same rate on the loop, instead of once per
-ticker at scattered phases.
+ticker at scattered phases; and it calls the tickers' tick callbacks
+(:meth:`~tdtp.aio.ticker.Ticker.call_each`) itself, so that serving every session due costs one wake-up
+and one call per session, not one task step each.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import heapq
 import math
 import weakref
 from collections.abc import Callable
-from typing import Final
+from typing import Final, Protocol
 
 from mypy_extensions import mypyc_attr
 
 from tdtp.aio.outbox import current_outbox
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
 
-__all__ = ["LoopTimers", "TickGroup", "TimerEntry", "loop_timers", "tick_group"]
+__all__ = ["LoopTimers", "TickGroup", "TickMember", "TimerEntry", "loop_timers", "tick_group"]
 
 _NEVER: Final = math.inf
 
@@ -163,21 +166,57 @@ class LoopTimers:
                 self._timer.arm(heap[0][0])
 
 
+class TickMember(Protocol):
+    """What a :class:`TickGroup` calls synchronously at every tick: a ticker's callback side."""
+
+    def on_group_tick(self, now: float) -> None:
+        """Serve every tick of the member's due at ``now`` (the group's wake-up time)."""
+
+
 @mypyc_attr(native_class=False)  # held weakly by the registry, as LoopTimers
 class TickGroup:
     """The ticks of every :class:`~tdtp.aio.ticker.Ticker` of one rate on one loop: deadlines
-    ``anchor + n / rate`` for n = 0, 1, 2, ..., one wake-up per tick for all of them."""
+    ``anchor + n / rate`` for n = 0, 1, 2, ..., one wake-up per tick for all of them.
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, rate: float, prefer: str) -> None:
+    Two kinds of members share the wake-up: tasks iterating a ticker (each waits on a future, so a
+    tick resumes each task once, one after the other) and *tick callbacks*
+    (:meth:`~tdtp.aio.ticker.Ticker.call_each`), which the wake-up calls directly, in the order they
+    joined, with the loop's outbox held: no task step, no future, and what they send leaves in one
+    ``sendmmsg`` per socket when the last has run.
+
+    ``spin`` (seconds, 0 by default) arms the timer that long before each deadline and waits the
+    rest on the CPU (a blocking busy-wait). A virtual CPU that idles until a deadline can be resumed
+    late by its host: on this project's VM a bare 1 kHz ``timerfd`` wake-up comes more than 1 ms
+    late 2-7 % of the time, and 0.3-0.5 % with the CPU kept from idling (benchmarks/README.md,
+    "Why the slave's ticks are late"). Spinning costs that CPU (up to ``spin * rate`` of a core,
+    less when the loop is busy anyway) and backfires when another process wants the core (the
+    busy-waiting one loses its time slice): it is for a process that has a core to itself.
+    :attr:`spun` counts it.
+    """
+
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        rate: float,
+        prefer: str,
+        spin: float = 0.0,
+        anchor: float | None = None,
+    ) -> None:
         self._loop = loop
-        self._key = (rate, prefer)
+        self._key = (rate, prefer, spin)
         self.rate = rate
         self.period = 1.0 / rate
-        self.anchor = monotonic()
+        self.spin = spin
+        self.anchor = monotonic() if anchor is None else anchor
         self._timer: DeadlineTimer = create_timer(loop, self._fire, prefer=prefer)
         self._waiters: dict[int, list[asyncio.Future[None]]] = {}
+        self._callbacks: list[TickMember] = []
+        self._next_tick = 0
+        """The first tick the callbacks have not been served (while there are any)."""
         self._members = 0
         self.wakeups = 0
+        self.spun = 0.0
+        """Seconds spent busy-waiting for deadlines (``spin``), for an honest CPU account."""
 
     @property
     def members(self) -> int:
@@ -207,7 +246,22 @@ class TickGroup:
                 for waiter in waiters:
                     waiter.cancel()
             self._waiters.clear()
+            self._callbacks.clear()
             _forget_group(self._loop, self._key, self)
+
+    def add_callback(self, member: TickMember, first_tick: int) -> None:
+        """Call ``member.on_group_tick`` at every wake-up from ``first_tick`` on (the member has
+        joined; :meth:`remove_callback` before it leaves)."""
+        if not self._callbacks or first_tick < self._next_tick:
+            self._next_tick = first_tick
+        self._callbacks.append(member)
+        self._arm_at(self.deadline(first_tick))
+
+    def remove_callback(self, member: TickMember) -> None:
+        # A list, not a set: members are served in the order they joined. Removal is rare (a
+        # session ends); the wake-up, which is not, only iterates.
+        with contextlib.suppress(ValueError):
+            self._callbacks.remove(member)
 
     def wait(self, tick: int) -> asyncio.Future[None]:
         """A future done once ``monotonic() >= deadline(tick)``."""
@@ -216,27 +270,68 @@ class TickGroup:
         if waiters is None:
             self._waiters[tick] = waiters = []
         waiters.append(waiter)
-        deadline = self.deadline(tick)
-        armed = self._timer.deadline
-        if armed is None or deadline < armed:
-            self._timer.arm(deadline)
+        self._arm_at(self.deadline(tick))
         return waiter
+
+    def _arm_at(self, deadline: float) -> None:
+        at = deadline - self.spin
+        armed = self._timer.deadline
+        if (armed is None or at < armed) and not self._timer.closed:
+            self._timer.arm(at)
 
     def _fire(self) -> None:
         self.wakeups += 1
         now = monotonic()
+        callbacks = self._callbacks
+        if self.spin > 0.0:
+            # Woken ``spin`` before the earliest deadline pending (or later): wait for it on the
+            # CPU, not asleep. Never past it: a late wake-up serves what is due at once.
+            pending = [self.deadline(min(self._waiters))] if self._waiters else []
+            if callbacks:
+                pending.append(self.deadline(self._next_tick))
+            due_at = min(pending, default=now)
+            if due_at - now > self.spin:
+                self._arm_at(due_at)  # woken too early (a spurious readiness): sleep on
+                return
+            started = now
+            while now < due_at:
+                now = monotonic()
+            self.spun += now - started
         due = [tick for tick in self._waiters if self.deadline(tick) <= now]
-        for tick in sorted(due):
-            for waiter in self._waiters.pop(tick):
-                if not waiter.done():
-                    waiter.set_result(None)
-        outbox = current_outbox(self._loop) if due else None
+        outbox = current_outbox(self._loop) if due or callbacks else None
         if outbox is not None:
-            # The tasks just woken run next, one after the other; what they send leaves in one
-            # sendmmsg per socket once all of them have (tdtp.aio.outbox).
-            outbox.hold_until_ready_ran(self._loop)
+            outbox.hold()
+        try:
+            for tick in sorted(due):
+                for waiter in self._waiters.pop(tick):
+                    if not waiter.done():
+                        waiter.set_result(None)
+            if callbacks and self.deadline(self._next_tick) <= now:
+                self._next_tick = self.current_tick(now) + 1
+                self._run_callbacks(now)
+        finally:
+            if outbox is not None:
+                if due:
+                    # The tasks just woken run next, one after the other; what they send leaves
+                    # in one sendmmsg per socket once all of them have (tdtp.aio.outbox).
+                    outbox.hold_until_ready_ran(self._loop)
+                outbox.release()
+        if self._timer.closed:
+            return
+        if self._callbacks:
+            self._arm_at(self.deadline(self._next_tick))
         if self._waiters:
-            self._timer.arm(self.deadline(min(self._waiters)))
+            self._arm_at(self.deadline(min(self._waiters)))
+
+    def _run_callbacks(self, now: float) -> None:
+        # A copy: a callback may cancel itself or another, or add one (served from the next tick).
+        for member in list(self._callbacks):
+            try:
+                member.on_group_tick(now)
+            except Exception as exc:  # reported, as asyncio reports a callback's; the rest run
+                self._loop.call_exception_handler(
+                    {"message": "a tdtp tick callback raised", "exception": exc}
+                )
 
 
 # Each loop's timers and tick groups, held weakly on both sides: a loop whose endpoints were never
@@ -246,7 +341,7 @@ _LOOP_TIMERS: weakref.WeakKeyDictionary[
     asyncio.AbstractEventLoop, weakref.WeakValueDictionary[str, LoopTimers]
 ] = weakref.WeakKeyDictionary()
 _TICK_GROUPS: weakref.WeakKeyDictionary[
-    asyncio.AbstractEventLoop, weakref.WeakValueDictionary[tuple[float, str], TickGroup]
+    asyncio.AbstractEventLoop, weakref.WeakValueDictionary[tuple[float, str, float], TickGroup]
 ] = weakref.WeakKeyDictionary()
 
 
@@ -262,14 +357,18 @@ def loop_timers(loop: asyncio.AbstractEventLoop, prefer: str = "auto") -> LoopTi
     return timers
 
 
-def tick_group(loop: asyncio.AbstractEventLoop, rate: float, prefer: str = "auto") -> TickGroup:
-    """The loop's tick group for ``rate`` (created on first use, released with its last member)."""
+def tick_group(
+    loop: asyncio.AbstractEventLoop, rate: float, prefer: str = "auto", spin: float = 0.0
+) -> TickGroup:
+    """The loop's tick group for ``rate`` (and timer kind and spin window: tickers that differ
+    in those do not share; created on first use, released with its last member)."""
     groups = _TICK_GROUPS.get(loop)
     if groups is None:
         _TICK_GROUPS[loop] = groups = weakref.WeakValueDictionary()
-    group = groups.get((rate, prefer))
+    key = (rate, prefer, spin)
+    group = groups.get(key)
     if group is None:
-        groups[(rate, prefer)] = group = TickGroup(loop, rate, prefer)
+        groups[key] = group = TickGroup(loop, rate, prefer, spin)
     return group
 
 
@@ -280,7 +379,7 @@ def _forget(loop: asyncio.AbstractEventLoop, prefer: str, timers: LoopTimers) ->
 
 
 def _forget_group(
-    loop: asyncio.AbstractEventLoop, key: tuple[float, str], group: TickGroup
+    loop: asyncio.AbstractEventLoop, key: tuple[float, str, float], group: TickGroup
 ) -> None:
     groups = _TICK_GROUPS.get(loop)
     if groups is not None and groups.get(key) is group:

@@ -11,6 +11,17 @@ so a slave that runs a 1 kHz loop per master wakes once per millisecond, not onc
 scattered phases. Its first tick is the group's tick at or just before the moment iteration starts
 (due at once, as an ungrouped ticker's first tick is). ``start=`` gives a ticker its own schedule and
 timer.
+
+Tick callbacks. ``handle = Ticker(1000).call_each(on_tick)`` calls ``on_tick(tick)`` from the group's
+wake-up itself, on the same schedule and with the same accounting as iteration, until
+``handle.cancel()``. A process that serves many sessions at one rate (a slave: one 1 kHz loop per
+master) then pays one wake-up per period and one call per session, where ``async for`` costs a task
+step per session (a future resolved, a task resumed, an async generator advanced): the calls run one
+after the other inside the wake-up, with the loop's outbox held, so every session's sample leaves in
+one ``sendmmsg`` and the last session's tick is not queued behind the others' task switches.
+
+``spin=`` makes the group wait the last ``spin`` seconds before each deadline on the CPU instead of
+asleep, for virtual machines whose idle CPUs are resumed late (:class:`~tdtp.aio.loop_timers.TickGroup`).
 """
 
 from __future__ import annotations
@@ -21,7 +32,7 @@ import time
 from collections.abc import AsyncIterator, Callable
 
 from tdtp.aio.loop_timers import TickGroup, tick_group
-from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
+from tdtp.aio.timer import monotonic
 from tdtp.errors import InvalidArgumentError
 
 
@@ -36,6 +47,7 @@ class Ticker:
         start: float | None = None,
         max_catch_up: int = 10,
         timer: str = "auto",
+        spin: float = 0.0,
     ) -> None:
         if not (0.0 < rate < math.inf):
             raise InvalidArgumentError(
@@ -43,8 +55,14 @@ class Ticker:
             )
         if max_catch_up < 0:
             raise InvalidArgumentError(f"max_catch_up must be >= 0, got {max_catch_up}")
+        if not (0.0 <= spin <= 1.0 / rate):
+            raise InvalidArgumentError(
+                f"spin must be within [0, one period = {1.0 / rate}] s, got {spin!r}"
+            )
         self.rate = rate
         self.period = 1.0 / rate
+        self.spin = spin
+        """Seconds before each deadline spent waiting on the CPU (see the module docstring)."""
         self._start = start
         self._max_catch_up = max_catch_up
         self._timer_kind = timer
@@ -54,50 +72,30 @@ class Ticker:
         """Ticks dropped after stalls longer than ``max_catch_up`` periods."""
         self.max_lateness = 0.0
         """Largest delay between a deadline and the moment its tick was delivered, seconds."""
+        self._handle: TickHandle | None = None
         self.deadline = math.nan
         """When the tick last delivered was due (``tdtp.monotonic`` seconds; NaN before the first):
         ``monotonic() - ticker.deadline`` is how late the application runs it."""
 
     def __aiter__(self) -> AsyncIterator[int]:
-        return self._run() if self._start is not None else self._run_grouped()
+        return self._run()
+
+    def _join(self) -> tuple[TickGroup, int]:
+        """The group this ticker's schedule is on, joined, and its tick number for our tick 0:
+        the loop's shared group for the rate, whose tick due now comes first; or, with
+        ``start=``, a group of its own anchored there."""
+        loop = asyncio.get_running_loop()
+        if self._start is None:
+            group = tick_group(loop, self.rate, self._timer_kind, self.spin)
+            group.join()
+            return group, group.current_tick(monotonic())
+        group = TickGroup(loop, self.rate, self._timer_kind, self.spin, anchor=self._start)
+        group.join()
+        return group, 0
 
     async def _run(self) -> AsyncIterator[int]:
-        loop = asyncio.get_running_loop()
-        waiter: asyncio.Future[None] | None = None
-
-        def wake() -> None:
-            if waiter is not None and not waiter.done():
-                waiter.set_result(None)
-
-        timer: DeadlineTimer = create_timer(loop, wake, prefer=self._timer_kind)
-        start = monotonic() if self._start is None else self._start
-        period = self.period
-
-        def deadline_of(tick: int) -> float:
-            return start + tick * period
-
-        index = 0
+        group, first = self._join()
         try:
-            while True:
-                deadline = deadline_of(index)
-                now = monotonic()
-                if now < deadline:
-                    waiter = loop.create_future()
-                    timer.arm(deadline)
-                    await waiter
-                    now = monotonic()
-                index = self._deliver(now, index, deadline_of)
-                yield index
-                index += 1
-        finally:
-            timer.close()
-
-    async def _run_grouped(self) -> AsyncIterator[int]:
-        """The same schedule rules on the loop's shared tick group for this rate."""
-        group: TickGroup = tick_group(asyncio.get_running_loop(), self.rate, self._timer_kind)
-        group.join()
-        try:
-            first = group.current_tick(monotonic())
 
             def deadline_of(tick: int) -> float:
                 return group.deadline(first + tick)
@@ -127,6 +125,20 @@ class Ticker:
         finally:
             group.leave()
 
+    def call_each(self, callback: Callable[[int], None]) -> TickHandle:
+        """Call ``callback(tick)`` at every tick, from the tick group's wake-up, until the
+        returned handle's :meth:`~TickHandle.cancel` (see the module docstring). Ticks, deadlines
+        and skips are accounted as for ``async for`` (:attr:`deadline` is the tick's during the
+        call). A callback that raises is reported to the loop's exception handler and called
+        again at the next tick. Call it on the loop's thread; one callback per ticker at a time
+        (:class:`~tdtp.InvalidArgumentError` otherwise)."""
+        if self._handle is not None and not self._handle.cancelled:
+            raise InvalidArgumentError("this ticker calls a callback already; cancel it first")
+        group, first = self._join()
+        self._handle = handle = TickHandle(self, group, first, callback)
+        group.add_callback(handle, first)
+        return handle
+
     def _deliver(self, now: float, index: int, deadline_of: Callable[[int], float]) -> int:
         """Account for tick ``index`` delivered at ``now`` (both schedules' rules): after a stall
         of more than ``max_catch_up`` periods, skip to the tick due now. Returns the tick given."""
@@ -140,3 +152,53 @@ class Ticker:
         self.ticks += 1
         self.deadline = deadline
         return index
+
+
+class TickHandle:
+    """A :meth:`Ticker.call_each` in progress: :meth:`cancel` stops it."""
+
+    def __init__(
+        self, ticker: Ticker, group: TickGroup, first: int, callback: Callable[[int], None]
+    ) -> None:
+        self._ticker = ticker
+        self._group = group
+        self._first = first
+        self._callback = callback
+        self._index = 0
+        self.cancelled = False
+
+    @property
+    def ticker(self) -> Ticker:
+        return self._ticker
+
+    def cancel(self) -> None:
+        """No more calls (from now: one cancelled by another callback of the same wake-up is not
+        called in it). Idempotent."""
+        if not self.cancelled:
+            self.cancelled = True
+            self._group.remove_callback(self)
+            self._group.leave()
+
+    def on_group_tick(self, now: float) -> None:
+        """The group's wake-up at ``now``: every tick of ours due by then, as ``async for``
+        would deliver them (a stall within ``max_catch_up`` periods gives each missed tick, a
+        longer one skips to the tick due now)."""
+        ticker = self._ticker
+        group = self._group
+        first = self._first
+        callback = self._callback
+        while not self.cancelled:
+            index = self._index
+            deadline = group.deadline(first + index)
+            if deadline > now:
+                return
+            late = now - deadline
+            if int(late * ticker.rate) > ticker._max_catch_up:
+                index = ticker._deliver(now, index, lambda tick: group.deadline(first + tick))
+            else:
+                if late > ticker.max_lateness:
+                    ticker.max_lateness = late
+                ticker.ticks += 1
+                ticker.deadline = deadline
+            self._index = index + 1
+            callback(index)

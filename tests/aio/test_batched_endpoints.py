@@ -213,6 +213,47 @@ async def test_a_tick_group_wake_up_sends_every_session_in_one_flush(transport: 
 
 
 @pytest.mark.asyncio
+async def test_tick_callbacks_send_every_session_in_one_batch(transport: str) -> None:
+    """Slaves on tick callbacks (Ticker.call_each): the group's wake-up calls them all with the
+    outbox held, so on the compiled layer a tick's samples share system calls; every one arrives."""
+    async with listen("127.0.0.1", 0, config=UNLIMITED) as server:
+        masters, slaves = await _masters(server, 3)
+        before = _layer_stats(server)
+        finished: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        counts = [0] * len(slaves)
+        handles = []
+
+        def sender(i: int, ep: Endpoint) -> None:
+            def on_tick(_: int) -> None:
+                ep.send(b"s%03d" % counts[i] + bytes(96))
+                counts[i] += 1
+                if counts[i] == 20:
+                    handles[i].cancel()
+                    if all(c == 20 for c in counts) and not finished.done():
+                        finished.set_result(None)
+
+            return on_tick
+
+        for i, slave in enumerate(slaves):
+            handles.append(Ticker(1000.0).call_each(sender(i, slave)))
+        await finished
+        await eventually(
+            lambda: all(
+                m.stats.received.data_packets == s.stats.sent.data_packets == 20
+                for m, s in zip(masters, slaves, strict=True)
+            )
+        )
+        after = _layer_stats(server)
+        if transport == "compiled":
+            assert before is not None and after is not None
+            sent = after["datagrams_sent"] - before["datagrams_sent"]
+            assert sent >= 60
+            assert after["send_calls"] - before["send_calls"] < sent
+        for master in masters:
+            await master.close()
+
+
+@pytest.mark.asyncio
 async def test_forged_and_off_path_datagrams_in_a_batch_are_dropped_and_counted(
     transport: str,
 ) -> None:
