@@ -61,13 +61,11 @@ class Demultiplexer:
         wall = time.time_ns() if stamps is not None else 0
         out = self._outbox
         owner = out.owner if out is not None else None
-        # One datagram: nothing to batch its answers with; they leave at once (LoopOutbox.direct).
-        single = len(datas) == 1
+        count = len(datas)
         if owner is not None:
-            if single:
-                owner.direct += 1
-            else:
-                owner.hold()
+            # A wake-up: what this batch makes us send leaves in one sendmmsg (one datagram's
+            # answers leave at once: nothing to batch them with).
+            owner.hold_batch(count)
         try:
             peers = self._peers
             touched: dict[Endpoint, None] = {}
@@ -101,7 +99,4 @@ class Demultiplexer:
                 endpoint._flush(now)
         finally:
             if owner is not None:
-                if single:
-                    owner.direct -= 1
-                else:
-                    owner.release()
+                owner.release_batch(count)

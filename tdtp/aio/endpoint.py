@@ -508,12 +508,11 @@ class Endpoint:
         wall = time.time_ns() if stamps is not None else 0
         out = self._out
         owner = out.owner if out is not None else None
-        single = len(datas) == 1
+        count = len(datas)
         if owner is not None:
-            if single:
-                owner.direct += 1  # nothing to batch with: answers leave at once
-            else:
-                owner.hold()  # a wake-up: what this batch makes us send leaves in one sendmmsg
+            # A wake-up: what this batch makes us send leaves in one sendmmsg (one datagram's
+            # answers leave at once: nothing to batch them with).
+            owner.hold_batch(count)
         try:
             conn = self._conn
             for i in range(len(datas)):
@@ -526,10 +525,7 @@ class Endpoint:
             self._flush(now)
         finally:
             if owner is not None:
-                if single:
-                    owner.direct -= 1
-                else:
-                    owner.release()
+                owner.release_batch(count)
 
     def pause_writing(self) -> None:
         """The socket's send buffer is backed up: hold data until :meth:`resume_writing`."""

@@ -120,6 +120,22 @@ class LoopOutbox:
                     outbox.flush()
                 dirty = self.dirty
 
+    def hold_batch(self, count: int) -> None:
+        """A receive batch of ``count`` datagrams is handed over: a wake-up (:meth:`hold`), except
+        for a single datagram, whose answers leave at once (:attr:`direct`). Pair with
+        :meth:`release_batch`."""
+        if count == 1:
+            self.direct += 1
+        else:
+            self.hold()
+
+    def release_batch(self, count: int) -> None:
+        """The batch of :meth:`hold_batch` has been handed over."""
+        if count == 1:
+            self.direct -= 1
+        else:
+            self.release()
+
     def hold_until_ready_ran(self, loop: asyncio.AbstractEventLoop) -> None:
         """Hold until the callbacks scheduled so far (the tasks a tick or a sample just woke, the
         rest of the task sending now) have run: the release is queued behind them with
