@@ -37,7 +37,7 @@ import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
 from time import monotonic  # = tdtp.aio.timer.monotonic, called directly (per packet)
-from typing import Protocol
+from typing import Any, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.outbox import SocketOutbox
@@ -200,7 +200,7 @@ class Endpoint:
         """What carries this endpoint's datagrams: ``"datagram layer (compiled, coalescing)"``
         (the C engine, segmenting bursts; :mod:`tdtp.aio.datagram`), ``"datagram layer
         (compiled)"``, ``"datagram layer (pure)"``, or ``"loop's transport"``."""
-        layer = getattr(self._transport, "layer", None)
+        layer = self._datagram_layer()
         if layer is None:
             return "loop's transport"
         engine: str = layer.engine
@@ -213,11 +213,22 @@ class Endpoint:
         """The datagram layer's counters for this endpoint's socket (system calls, datagrams and
         bytes each way, coalesced sends and receives, errors by kind; shared by every session of
         a :class:`~tdtp.Server`), or ``None`` on the loop's transport."""
-        layer = getattr(self._transport, "layer", None)
+        layer = self._datagram_layer()
         if layer is None:
             return None
         stats: dict[str, int] = layer.stats
         return stats
+
+    def _datagram_layer(self) -> Any:
+        """The socket's datagram layer under any wrappers (a pcap capture, in-process impairment:
+        each holds the transport it wraps as ``_transport``), or ``None``."""
+        transport: object = self._transport
+        while transport is not None:
+            layer = getattr(transport, "layer", None)
+            if layer is not None:
+                return layer
+            transport = getattr(transport, "_transport", None)
+        return None
 
     @property
     def established(self) -> bool:

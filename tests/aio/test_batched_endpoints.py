@@ -14,6 +14,7 @@ import math
 import os
 import socket
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -179,6 +180,40 @@ async def test_the_answer_to_a_lone_datagram_goes_to_the_socket_at_once(transpor
             got = [(await master.recv()).payload[:4] for _ in range(master.unread)]
             assert got == ([b"lone"] if index == 0 else []) + [b"many"]
             await master.close()
+
+
+@pytest.mark.asyncio
+async def test_the_endpoint_names_its_sockets_under_capture_and_impairment(
+    transport: str, tmp_path: Path
+) -> None:
+    """``Endpoint.sockets`` and ``datagram_layer_stats`` see through the pcap and netem wrappers to
+    the socket's datagram layer, and its counters account for what the run sent."""
+    async with listen("127.0.0.1", 0, config=UNLIMITED) as server:
+        master = await connect(
+            "127.0.0.1",
+            server.port,
+            config=UNLIMITED,
+            pcap=str(tmp_path / "m.pcap"),
+            netem="delay 1ms",
+        )
+        await server.accept()
+        for _ in range(5):
+            master.send(bytes(100))
+            await asyncio.sleep(0)
+        await eventually(lambda: master.stats.sent.data_packets == 5)
+        stats = master.datagram_layer_stats
+        if transport == "stock":
+            assert master.sockets == "loop's transport" and stats is None
+        else:
+            assert master.sockets.startswith(f"datagram layer ({transport}")
+            assert stats is not None
+            await eventually(
+                lambda: (
+                    master.datagram_layer_stats is not None
+                    and master.datagram_layer_stats["datagrams_sent"] >= master.stats.sent.datagrams
+                )
+            )
+        await master.close()
 
 
 @pytest.mark.asyncio
