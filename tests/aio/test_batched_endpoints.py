@@ -166,9 +166,14 @@ async def test_the_answer_to_a_lone_datagram_goes_to_the_socket_at_once(transpor
 
         for slave in slaves:
             slave.set_data_callback(lambda sample, ep=slave: echo(sample, ep))
+        received = server_layer.stats["datagrams_received"]
         masters[0].send(b"lone" + bytes(96))
         await eventually(lambda: masters[0].stats.received.data_packets == 1)
-        assert seen == [(1, 0, 1)]  # sent during the callback, outside any held wake-up
+        if server_layer.stats["datagrams_received"] == received + 1:  # it came alone (no keep-
+            # alive of a master landed in the same batch on a slow machine): answered at once
+            assert seen == [(1, 0, 1)]  # sent during the callback, outside any held wake-up
+        else:
+            assert len(seen) == 1 and seen[0][0] in (0, 1)
         seen.clear()
         for master in masters:  # no yield in between: one receive batch of three at the server
             master.send(b"many" + bytes(96))
