@@ -56,7 +56,7 @@ from tdtp.session.events import (
     PeerResumed,
     PeerSilent,
 )
-from tdtp.session.state import CLOSED, State
+from tdtp.session.state import CLOSED, ESTABLISHED, State
 from tdtp.session.stats import ConnectionStats
 
 __all__ = [
@@ -578,6 +578,14 @@ class Endpoint:
 
     def _flush(self, now: float | None = None) -> None:
         conn = self._conn
+        if conn.pending_events and conn.state is ESTABLISHED:
+            # The application first: a sample its callback sends in answer leaves at once (with
+            # the ACK the connection owes riding on it) instead of after the connection's own
+            # datagrams. Not once the session ends: its CLOSE leaves before the application hears.
+            self._drain_events()
+            if conn is not self._conn:
+                return
+            now = None  # the callbacks took time, and what they sent was stamped after `now`
         datagrams = conn.datagrams_to_send(now=monotonic() if now is None else now)
         out = self._out
         if datagrams and out is not None and out.owner.depth:

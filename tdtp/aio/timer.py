@@ -47,7 +47,7 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
-from typing import Literal, get_args
+from typing import Final, Literal, get_args
 
 from tdtp.errors import InvalidArgumentError, TdtpError
 
@@ -83,14 +83,13 @@ _MAX_TIMERFD_SECONDS = (1 << 31) - 1
 _NS_PER_S = 1_000_000_000
 
 
-def monotonic() -> float:
-    """The clock deadlines are on: :func:`time.monotonic`, in seconds.
-
-    On Linux this is ``CLOCK_MONOTONIC``, the clock the ``timerfd`` counts on, so a deadline and the
-    kernel's expiry agree to the nanosecond. It is deliberately not ``loop.time()``: that belongs to
-    one loop, and uvloop's is a millisecond clock cached per iteration.
-    """
-    return time.monotonic()
+#: The clock deadlines are on: :func:`time.monotonic` itself, in seconds (the C function, not a
+#: wrapper around it: it is read once per packet on the hot paths).
+#:
+#: On Linux this is ``CLOCK_MONOTONIC``, the clock the ``timerfd`` counts on, so a deadline and the
+#: kernel's expiry agree to the nanosecond. It is deliberately not ``loop.time()``: that belongs to
+#: one loop, and uvloop's is a millisecond clock cached per iteration.
+monotonic: Final[Callable[[], float]] = time.monotonic
 
 
 class TimerUnavailableError(TdtpError, RuntimeError):
