@@ -575,17 +575,17 @@ class Connection(ConnectionView):
         stats.received.ack_packets += 1
 
     def _on_feedback(self, ack: int, sack: int, hold: int, now: float) -> bool:
-        """Hand the acknowledgement in a header to loss recovery; False if it acknowledges a packet
-        never sent."""
-        newly = self._recovery.on_feedback(ack, sack, hold, now)
-        if self._path.limited and newly >= 0:
-            self._path.on_acked(self._recovery.sent.largest_acked)
-        if newly > 0:
-            hint = self._hint
-            if self._sender.pending is not None:
-                hint.value = -math.inf  # a new rate may let the held sample go earlier
-            hint.check_controller()
-        return newly >= 0
+        """Hand the acknowledgement in a header to loss recovery (False if it acknowledges a packet
+        never sent). It finishes later (``LossRecovery.settle``), after the application's answer."""
+        recovery = self._recovery
+        if not recovery.take_feedback(ack, sack, hold, now):
+            return False
+        if self._sender.pending is not None:
+            self._hint.value = -math.inf  # a new rate may let the held sample go earlier
+        if self._path.limited:
+            recovery.settle()
+            self._path.on_acked(recovery.sent.largest_acked)
+        return True
 
     def _on_session_control(
         self, data: bytes, size: int, ack: int, sack: int, hold: int, now: float
@@ -734,6 +734,8 @@ class Connection(ConnectionView):
 
     def get_timer(self) -> float | None:
         """The next absolute time :meth:`handle_timer` (then :meth:`datagrams_to_send`) is due."""
+        if self._recovery.pending:
+            self._recovery.settle()
         hint = self._hint
         hint.value = math.inf
         state = self._state
@@ -766,6 +768,8 @@ class Connection(ConnectionView):
 
     def handle_timer(self, *, now: float) -> None:
         """Act on whatever is due at ``now``. Calling it early or late is harmless."""
+        if self._recovery.pending:
+            self._recovery.settle()
         self._hint.value = -math.inf
         state = self._state
         if state is OPENING:
@@ -804,6 +808,8 @@ class Connection(ConnectionView):
 
     def datagrams_to_send(self, *, now: float) -> list[tuple[bytes, Address]]:
         """Everything that should leave at ``now``, with its destination."""
+        if self._recovery.pending:
+            self._recovery.settle()
         out: list[tuple[bytes, Address]] = []
         outbox = self._outbox
         state = self._state

@@ -63,6 +63,12 @@ class LossRecovery:
         """The round trip timed by the last acknowledgement handed in: from our send of the packet
         it names to its arrival here, less the peer's HOLD; ``None`` if it cannot tell (HOLD 254, or
         a packet no longer on record)."""
+        self.pending = False
+        """An acknowledgement taken (:meth:`take_feedback`) and not yet settled."""
+        self._taken_ack = first_seq - 1
+        self._taken_sack = 0
+        self._taken_hold: float | None = None
+        self._taken_at = 0.0
         self._hint = hint
         self._lost: list[LostPacket] = []  # reused: filled by the sent log, emptied by _on_losses
         self._controller = controller
@@ -70,21 +76,29 @@ class LossRecovery:
         self._liveness = liveness
 
     def on_sent(self, now: float, size: int) -> None:
-        """A data packet of ``size`` bytes left at ``now`` (it takes the log's next sequence number)."""
+        """A data packet of ``size`` bytes left at ``now`` (it takes the log's next sequence number).
+        Settles a pending acknowledgement first (the packet has left: this costs the answer nothing),
+        so the log's bound never drops a record that acknowledgement names."""
+        if self.pending:
+            self.settle()
         lost = self._lost
         self.sent.on_sent(now, size, lost)
         if lost:
             self._on_losses(now)
 
-    def on_feedback(self, ack: int, sack: int, hold_code: int, now: float) -> int:
-        """Process the acknowledgement in a header: how many packets it newly acknowledged, or -1
-        if it acknowledges a packet never sent (an optimistic ACK: the caller drops the datagram)."""
+    def take_feedback(self, ack: int, sack: int, hold_code: int, now: float) -> bool:
+        """The part of an acknowledgement the datagram's own fate needs, done at once: the ACK
+        expanded (False if it names a packet never sent: an optimistic ACK, the caller drops the
+        datagram) and :attr:`echo` timed. The rest (packets acknowledged, RTT sample, losses, the
+        controller's ``on_ack``) waits in :attr:`pending` for :meth:`settle`, so that what the
+        application sends in answer leaves first; any later input settles it before its own."""
+        if self.pending:
+            self.settle()
         sent = self.sent
-        rtt = self.rtt
         hold = decode_hold(hold_code)
-        full = sent.expand_ack(ack, hold, now, rtt.srtt)
+        full = sent.expand_ack(ack, hold, now, self.rtt.srtt)
         if full is None:
-            return -1
+            return False
         # The round trip our packet and this datagram made together (PROTOCOL.md 3.6), before the
         # acknowledgement retires the packet's record.
         echo: float | None = None
@@ -95,7 +109,23 @@ class LossRecovery:
                 if echo < 0.0:  # (max(echo, 0.0) without the call)
                     echo = 0.0
         self.echo = echo
-        newly = sent.acknowledge(full, sack, hold, now)
+        self._taken_ack = full
+        self._taken_sack = sack
+        self._taken_hold = hold
+        self._taken_at = now
+        self.pending = True
+        return True
+
+    def settle(self) -> int:
+        """Finish the acknowledgement :meth:`take_feedback` took: how many packets it newly
+        acknowledged (0 if none was pending)."""
+        if not self.pending:
+            return 0
+        self.pending = False
+        now = self._taken_at
+        sent = self.sent
+        rtt = self.rtt
+        newly = sent.acknowledge(self._taken_ack, self._taken_sack, self._taken_hold, now)
         stats = self._stats
         if sent.spurious:
             stats.spurious_losses += sent.spurious
@@ -128,10 +158,13 @@ class LossRecovery:
                 rttvar=rtt.rttvar,
                 loss_event_rate=self.loss.update(sent.largest_acked),
             )
+            self._hint.check_controller()
         return newly
 
     def refresh(self, stats: ConnectionStats) -> None:
         """Copy the derived figures (RTT, loss-event rate, packets unreported and reordered) into ``stats``."""
+        if self.pending:
+            self.settle()
         rtt = self.rtt
         stats.srtt = rtt.srtt if rtt.has_sample else 0.0
         stats.rttvar = rtt.rttvar if rtt.has_sample else 0.0
@@ -142,6 +175,8 @@ class LossRecovery:
 
     def detect_losses(self, now: float) -> None:
         """Declare lost what has been absent longer than the loss delay (the timer's check)."""
+        if self.pending:
+            self.settle()
         lost = self._lost
         self.sent.detect_losses(now, self.loss_delay, lost)
         if lost:
@@ -149,6 +184,8 @@ class LossRecovery:
 
     def loss_deadline(self) -> float | None:
         """When the next packet reported absent is declared lost, if any is."""
+        if self.pending:
+            self.settle()
         return self.sent.loss_deadline(self.loss_delay)
 
     def _on_losses(self, now: float) -> None:
