@@ -90,12 +90,7 @@ class AckScheduler:
         separate-ACK mode)."""
         if self.mode is not _BIDIRECTIONAL or not window.has_data:
             return NO_ACK
-        window.mark_reported()
-        return (
-            window.highest,
-            window.sack_below(window.highest),
-            encode_hold(now - window.highest_arrival),
-        )
+        return window.report(now)
 
     def deadline(self, deadline: float) -> float:
         """The earlier of ``deadline`` and when the next ACK is due."""
