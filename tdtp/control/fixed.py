@@ -54,7 +54,7 @@ class FixedRateController(RateController):
         return self._rate
 
     def next_send_time(self) -> float:
-        if self._rate == math.inf:
+        if not self._paced:
             return NO_LIMIT
         return self._schedule.next_departure
 
