@@ -53,6 +53,7 @@ from tdtp.session.events import (
     ControlExpired,
     ControlReceived,
     DataReceived,
+    Event,
     PeerResumed,
     PeerSilent,
 )
@@ -602,8 +603,9 @@ class Endpoint:
                 except OSError:
                     # No buffer space or an ICMP error reported on this send: lost like any other.
                     self._send_errors += 1
-        if conn.pending_events:
-            self._drain_events()
+        event = conn.next_event()  # (rather than asking pending_events first: one call less)
+        if event is not None:
+            self._drain_events(event)
             if conn is not self._conn:
                 return  # the session ended and a new one is opening: it flushes on its own
         timer = self._timer
@@ -619,11 +621,14 @@ class Endpoint:
             if deadline is not None and deadline < timer.deadline:
                 timer.arm(deadline)
 
-    def _drain_events(self) -> None:
+    def _drain_events(self, event: Event | None = None) -> None:
+        """Take the connection's events, ``event`` (the first, already taken) and those after it."""
         conn = self._conn
         on_data = self._on_data
         queue = self._queue
-        while (event := conn.next_event()) is not None:
+        if event is None:
+            event = conn.next_event()
+        while event is not None:
             if isinstance(event, DataReceived):
                 newest = self._newest
                 if newest is None or event.seq > newest.seq:
@@ -633,21 +638,22 @@ class Endpoint:
                         on_data(event)
                     except Exception as exc:  # the application's error: reported, then on
                         self._callback_failed("on_data", exc)
-                    continue
-                if len(queue) >= self._max_queue:
-                    queue.popleft()  # bounded: the oldest unread sample goes
-                    conn.stats.events_discarded += 1
-                queue.append(event)
-                if self._data_waiters:
-                    out = self._out
-                    if out is not None and out.owner.depth:
-                        # The readers woken now answer within this wake-up's batch.
-                        out.owner.hold_until_ready_ran(self._loop)
-                    self._wake(self._data_waiters)
+                else:
+                    if len(queue) >= self._max_queue:
+                        queue.popleft()  # bounded: the oldest unread sample goes
+                        conn.stats.events_discarded += 1
+                    queue.append(event)
+                    if self._data_waiters:
+                        out = self._out
+                        if out is not None and out.owner.depth:
+                            # The readers woken now answer within this wake-up's batch.
+                            out.owner.hold_until_ready_ran(self._loop)
+                        self._wake(self._data_waiters)
             elif isinstance(event, ControlReceived | ControlExpired):
                 self._on_control_event(event)
             else:
                 self._on_other_event(event)
+            event = conn.next_event()
 
     def _on_control_event(self, event: ControlReceived | ControlExpired) -> None:
         if isinstance(event, ControlExpired):

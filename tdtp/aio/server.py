@@ -272,7 +272,7 @@ class Server:
         self._waiters.clear()
 
     def _datagram_received(self, data: bytes, addr: Address) -> None:
-        key = _peer_key(addr)
+        key = addr[:2]  # _peer_key(addr), inline: (host, port) of an IPv4 or IPv6 address
         endpoint = self._peers.get(key)
         if endpoint is not None:
             endpoint.datagram_received(data, addr)

@@ -42,6 +42,7 @@ class FixedRateController(RateController):
     def __init__(self, config: FixedConfig | None = None) -> None:
         self._config = config if config is not None else FixedConfig()
         self._rate = self._config.rate
+        self._paced = self._rate != math.inf  # unpaced: the schedule stays at NO_LIMIT
         self._schedule = PacingSchedule()
 
     @property
@@ -53,12 +54,13 @@ class FixedRateController(RateController):
         return self._rate
 
     def next_send_time(self) -> float:
-        if self._rate == math.inf:
+        if not self._paced:
             return NO_LIMIT
         return self._schedule.next_departure
 
     def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
-        self._schedule.on_departure(now, self._rate)
+        if self._paced:
+            self._schedule.on_departure(now, self._rate)
 
     def on_ack(
         self,

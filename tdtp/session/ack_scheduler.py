@@ -52,6 +52,10 @@ class AckScheduler:
         """The peer's data as it arrived, from the open on."""
         self.separate: deque[tuple[int, float]] = deque()
         """Separate-ACK mode: (sequence number, arrival time) of every arrival still to acknowledge."""
+        self.due = math.inf
+        """Bidirectional mode: no ACK is owed (:meth:`emit_due` sends none) before ``due``; it is
+        set at each arrival (``-inf`` when the full rule owes one at once) and may be earlier than
+        the truth, never later. The connection asks :meth:`emit_due` only from then on."""
         self._ack_delay = config.ack_delay
         self._plain = config.plain_acks
         self._silence_guard = config.silence_timeout
@@ -60,6 +64,7 @@ class AckScheduler:
 
     def open(self, initial_seq: int) -> None:
         """The peer's data starts at ``initial_seq`` (its OPEN's or OPEN_ACK's header)."""
+        self.due = math.inf
         self.window = ReceiveWindow(
             initial_seq,
             coverage=self.mode is AckMode.BIDIRECTIONAL,
@@ -71,13 +76,21 @@ class AckScheduler:
         quiet = window.unreported_since is None
         arrival = window.classify(seq, now)
         hint = self._hint
+        since = window.unreported_since
         if window.held:
             hint.value = -math.inf  # an ACK is due at once
-        elif quiet and window.unreported_since is not None:
+        elif quiet and since is not None:
             due = now + self._ack_delay  # an ACK is due by then
             if due < hint.value:
                 hint.value = due
-        if arrival is NEW:
+        if since is not None:
+            # When emit_due's rules next owe an ACK (only an arrival changes them).
+            low = window.pending_low
+            if low is not None and window.highest - low >= SACK_SPAN:
+                self.due = -math.inf
+            else:
+                self.due = since + self._ack_delay
+        if arrival is NEW and window.last_gap:
             self._stats.peer_gaps += window.last_gap
         if self.mode is _SEPARATE and arrival is not STALE and arrival is not DUPLICATE:
             # Trinomial acknowledges every arrival, whether or not the sample is delivered.
@@ -90,12 +103,7 @@ class AckScheduler:
         separate-ACK mode)."""
         if self.mode is not _BIDIRECTIONAL or not window.has_data:
             return NO_ACK
-        window.mark_reported()
-        return (
-            window.highest,
-            window.sack_below(window.highest),
-            encode_hold(now - window.highest_arrival),
-        )
+        return window.report(now)
 
     def deadline(self, deadline: float) -> float:
         """The earlier of ``deadline`` and when the next ACK is due."""

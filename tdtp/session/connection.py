@@ -843,16 +843,16 @@ class Connection(ConnectionView):
             acks.emit_held(out, outbox, sent.next_seq, peer, now)  # before the sample: jump rule
         if self._sender.pending is not None:
             self._sender.take_due(out, peer, now)
-        if window.unreported_since is not None or acks.separate:
+        if acks.due <= now or acks.separate:
             acks.emit_due(out, outbox, sent.next_seq, peer, now)
-        self._channel.emit(out, sent.next_seq, peer, now, self._path.limited)
+        if self._channel.emit_at <= now:
+            self._channel.emit(out, sent.next_seq, peer, now, self._path.limited)
         liveness = self._liveness
         if now >= liveness.last_send + liveness.keepalive:  # Liveness.keepalive_due, inline
             ack, sack, hold = acks.piggyback(window, now)
             nonce = self._handshake.master_nonce
             outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, nonce, peer, now)
-        sealer = outbox.sealer
-        if sealer is not None and sealer.exhausted:
+        if outbox.sealer is not None and outbox.sealer.exhausted:
             self._exhausted()
 
     def _emit_open(self, out: list[tuple[bytes, Address]], now: float) -> None:

@@ -143,6 +143,9 @@ class ControlChannel:
         self._tokens = float(CONTROL_BURST)
         self._tokens_at = 0.0
         self._due = math.inf  # when a transmission is next due (the timer's share)
+        self.emit_at = math.inf
+        """:meth:`emit` has nothing to send before this (``-inf`` while an acknowledgement is owed,
+        else when a transmission is next due): the connection asks it only from then on."""
         self.failed: str | None = None
         """Why the channel gave up (it then takes no more messages), else ``None``."""
         # Receiving.
@@ -247,6 +250,7 @@ class ControlChannel:
         if not self._ack_owed:
             self._ack_owed = True
             self._ack_owed_at = now
+            self.emit_at = -math.inf
             self._hint.value = -math.inf
         expected = self._expected
         number = expand_message_number(wire_seq, expected)
@@ -297,6 +301,7 @@ class ControlChannel:
             self._transmit(out, data_seq, peer, now)
         if self._ack_owed:
             self._ack_owed = False
+            self.emit_at = self._due
             outbox = self._outbox
             datagram = outbox.protect(
                 encode_header(_CONTROL, data_seq, 0, 0, HOLD_NO_ACK) + _MESSAGE_ACK_PREFIX,
@@ -331,6 +336,7 @@ class ControlChannel:
             stats.control_transmissions += 1
             self._tokens -= 1.0
             self._ack_owed = False  # it carried the acknowledgement
+            self.emit_at = self._due
             message.sent_at = now
             message.transmissions += 1
             if message.number >= self._next_sent:
@@ -370,6 +376,8 @@ class ControlChannel:
             if due < math.inf and self._tokens < _ONE_TOKEN:
                 due = max(due, self._tokens_at + (1.0 - self._tokens) / self._rate + _TOKEN_SLACK)
         self._due = due
+        if not self._ack_owed:
+            self.emit_at = due
         if due < self._hint.value:
             self._hint.value = due
 
@@ -405,5 +413,7 @@ class ControlChannel:
         self._stats.control_given_up += len(payloads)
         unacked.clear()
         self._due = math.inf
+        if not self._ack_owed:
+            self.emit_at = math.inf
         self._events.push(ControlExpired(first.number - self._first, payloads, detail, now))
         self._hint.value = -math.inf

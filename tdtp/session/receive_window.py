@@ -18,6 +18,7 @@ from collections import deque
 from typing import Final, NamedTuple
 
 from tdtp.wire.header import SACK_BITS, SACK_MASK, SEQ_MASK
+from tdtp.wire.hold import encode_hold
 from tdtp.wire.seqnum import SEQ_HALF, SEQ_MODULUS
 
 WINDOW: Final = 64
@@ -212,6 +213,17 @@ class ReceiveWindow:
         held = list(self.held)
         self.held.clear()
         return held
+
+    def report(self, now: float) -> tuple[int, int, int]:
+        """The ACK fields of a packet that reports the highest received at ``now``: its full
+        sequence number, the SACK bits below it and the HOLD code. From then on it counts as
+        reported (:meth:`mark_reported`)."""
+        highest = self.highest
+        self.last_reported = highest
+        self.pending_low = None
+        self.unreported_since = None
+        # sack_below(highest), inline
+        return highest, (self._mask >> 1) & SACK_MASK, encode_hold(now - self.highest_arrival)
 
     def mark_reported(self) -> None:
         self.last_reported = self.highest

@@ -223,11 +223,14 @@ class LossRecovery:
         """
         rtt = self.rtt
         srtt = rtt.srtt
-        reorder = 0.0
+        # (min and max written out: this runs after every RTT sample)
+        margin = LOSS_DELAY_RTTVAR * rtt.rttvar
         if rtt.has_sample:
-            reorder = min(
-                REORDER_WINDOW_MIN_RTT * rtt.min_rtt * self.sent.reorder_window_scale, srtt
-            )
-        return (
-            srtt + max(reorder, LOSS_DELAY_RTTVAR * rtt.rttvar, TIMER_GRANULARITY) + self._ack_delay
-        )
+            reorder = REORDER_WINDOW_MIN_RTT * rtt.min_rtt * self.sent.reorder_window_scale
+            if srtt < reorder:
+                reorder = srtt
+            if margin < reorder:
+                margin = reorder
+        if margin < TIMER_GRANULARITY:
+            margin = TIMER_GRANULARITY
+        return srtt + margin + self._ack_delay

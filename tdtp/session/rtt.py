@@ -21,13 +21,18 @@ class RttEstimator:
         self.has_sample = False
 
     def on_sample(self, sample: float) -> None:
-        sample = max(sample, MIN_RTT_SAMPLE)
+        # (max, min and abs written out: this runs for nearly every acknowledgement)
+        if sample < MIN_RTT_SAMPLE:
+            sample = MIN_RTT_SAMPLE
         self.latest = sample
-        self.min_rtt = min(self.min_rtt, sample)
+        if sample < self.min_rtt:
+            self.min_rtt = sample
         if not self.has_sample:
             self.srtt = sample
             self.rttvar = sample / 2
             self.has_sample = True
             return
-        self.rttvar += 0.25 * (abs(self.srtt - sample) - self.rttvar)
-        self.srtt += 0.125 * (sample - self.srtt)
+        srtt = self.srtt
+        deviation = srtt - sample if srtt >= sample else sample - srtt
+        self.rttvar += 0.25 * (deviation - self.rttvar)
+        self.srtt = srtt + 0.125 * (sample - srtt)

@@ -6,7 +6,7 @@ holds ages in ``[FLOOR * GROWTH**i, FLOOR * GROWTH**(i + 1))``, 10 µs to about 
 the first bin also everything shorter and the last everything longer. A quantile is read as the
 geometric middle of the bin it falls in, so it is within 1 % of the nearest-rank quantile of the exact
 ages (over the whole covered range). Memory is one list of ``BINS`` integers whatever the run length;
-adding an age costs one logarithm.
+adding an age costs at most one logarithm.
 
 Where the ages come from is :mod:`tdtp.session.connection`'s business (docs/PROTOCOL.md section 3.6).
 """
@@ -14,6 +14,7 @@ Where the ages come from is :mod:`tdtp.session.connection`'s business (docs/PROT
 from __future__ import annotations
 
 import math
+import sys
 from typing import Final
 
 FLOOR: Final = 1e-5
@@ -25,6 +26,17 @@ BINS: Final = 810
 _LOG_GROWTH: Final = math.log(GROWTH)
 _LOG_FLOOR: Final = math.log(FLOOR)
 _MIDDLE: Final = math.sqrt(GROWTH)
+_MARGIN: Final = 1e-9
+"""Relative: how far inside its true edges a bin's fast-path range stays. The logarithm's rounding
+moves an index by some 1e-13 at most, the margin by 5e-8: an age inside the range is in the bin."""
+_LOWS: Final = [-math.inf] + [
+    FLOOR * math.exp(i * _LOG_GROWTH) * (1 + _MARGIN) for i in range(1, BINS)
+]
+_HIGHS: Final = [
+    FLOOR * math.exp((i + 1) * _LOG_GROWTH) * (1 - _MARGIN) for i in range(BINS - 1)
+] + [sys.float_info.max]
+"""Each bin's fast-path range (the first bin also takes everything below it, the last everything
+finite above it)."""
 
 
 class SampleAgeHistogram:
@@ -38,10 +50,9 @@ class SampleAgeHistogram:
         self._high = -1
         self.count = 0
         """Ages added so far."""
-        # The bin of the last age added and the range of ages seen to fall in it: the bin is a
-        # monotonic function of the age, so any age inside that range falls in it too, and
-        # consecutive samples mostly do (the estimate is constant between RTT samples, a timed
-        # age moves by microseconds) -- counted without the logarithm.
+        # The bin of the last age added and (almost) the range of ages that fall in it: the next
+        # sample's age mostly does (the estimate is constant between RTT samples, a timed age moves
+        # by microseconds) and is then counted without the logarithm.
         self._last = -1  # no bin yet
         self._last_low = math.inf
         self._last_high = -math.inf
@@ -59,14 +70,9 @@ class SampleAgeHistogram:
                 index = BINS - 1
         self._bins[index] += 1
         self.count += 1
-        if index == self._last:
-            if age < self._last_low:
-                self._last_low = age
-            elif age > self._last_high:
-                self._last_high = age
-        else:
-            self._last = index
-            self._last_low = self._last_high = age
+        self._last = index
+        self._last_low = _LOWS[index]
+        self._last_high = _HIGHS[index]
         if index < self._low:
             self._low = index
         if index > self._high:

@@ -28,8 +28,8 @@ from tdtp.session.recovery import LossRecovery
 from tdtp.session.stats import ConnectionStats
 from tdtp.session.timer_hint import TimerHint
 from tdtp.wire.control import RESET_ECHO_SIZE
-from tdtp.wire.header import HEADER_SIZE, PacketType, encode_header
-from tdtp.wire.hold import HOLD_NO_ACK, encode_hold
+from tdtp.wire.header import HEADER_SIZE, SEQ_MASK, PacketType, encode_header, pack_header_words
+from tdtp.wire.hold import HOLD_NO_ACK
 
 _DATA = int(PacketType.DATA)
 _BIDIRECTIONAL: Final = (
@@ -117,13 +117,14 @@ class SampleSender:
         """Connection.send_direct on an established session (see there)."""
         acks = self._acks
         window = acks.window
+        controller = self._controller
         if (
             type(payload) is not bytes
+            or not 0 < (length := len(payload)) <= self.limit
             or self.paused
             or self._outbox.control
             or acks.separate
-            or not 0 < len(payload) <= self.limit
-            or now < self._controller.next_send_time()
+            or now < controller.next_send_time()
             or window is None
             or window.held
         ):
@@ -137,20 +138,17 @@ class SampleSender:
             stats.samples_superseded += 1
             paced = True
             self.pending = None
-            self._controller.sample_waiting = False
+            controller.sample_waiting = False
         recovery = self._recovery
-        seq = recovery.sent.next_seq
+        # encode_header(_DATA, seq, ack, sack, hold), inline (DATA's type bits are zero)
+        seq = recovery.sent.next_seq & SEQ_MASK
         if acks.mode is _BIDIRECTIONAL and window.has_data:
-            window.mark_reported()
-            header = encode_header(
-                _DATA,
-                seq,
-                window.highest,
-                window.sack_below(window.highest),
-                encode_hold(now - window.highest_arrival),
+            ack, sack, hold = window.report(now)
+            header = pack_header_words(
+                seq >> 6, ((seq & 0x3F) << 26) | ((ack & SEQ_MASK) << 14) | (sack << 8) | hold
             )
         else:
-            header = encode_header(_DATA, seq, 0, 0, HOLD_NO_ACK)
+            header = pack_header_words(seq >> 6, ((seq & 0x3F) << 26) | HOLD_NO_ACK)
         outbox = self._outbox
         sealer = outbox.sealer
         datagram = header + payload if sealer is None else sealer.seal(header, payload)
@@ -164,10 +162,10 @@ class SampleSender:
         # Bookkeeping, after the datagram has left.
         size = len(datagram)
         recovery.on_sent(now, size)
-        self._controller.on_packet_sent(now=now, size=size, paced=paced)
+        controller.on_packet_sent(now=now, size=size, paced=paced)
         counts = stats.sent
         counts.data_packets += 1
-        counts.payload_bytes += len(payload)
+        counts.payload_bytes += length
         counts.datagrams += 1
         counts.bytes += size
         counts.header_bytes += HEADER_SIZE

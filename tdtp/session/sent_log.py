@@ -1,8 +1,10 @@
 """The sender's memory of its data packets: ACK expansion, acknowledgement marking and loss detection.
 
-Every data packet takes the next sequence number, so a packet's record sits at ``seq - base`` in a deque
-that starts at the oldest packet whose fate is still open. Records leave from the front once acknowledged
-or declared lost, so the work per packet is constant on average.
+Every data packet takes the next sequence number, so a packet's record sits at ``seq - base`` in two
+parallel deques (its send time, and its state: acknowledged, reported missing) that start at the oldest
+packet whose fate is still open. Records leave from the front once acknowledged or declared lost, so the
+work per packet is constant on average. (Two deques of numbers rather than one of record objects: a
+record is made for every packet sent, and an object costs several times more to make.)
 """
 
 from __future__ import annotations
@@ -22,15 +24,11 @@ RECENTLY_LOST: Final = 256
 """How many declared losses are remembered to recognise a spurious one (the packet arrived after all)."""
 
 
-class SentPacket:
-    __slots__ = ("acked", "missing", "send_time", "size")
-
-    def __init__(self, send_time: float, size: int) -> None:
-        self.send_time = send_time
-        self.size = size
-        self.acked = False
-        self.missing = False
-        """A received ACK covered this packet and reported it absent: evidence it may be lost."""
+ACKED: Final = 1
+"""A record's state bit: the packet was reported received."""
+MISSING: Final = 2
+"""A record's state bit: a received ACK covered the packet and reported it absent (evidence it may be
+lost)."""
 
 
 class LostPacket(NamedTuple):
@@ -55,8 +53,9 @@ class SentPacketLog:
         "_max_tracked",
         "_recently_lost",
         "_recently_lost_order",
-        "_records",
         "_reorder_threshold",
+        "_states",
+        "_times",
         "first_seq",
         "largest_acked",
         "marked_missing",
@@ -75,7 +74,8 @@ class SentPacketLog:
         self.largest_acked = first_seq - 1
         self._largest_send_time = 0.0
         self._base = first_seq
-        self._records: deque[SentPacket] = deque()
+        self._times: deque[float] = deque()  # send times, from the packet at _base on
+        self._states: deque[int] = deque()  # ACKED and MISSING bits, parallel to _times
         self._reorder_threshold = reorder_threshold
         self._max_tracked = max_tracked
         self._recently_lost: set[int] = set()
@@ -104,20 +104,22 @@ class SentPacketLog:
     @property
     def in_flight(self) -> int:
         """Packets sent whose fate is still open."""
-        return sum(1 for record in self._records if not record.acked)
+        return sum(1 for state in self._states if not state & ACKED)
 
     def on_sent(self, send_time: float, size: int, lost: list[LostPacket]) -> int:
         """Record a departure; returns its sequence number. Past the table bound the oldest record is
         retired: lost (appended to ``lost``) if an ACK reported it absent, else unknown."""
         seq = self.next_seq
         self.next_seq = seq + 1
-        records = self._records
-        records.append(SentPacket(send_time, size))
-        if len(records) > self._max_tracked:
-            record = records.popleft()
-            if record.missing and not record.acked:
-                self._declare_lost(self._base, record, lost)
-            elif not record.acked:
+        times = self._times
+        times.append(send_time)
+        self._states.append(0)
+        if len(times) > self._max_tracked:
+            oldest_time = times.popleft()
+            state = self._states.popleft()
+            if state == MISSING:  # missing and not acknowledged
+                self._declare_lost(self._base, oldest_time, lost)
+            elif not state & ACKED:
                 self.unknown += 1
             self._base += 1
         return seq
@@ -156,8 +158,8 @@ class SentPacketLog:
     def send_time(self, seq: int) -> float | None:
         """When packet ``seq`` was sent, if it is still on record (or is the largest acknowledged)."""
         index = seq - self._base
-        if 0 <= index < len(self._records):
-            return self._records[index].send_time
+        if 0 <= index < len(self._times):
+            return self._times[index]
         if seq == self.largest_acked:
             return self._largest_send_time
         return None
@@ -182,25 +184,26 @@ class SentPacketLog:
             return 0
         self._last_ack = ack
         self._last_sack = sack
-        records = self._records
+        states = self._states
         base = self._base
-        count = len(records)
+        count = len(states)
         newly = 0
         spurious = 0
         rtt_sample: float | None = None
         index = ack - base
         if 0 <= index < count:
-            record = records[index]
-            if not record.acked:
-                record.acked = True
+            state = states[index]
+            if not state & ACKED:
+                states[index] = state | ACKED
                 newly = 1
-                if record.missing:
+                if state & MISSING:
                     self._on_reordered()
                 if ack > self.largest_acked:
+                    send_time = self._times[index]
                     if hold is not None:
-                        rtt_sample = now - record.send_time - hold
+                        rtt_sample = now - send_time - hold
                     self.largest_acked = ack
-                    self._largest_send_time = record.send_time
+                    self._largest_send_time = send_time
         elif index < 0 and ack in self._recently_lost:
             spurious += self._forget_loss(ack)
         recently_lost = self._recently_lost
@@ -214,15 +217,15 @@ class SentPacketLog:
                 if sack & bit and (ack - distance) in recently_lost:
                     spurious += self._forget_loss(ack - distance)
             elif below < count:
-                record = records[below]
+                state = states[below]
                 if sack & bit:
-                    if not record.acked:
-                        record.acked = True
+                    if not state & ACKED:
+                        states[below] = state | ACKED
                         newly += 1
-                        if record.missing:
+                        if state & MISSING:
                             self._on_reordered()
-                elif not record.missing:
-                    record.missing = True
+                elif not state & MISSING:
+                    states[below] = state | MISSING
                     self.marked_missing = True
             bit <<= 1
         self.rtt_sample = rtt_sample
@@ -249,45 +252,46 @@ class SentPacketLog:
         cover it, it is retired as *unknown*. A gap in feedback alone declares nothing: that is a
         blackout, which the rate controller's no-feedback timer handles.
         """
-        records = self._records
+        times = self._times
+        states = self._states
         largest = self.largest_acked
         threshold_seq = largest - self._reorder_threshold
         if self.reordering_seen:
             threshold_seq = -1  # no sequence number is that low: the time threshold alone decides
         uncoverable_seq = largest - SACK_SPAN
-        while records:
-            record = records[0]
+        while states:
+            state = states[0]
             seq = self._base
-            if record.acked:
+            if state & ACKED:
                 pass
-            elif record.missing:
-                if not (
-                    seq <= threshold_seq or (seq < largest and record.send_time + loss_delay <= now)
-                ):
+            elif state & MISSING:
+                send_time = times[0]
+                if not (seq <= threshold_seq or (seq < largest and send_time + loss_delay <= now)):
                     # (The same sum as loss_deadline(): a timer set from it must find it due.)
                     break
-                self._declare_lost(seq, record, lost)
+                self._declare_lost(seq, send_time, lost)
             elif seq < uncoverable_seq:
                 self.unknown += 1
             else:
                 break
-            records.popleft()
+            times.popleft()
+            states.popleft()
             self._base = seq + 1
 
     def loss_deadline(self, loss_delay: float) -> float | None:
         """When the time threshold next declares a loss, or ``None``."""
         largest = self.largest_acked
         seq = self._base
-        for record in self._records:
+        for state, send_time in zip(self._states, self._times, strict=True):
             if seq >= largest:
                 return None
-            if record.missing and not record.acked:
-                return record.send_time + loss_delay
+            if state == MISSING:  # missing and not acknowledged
+                return send_time + loss_delay
             seq += 1
         return None
 
-    def _declare_lost(self, seq: int, record: SentPacket, lost: list[LostPacket]) -> None:
-        lost.append(LostPacket(seq, record.send_time))
+    def _declare_lost(self, seq: int, send_time: float, lost: list[LostPacket]) -> None:
+        lost.append(LostPacket(seq, send_time))
         self._recently_lost.add(seq)
         order = self._recently_lost_order
         order.append(seq)
