@@ -81,6 +81,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import os
 import resource
 import struct
 import sys
@@ -110,6 +111,10 @@ PERIOD = 1.0 / RATE
 LATE = PERIOD  # more than one period behind
 MAX_LATE_FRACTION = 0.01
 DEFAULT_SPIN = 0.0
+BASELINES = {"raw-uvloop": "raw uvloop baseline"}
+"""The baseline slaves (``--slave``), by name: their rows' label."""
+MAX_CATCH_UP = 10
+"""``tdtp.Ticker``'s default ``max_catch_up``: a longer stall skips ticks (counted late)."""
 QUANTILES = (0.5, 0.9, 0.99, 0.999)
 MIN_OFFERED_FRACTION = 0.99
 WARMUP = 0.5
@@ -158,6 +163,13 @@ class Arrivals:
         if self.window.covers(now):
             self.count += 1
             if now - _STAMP.unpack_from(sample.payload)[0] > LATE:
+                self.late += 1
+
+    def record(self, payload: bytes, now: float) -> None:
+        """The same for a raw datagram received at ``now``."""
+        if self.window.covers(now):
+            self.count += 1
+            if now - _STAMP.unpack_from(payload)[0] > LATE:
                 self.late += 1
 
 
@@ -436,6 +448,274 @@ def masters_worker(
     conn.send({"final": report})
 
 
+# ---------------------------------------------------------------------------- raw uvloop baseline
+
+
+class RawSchedule:
+    """The 1 kHz schedule of the raw baseline, with the Ticker's catch-up rule: deadlines
+    ``anchor + k * PERIOD``; a wake-up serves every tick due by then, one after the other, unless it
+    is more than ``MAX_CATCH_UP`` periods behind, in which case it skips to the tick due now and
+    counts the ticks jumped over (``gap``), as ``tdtp.Ticker`` does (its ``max_catch_up``)."""
+
+    def __init__(self, anchor: float, first_tick: int = 0) -> None:
+        self.anchor = anchor
+        self.next_tick = first_tick
+
+    def deadline(self, tick: int) -> float:
+        return self.anchor + tick * PERIOD
+
+    def due(self, now: float) -> list[tuple[int, float, int]]:
+        """The ticks to serve at ``now``, in order: (tick, its deadline, ticks skipped before it)."""
+        served: list[tuple[int, float, int]] = []
+        while True:
+            tick = self.next_tick
+            deadline = self.deadline(tick)
+            if deadline > now:
+                return served
+            gap = 0
+            behind = int((now - deadline) * RATE)
+            if behind > MAX_CATCH_UP:
+                gap = behind
+                tick += behind
+                deadline = self.deadline(tick)
+            served.append((tick, deadline, gap))
+            self.next_tick = tick + 1
+
+
+class PeriodicTimerfd:
+    """A periodic ``timerfd`` on ``CLOCK_MONOTONIC``: first expiry at an absolute time, then every
+    period, re-armed by the kernel (no system call per tick but the ``read`` that clears it).
+    Through ``ctypes`` on libc (``os.timerfd_create`` is Python 3.13+)."""
+
+    def __init__(self, first: float, period: float) -> None:
+        import ctypes  # noqa: PLC0415 - only this baseline needs it
+
+        class Timespec(ctypes.Structure):
+            _fields_ = (("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long))
+
+        class Itimerspec(ctypes.Structure):
+            _fields_ = (("it_interval", Timespec), ("it_value", Timespec))
+
+        def spec(seconds: float) -> Timespec:
+            ns = max(1, round(seconds * 1e9))
+            return Timespec(ns // 1_000_000_000, ns % 1_000_000_000)
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        fd = libc.timerfd_create(1, os.O_NONBLOCK | os.O_CLOEXEC)  # CLOCK_MONOTONIC
+        if fd < 0:
+            raise OSError(ctypes.get_errno(), "timerfd_create")
+        self.fd: int = fd
+        value = Itimerspec(spec(period), spec(first))
+        if libc.timerfd_settime(fd, 1, ctypes.byref(value), None) != 0:  # TFD_TIMER_ABSTIME
+            error = ctypes.get_errno()
+            os.close(fd)
+            raise OSError(error, "timerfd_settime")
+
+    def clear(self) -> None:
+        """Read the expiration count (what makes the descriptor unreadable again)."""
+        with contextlib.suppress(BlockingIOError):
+            os.read(self.fd, 8)
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+class RawTicker:
+    """One 1 kHz tick source for a raw process: a :class:`PeriodicTimerfd` watched with
+    ``loop.add_reader``, the :class:`RawSchedule`, and ``spin`` as ``Ticker(spin=)`` does it (the
+    timer goes off ``spin`` before each deadline, the rest is waited on the CPU, counted in
+    :attr:`spun`). ``on_tick(tick, deadline, gap)`` is called for every tick served."""
+
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        anchor: float,
+        spin: float,
+        on_tick: Callable[[int, float, int], None],
+    ) -> None:
+        now = monotonic()
+        first = max(0, math.ceil((now + spin - anchor) * RATE))
+        self.schedule = RawSchedule(anchor, first)
+        self.spin = spin
+        self.spun = 0.0
+        self._loop = loop
+        self._on_tick = on_tick
+        self._timer = PeriodicTimerfd(self.schedule.deadline(first) - spin, PERIOD)
+        loop.add_reader(self._timer.fd, self._fire)
+
+    def _fire(self) -> None:
+        self._timer.clear()
+        now = monotonic()
+        if self.spin > 0.0:
+            due_at = self.schedule.deadline(self.schedule.next_tick)
+            if due_at - now > self.spin:
+                return  # not this tick's expiry yet
+            started = now
+            while now < due_at:
+                now = monotonic()
+            self.spun += now - started
+        for tick, deadline, gap in self.schedule.due(now):
+            self._on_tick(tick, deadline, gap)
+
+    def close(self) -> None:
+        if self._timer.fd >= 0:
+            self._loop.remove_reader(self._timer.fd)
+            self._timer.close()
+
+
+class RawSlaveProtocol(asyncio.DatagramProtocol):
+    """The raw baseline's slave socket: a peer's first datagram makes it a session (its address is
+    all the state a session has, with a count of what it sent); every datagram is counted as the
+    tdtp slave counts its ``on_data`` samples."""
+
+    def __init__(self, arrivals: Arrivals) -> None:
+        self.arrivals = arrivals
+        self.sessions: dict[Any, int] = {}
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        sessions = self.sessions
+        count = sessions.get(addr)
+        if count is None:
+            sessions[addr] = 0  # the hello: a new session, served from the next tick
+            return
+        sessions[addr] = count + 1
+        self.arrivals.record(data, monotonic())
+
+
+async def _raw_slave(control: Any, seconds: float, spin: float) -> Json:
+    loop = asyncio.get_running_loop()
+    window = Window()
+    ticks = Ticks()
+    arrivals = Arrivals(window)
+    inbox = Inbox(control)
+    transport, protocol = await loop.create_datagram_endpoint(
+        lambda: RawSlaveProtocol(arrivals), local_addr=("127.0.0.1", 0)
+    )
+    control.send({"port": transport.get_extra_info("sockname")[1]})
+    sessions = protocol.sessions
+    sendto = transport.sendto
+    clock = monotonic
+    pack = _STAMP.pack
+    padding = _PADDING
+
+    def on_tick(tick: int, deadline: float, gap: int) -> None:
+        # One sample per session per tick, each handed to the kernel at once (uvloop's sendto
+        # tries the socket first), its lateness measured as the tdtp slave measures each
+        # session's tick callback.
+        for addr in sessions:
+            now = clock()
+            _record_tick(ticks, window, deadline, now, gap)
+            sendto(pack(now, tick) + padding, addr)
+        if clock() > window.end + 0.2:
+            ticker.close()
+
+    ticker = RawTicker(loop, monotonic(), spin, on_tick)
+    await _measure(window, inbox, seconds, lambda: ticker.spun)
+    span = window.end - window.start
+    report = {
+        "sessions": len(sessions),
+        "ticks": ticks.total,
+        "late": ticks.late,
+        "skipped": ticks.skipped,
+        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
+        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
+        "tick_lateness_us": _quantiles_us(ticks.lateness),
+        "late_at": ticks.late_at,
+        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
+        "spin_percent": 100.0 * (window.spun[1] - window.spun[0]) / span,
+        "received": arrivals.count,
+        "received_rate": arrivals.count / span,
+        "arrival_late": arrivals.late,
+        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        "build": "raw-uvloop",
+    }
+    control.send({"window": report})
+    await inbox.wait_for("stop")
+    ticker.close()
+    transport.close()
+    return report
+
+
+def raw_slave_worker(conn: Any, *, seconds: float, cpu_slot: int, spin: float = 0.0) -> None:
+    common.pin_to_cpu(cpu_slot)
+    common.run_in_loop("uvloop", lambda: _raw_slave(conn, seconds, spin))
+    conn.send({"final": True})
+
+
+class RawMasterProtocol(asyncio.DatagramProtocol):
+    """One raw master's socket: counts the slave's samples (and notes the first, the answer to
+    its hello)."""
+
+    def __init__(self, arrivals: Arrivals) -> None:
+        self.arrivals = arrivals
+        self.answered = False
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self.answered = True
+        self.arrivals.record(data, monotonic())
+
+
+async def _raw_masters(control: Any, port: int, sessions: int, seconds: float, spin: float) -> Json:
+    loop = asyncio.get_running_loop()
+    window = Window()
+    arrivals = Arrivals(window)
+    ticks = Ticks()
+    inbox = Inbox(control)
+    ends: list[tuple[asyncio.DatagramTransport, RawMasterProtocol]] = [
+        await loop.create_datagram_endpoint(
+            lambda: RawMasterProtocol(arrivals), remote_addr=("127.0.0.1", port)
+        )
+        for _ in range(sessions)
+    ]
+    # The hello: a datagram that makes the master a session of the slave, sent again until the
+    # slave's first sample answers it.
+    give_up = monotonic() + 30.0
+    while waiting := [t for t, p in ends if not p.answered]:
+        if monotonic() > give_up:
+            raise RuntimeError(f"{len(waiting)} raw masters got no answer from the slave")
+        for transport in waiting:
+            transport.sendto(_payload(0))
+        await asyncio.sleep(0.05)
+    control.send({"connected": True})
+    transports = [t for t, _ in ends]
+
+    def on_tick(tick: int, deadline: float, gap: int) -> None:
+        _record_tick(ticks, window, deadline, monotonic(), gap)
+        payload = _payload(tick)
+        for transport in transports:
+            transport.sendto(payload)
+
+    ticker = RawTicker(loop, monotonic(), spin, on_tick)
+    await _measure(window, inbox, seconds)
+    await inbox.wait_for("stop")
+    ticker.close()
+    span = window.end - window.start
+    report = {
+        "ticks": ticks.total,
+        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
+        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
+        "late_at": ticks.late_at,
+        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
+        "received_rate": arrivals.count / span,
+        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        "build": "raw-uvloop",
+    }
+    for transport in transports:
+        transport.close()
+    return report
+
+
+def raw_masters_worker(
+    conn: Any, *, port: int, sessions: int, seconds: float, cpu_slot: int, spin: float = 0.0
+) -> None:
+    common.pin_to_cpu(cpu_slot)
+    _raise_fd_limit()
+    report = common.run_in_loop("uvloop", lambda: _raw_masters(conn, port, sessions, seconds, spin))
+    conn.send({"final": report})
+
+
 # ---------------------------------------------------------------------------- coordinator
 
 
@@ -476,16 +756,40 @@ def run_step(
     pure: bool = False,
     serve: str = "callback",
     spin: float = 0.0,
+    program: str = "tdtp",
 ) -> Json:
     """One step: ``workers`` slave processes on one port (``SO_REUSEPORT`` when more than one),
-    ``sessions`` masters in another process, and the verdict."""
+    ``sessions`` masters in another process, and the verdict. ``program="raw-uvloop"``: the raw
+    baseline's slave and masters instead (one slave process)."""
     others = common.OthersMeter()
     kind = dict(sessions=sessions, seconds=seconds, controller=controller, spin=spin)
     slaves: list[common.WorkerHandle] = []
     masters = None
     try:
         port = 0
-        for i in range(workers):
+        if program == "raw-uvloop":
+            if workers != 1:
+                raise ValueError("the raw baseline runs one slave process")
+            slaves.append(
+                common.start_worker(
+                    f"raw-slave-{sessions}",
+                    raw_slave_worker,
+                    cpu_slot=1,
+                    seconds=seconds,
+                    spin=spin,
+                )
+            )
+            port = slaves[-1].recv(30)["port"]
+            masters = common.start_worker(
+                f"raw-masters-{sessions}",
+                raw_masters_worker,
+                port=port,
+                cpu_slot=0,
+                sessions=sessions,
+                seconds=seconds,
+                spin=spin,
+            )
+        for i in range(workers if program == "tdtp" else 0):
             slaves.append(
                 common.start_worker(
                     f"slave-{sessions}-{i}",
@@ -499,9 +803,10 @@ def run_step(
                 )
             )
             port = slaves[-1].recv(30)["port"]
-        masters = common.start_worker(
-            f"masters-{sessions}", masters_worker, pure=pure, port=port, cpu_slot=0, **kind
-        )
+        if masters is None:
+            masters = common.start_worker(
+                f"masters-{sessions}", masters_worker, pure=pure, port=port, cpu_slot=0, **kind
+            )
         masters.recv(60 + sessions)  # every master connected
         start = {"start": monotonic() + WARMUP}
         for handle in (*slaves, masters):
@@ -521,7 +826,7 @@ def run_step(
     s = _combine(reports)
     s["others_percent"] = others.percent()  # the whole step, start-up included
     builds = {r["build"] for r in reports} | {m["build"]}
-    if builds != {"pure" if pure else common.tdtp_build()}:
+    if program == "tdtp" and builds != {"pure" if pure else common.tdtp_build()}:
         raise RuntimeError(f"step of {sessions}: the workers ran the {builds} builds")
     offered = sessions * RATE
     slave_ok = s["late_fraction"] <= MAX_LATE_FRACTION
@@ -532,7 +837,7 @@ def run_step(
         verdict = "master-limited"  # the slave kept up, but the masters did not offer the load
     else:
         verdict = "fail"  # the slave's own ticks were late, whatever the masters did
-    return {"sessions": sessions, "verdict": verdict, "slave": s, "masters": m}
+    return {"sessions": sessions, "verdict": verdict, "program": program, "slave": s, "masters": m}
 
 
 @dataclass(frozen=True)
@@ -543,9 +848,15 @@ class Setup:
     pure: bool = False
     serve: str = "callback"
     spin: float = 0.0
+    program: str = "tdtp"
+    """``tdtp``, or a baseline's slave: ``raw-uvloop``."""
 
     @property
     def label(self) -> str:
+        if self.program != "tdtp":
+            return (
+                f"{BASELINES[self.program]}: 1 kHz bidirectional sessions one slave process serves"
+            )
         build = "pure-Python build: " if self.pure else ""
         if self.workers == 1:
             return f"{build}1 kHz bidirectional sessions one slave process serves"
@@ -562,13 +873,20 @@ def ramp(
     for n in steps:
         for attempt in range(1 + CONTENDED_RETRIES):
             print(
-                f"ramp {rep + 1}/{repeat}, workers {setup.workers}"
+                f"ramp {rep + 1}/{repeat}, {setup.program}, workers {setup.workers}"
                 f"{', pure' if setup.pure else ''}: {n} sessions ...",
                 file=sys.stderr,
                 flush=True,
             )
             step = run_step(
-                n, seconds, controller, setup.workers, setup.pure, setup.serve, setup.spin
+                n,
+                seconds,
+                controller,
+                setup.workers,
+                setup.pure,
+                setup.serve,
+                setup.spin,
+                setup.program,
             )
             step["attempt"] = attempt + 1
             others = step["slave"]["others_percent"]
@@ -640,6 +958,57 @@ def stop_note(ramps: list[list[Json]]) -> str:
     return "stopped at " + "; ".join(notes) if notes else "every step passed"
 
 
+def baseline_rows(ramps_of: dict[Setup, list[list[Json]]], pure: bool) -> list[Row]:
+    """tdtp's one-slave-process figures against each baseline's from the same run: sessions passed
+    and busy CPU per session-ms, ratios paired by repetition (ramp i of tdtp against ramp i of the
+    baseline, run back to back)."""
+    tdtp = next((r for s, r in ramps_of.items() if s.program == "tdtp" and s.workers == 1), None)
+    if tdtp is None:
+        return []
+    build = "pure-Python build: " if pure else ""
+    rows = []
+    for setup, ramps in ramps_of.items():
+        if setup.program == "tdtp":
+            continue
+        name = BASELINES[setup.program]
+        mine = [float(largest_passing(r)) for r in tdtp]
+        theirs = [float(largest_passing(r)) for r in ramps]
+        rows.append(
+            Row(
+                "scale",
+                f"{build}1 kHz bidirectional sessions one slave process serves, <= 1 % late: tdtp "
+                f"against the {name}",
+                "sessions",
+                Stat.of(mine),
+                baseline=name,
+                baseline_value=Stat.of(theirs),
+                ratio=Stat.of(common.paired_ratios(mine, theirs)),
+                ratio_label=f"x {name}",
+                note="same run, same ramp, load, pinning and measure of late; ratio paired by ramp",
+                digits=0,
+                ratio_digits=2,
+            )
+        )
+        my_cost = [cost_per_session(r) for r in tdtp]
+        their_cost = [cost_per_session(r) for r in ramps]
+        rows.append(
+            Row(
+                "scale",
+                f"{build}slave CPU per 1 kHz session: tdtp against the {name}",
+                "us per ms",
+                Stat.of(my_cost),
+                baseline=name,
+                baseline_value=Stat.of(their_cost),
+                ratio=Stat.of(common.paired_ratios(my_cost, their_cost)),
+                ratio_label=f"x {name}",
+                note="busy CPU at each one's largest step passed (not the same N)",
+                digits=1,
+                ratio_digits=2,
+            )
+        )
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     p = common.parser(__doc__, seconds=2.0, repeat=2, help_seconds="measurement window per step")
     p.add_argument(
@@ -677,28 +1046,49 @@ def main(argv: list[str] | None = None) -> int:
         help=f"Ticker(spin=) of slave and masters, seconds before each deadline spent waiting on "
         f"the CPU (default {DEFAULT_SPIN}; 0 sleeps until the deadline)",
     )
+    p.add_argument(
+        "--slave",
+        default="tdtp",
+        help="which slaves to ramp, comma-separated, each with the same ramp in turn: tdtp (the "
+        f"figure judged) and the baselines {', '.join(BASELINES)} (default tdtp)",
+    )
     args = p.parse_args(argv)
     if not 0.0 <= args.spin <= PERIOD:
         p.error(f"--spin takes 0 to {PERIOD} s, got {args.spin}")
     workers = common.as_list(args.workers)
     if not workers or min(workers) < 1:
         p.error(f"--workers takes counts of 1 or more, got {args.workers!r}")
+    programs = common.as_list(args.slave, str)
+    unknown = sorted(set(programs) - {"tdtp", *BASELINES})
+    if not programs or unknown:
+        p.error(f"--slave takes tdtp and {', '.join(BASELINES)}, got {args.slave!r}")
     common.warn_if_loaded()
     if not common.have_uvloop():
         print("uvloop is not installed: this benchmark measures the slave on uvloop; skipped")
         return common.emit("scale", args, [], details={"skipped": "uvloop missing"})
     steps = common.as_list(args.ramp)
+    setups = [Setup(count, args.pure, args.serve, args.spin) for count in workers]
+    setups = setups if "tdtp" in programs else []
+    setups += [Setup(spin=args.spin, program=b) for b in BASELINES if b in programs]
+    # Ramps interleaved, repetition by repetition (tdtp's, then each baseline's), so that a ratio
+    # pairs ramps run minutes apart, not a whole script apart.
+    ramps_of: dict[Setup, list[list[Json]]] = {setup: [] for setup in setups}
+    for rep in range(args.repeat):
+        for setup in setups:
+            ramps = ramps_of[setup]
+            ramp_steps = next_steps(steps, ramps[-1]) if ramps else steps
+            ramps.append(ramp(ramp_steps, args.seconds, rep, args.repeat, args.controller, setup))
     rows: list[Row] = []
     lines = [
         "Slave columns: all slave processes together (late %, rx), the busiest one (CPU %, tick "
         "lateness p99); sessions per worker as the kernel spread them.",
         "",
-        "| workers | ramp | N | verdict (attempt) | sessions per worker | slave late % "
+        "| slave | workers | ramp | N | verdict (attempt) | sessions per worker | slave late % "
         "| slave tick lateness p99 (us) | slave CPU % (spin) | slave rx (samples/s) "
         "| M->S arrivals > 1 ms | S->M arrivals > 1 ms | masters late % | masters CPU % "
         "| other tenants CPU % |",
-        "| ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
-        "| ---: |",
+        "| --- | ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+        "| ---: | ---: |",
     ]
     details: Json = {
         "controller": args.controller,
@@ -707,15 +1097,13 @@ def main(argv: list[str] | None = None) -> int:
         "spin": args.spin,
         "setups": [],
     }
-    for count in workers:
-        setup = Setup(count, args.pure, args.serve, args.spin)
-        ramps: list[list[Json]] = []
-        for rep in range(args.repeat):
-            ramp_steps = next_steps(steps, ramps[-1]) if ramps else steps
-            ramps.append(ramp(ramp_steps, args.seconds, rep, args.repeat, args.controller, setup))
+    for setup, ramps in ramps_of.items():
+        count = setup.workers
         best = [largest_passing(r) for r in ramps]
         value = Stat.of([float(b) for b in best])
-        if args.pure:
+        if setup.program != "tdtp":
+            target, meets = "", None
+        elif args.pure:
             target, meets = (
                 f">= {PURE_BEFORE} (before the compiled core)",
                 value.median >= PURE_BEFORE,
@@ -725,6 +1113,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             target, meets = "", None
         shared = count + 1 > len(common.usable_cpus())
+        how = (
+            f"{args.controller}, {args.serve}s"
+            if setup.program == "tdtp"
+            else "periodic timerfd, sendto per sample"
+        )
         rows.append(
             Row(
                 "scale",
@@ -733,8 +1126,7 @@ def main(argv: list[str] | None = None) -> int:
                 value,
                 target=target,
                 meets=meets,
-                note=f"{args.controller}, {args.serve}s, spin {1e6 * args.spin:.0f} us, "
-                f"ramp {args.ramp}"
+                note=f"{how}, spin {1e6 * args.spin:.0f} us, ramp {args.ramp}"
                 + (", masters share a core with a slave" if count > 1 and shared else "")
                 + f"; {stop_note(ramps)}",
                 digits=0,
@@ -743,11 +1135,13 @@ def main(argv: list[str] | None = None) -> int:
         costs = [cost_per_session(r) for r in ramps]
         cost = Stat.of(costs)
         if count == 1 and cost.n:
+            prefix = (
+                setup.label.split(":")[0] + ": " if args.pure or setup.program != "tdtp" else ""
+            )
             rows.append(
                 Row(
                     "scale",
-                    f"{setup.label.split(':')[0] + ': ' if args.pure else ''}slave CPU per "
-                    "1 kHz session, at the largest step that passed",
+                    f"{prefix}slave CPU per 1 kHz session, at the largest step that passed",
                     "us per ms",
                     cost,
                     note=f"busy CPU (spin excluded); one core at this cost: about "
@@ -757,6 +1151,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         details["setups"].append(
             {
+                "slave": setup.program,
                 "workers": count,
                 "ramps": ramps,
                 "largest_passing": best,
@@ -769,7 +1164,8 @@ def main(argv: list[str] | None = None) -> int:
                 s, m = r["slave"], r["masters"]
                 spread = "/".join(str(w["sessions"]) for w in s["workers"])
                 lines.append(
-                    f"| {count} | {i + 1} | {r['sessions']} | {r['verdict']} ({r.get('attempt', 1)}) "
+                    f"| {setup.program} | {count} | {i + 1} | {r['sessions']} "
+                    f"| {r['verdict']} ({r.get('attempt', 1)}) "
                     f"| {spread} | {100 * s['late_fraction']:.2f} "
                     f"| {s['tick_lateness_p99_us']:.0f} | {s['cpu_percent']:.0f} "
                     f"({s.get('spin_percent', 0.0):.0f}) "
@@ -777,6 +1173,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"| {100 * m['arrival_late_fraction']:.2f} % | {100 * m['late_fraction']:.2f} "
                     f"| {m['cpu_percent']:.0f} | {s['others_percent']:.0f} |"
                 )
+    rows += baseline_rows(ramps_of, args.pure)
     return common.emit("scale", args, rows, details=details, text="\n".join(lines))
 
 
