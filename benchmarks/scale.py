@@ -85,6 +85,7 @@ import os
 import resource
 import struct
 import sys
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -93,6 +94,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
 from _common import Json, Row, Stat
+from scale_c import c_slave_worker, compile_slave
 
 from tdtp import ConnectionClosedError, ConnectionConfig, DataReceived, Endpoint, Ticker, TickHandle
 from tdtp.aio.api import connect, listen
@@ -111,7 +113,7 @@ PERIOD = 1.0 / RATE
 LATE = PERIOD  # more than one period behind
 MAX_LATE_FRACTION = 0.01
 DEFAULT_SPIN = 0.0
-BASELINES = {"raw-uvloop": "raw uvloop baseline"}
+BASELINES = {"raw-uvloop": "raw uvloop baseline", "c": "C baseline (no Python)"}
 """The baseline slaves (``--slave``), by name: their rows' label."""
 MAX_CATCH_UP = 10
 """``tdtp.Ticker``'s default ``max_catch_up``: a longer stall skips ticks (counted late)."""
@@ -757,28 +759,45 @@ def run_step(
     serve: str = "callback",
     spin: float = 0.0,
     program: str = "tdtp",
+    binary: str = "",
 ) -> Json:
     """One step: ``workers`` slave processes on one port (``SO_REUSEPORT`` when more than one),
-    ``sessions`` masters in another process, and the verdict. ``program="raw-uvloop"``: the raw
-    baseline's slave and masters instead (one slave process)."""
+    ``sessions`` masters in another process, and the verdict. ``program="raw-uvloop"`` or ``"c"``: that
+    baseline's slave (one process; ``binary``: the C slave's) and the raw masters instead."""
     others = common.OthersMeter()
     kind = dict(sessions=sessions, seconds=seconds, controller=controller, spin=spin)
     slaves: list[common.WorkerHandle] = []
     masters = None
     try:
         port = 0
-        if program == "raw-uvloop":
+        if program != "tdtp":
             if workers != 1:
-                raise ValueError("the raw baseline runs one slave process")
-            slaves.append(
-                common.start_worker(
-                    f"raw-slave-{sessions}",
-                    raw_slave_worker,
-                    cpu_slot=1,
-                    seconds=seconds,
-                    spin=spin,
+                raise ValueError("a baseline runs one slave process")
+            if program == "c":
+                slaves.append(
+                    common.start_worker(
+                        f"c-slave-{sessions}",
+                        c_slave_worker,
+                        binary=binary,
+                        cpu_slot=1,
+                        seconds=seconds,
+                        spin=spin,
+                        rate=RATE,
+                        late=LATE,
+                        max_catch_up=MAX_CATCH_UP,
+                        payload=PAYLOAD_SIZE,
+                    )
                 )
-            )
+            else:
+                slaves.append(
+                    common.start_worker(
+                        f"raw-slave-{sessions}",
+                        raw_slave_worker,
+                        cpu_slot=1,
+                        seconds=seconds,
+                        spin=spin,
+                    )
+                )
             port = slaves[-1].recv(30)["port"]
             masters = common.start_worker(
                 f"raw-masters-{sessions}",
@@ -849,7 +868,9 @@ class Setup:
     serve: str = "callback"
     spin: float = 0.0
     program: str = "tdtp"
-    """``tdtp``, or a baseline's slave: ``raw-uvloop``."""
+    """``tdtp``, or a baseline's slave: ``raw-uvloop`` or ``c``."""
+    binary: str = ""
+    """The C slave's program (``c``)."""
 
     @property
     def label(self) -> str:
@@ -887,6 +908,7 @@ def ramp(
                 setup.serve,
                 setup.spin,
                 setup.program,
+                setup.binary,
             )
             step["attempt"] = attempt + 1
             others = step["slave"]["others_percent"]
@@ -1069,15 +1091,25 @@ def main(argv: list[str] | None = None) -> int:
     steps = common.as_list(args.ramp)
     setups = [Setup(count, args.pure, args.serve, args.spin) for count in workers]
     setups = setups if "tdtp" in programs else []
-    setups += [Setup(spin=args.spin, program=b) for b in BASELINES if b in programs]
-    # Ramps interleaved, repetition by repetition (tdtp's, then each baseline's), so that a ratio
-    # pairs ramps run minutes apart, not a whole script apart.
-    ramps_of: dict[Setup, list[list[Json]]] = {setup: [] for setup in setups}
-    for rep in range(args.repeat):
-        for setup in setups:
-            ramps = ramps_of[setup]
-            ramp_steps = next_steps(steps, ramps[-1]) if ramps else steps
-            ramps.append(ramp(ramp_steps, args.seconds, rep, args.repeat, args.controller, setup))
+    with tempfile.TemporaryDirectory(prefix="tdtp-scale-") as tmp:
+        binary = compile_slave(Path(tmp)) if "c" in programs else None
+        if "c" in programs and binary is None:
+            print("no C compiler: no C baseline", file=sys.stderr)
+        setups += [
+            Setup(spin=args.spin, program=b, binary=str(binary) if b == "c" else "")
+            for b in BASELINES
+            if b in programs and (b != "c" or binary is not None)
+        ]
+        # Ramps interleaved, repetition by repetition (tdtp's, then each baseline's), so that a
+        # ratio pairs ramps run minutes apart, not a whole script apart.
+        ramps_of: dict[Setup, list[list[Json]]] = {setup: [] for setup in setups}
+        for rep in range(args.repeat):
+            for setup in setups:
+                ramps = ramps_of[setup]
+                ramp_steps = next_steps(steps, ramps[-1]) if ramps else steps
+                ramps.append(
+                    ramp(ramp_steps, args.seconds, rep, args.repeat, args.controller, setup)
+                )
     rows: list[Row] = []
     lines = [
         "Slave columns: all slave processes together (late %, rx), the busiest one (CPU %, tick "
@@ -1113,11 +1145,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             target, meets = "", None
         shared = count + 1 > len(common.usable_cpus())
-        how = (
-            f"{args.controller}, {args.serve}s"
-            if setup.program == "tdtp"
-            else "periodic timerfd, sendto per sample"
-        )
+        how = {
+            "tdtp": f"{args.controller}, {args.serve}s",
+            "raw-uvloop": "periodic timerfd, sendto per sample",
+            "c": "periodic timerfd, epoll, recvmmsg/sendmmsg",
+        }[setup.program]
         rows.append(
             Row(
                 "scale",
