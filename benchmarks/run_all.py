@@ -84,9 +84,22 @@ SUITE = (
     ),
     Bench(
         "scale",
-        ("--seconds", "2", "--repeat", "2", "--workers", "1,2"),
-        ("--seconds", "0.1", "--repeat", "1", "--ramp", "2", "--workers", "1,2"),
-        timeout=300.0,
+        # tdtp's ramps, and beside the one-process ramp those of a raw uvloop slave and a C slave
+        # (about 2 minutes more): the sessions this machine allows, from the same run.
+        ("--seconds", "2", "--repeat", "2", "--workers", "1,2", "--slave", "tdtp,raw-uvloop,c"),
+        (
+            "--seconds",
+            "0.1",
+            "--repeat",
+            "1",
+            "--ramp",
+            "2",
+            "--workers",
+            "1,2",
+            "--slave",
+            "tdtp,raw-uvloop,c",
+        ),
+        timeout=600.0,
     ),
     Bench(
         "paths",

@@ -2,7 +2,7 @@
 
 Usage: ``python benchmarks/scale.py [--seconds 2] [--repeat 2] [--ramp 2,5,10,15,20,30,50,100]
 [--controller trinomial|tfrc|fixed] [--workers 1,2] [--pure] [--serve callback|task] [--spin S]
-[--json]``
+[--slave tdtp,raw-uvloop,c] [--json]``
 
 Method. Two processes on loopback, each pinned to its own CPU (on 2 cores the slave has one to itself):
 
@@ -71,6 +71,42 @@ machine a step can fail because a neighbour took the slave's core, and this colu
 stops after the first step that does not pass; a later ramp starts from the largest step at most half
 of what the one before passed. The figure is the largest N that passed, median over ``--repeat``
 ramps; the row says where and why each ramp stopped, with the figures of that step.
+
+**Baselines** (``--slave tdtp,raw-uvloop,c``; default ``tdtp`` alone). How many sessions would one
+slave process serve on this machine if it were not tdtp? Each baseline slave is ramped as tdtp's is,
+in the same run, interleaved with it repetition by repetition (tdtp's ramp, then each baseline's):
+same steps, window, pinning (slave on CPU 1, masters on CPU 0), ``--spin``, measure of late,
+verdicts and contended rule. Rows: each baseline's sessions and busy CPU per session-ms, and tdtp's
+figures against each (ratios paired by ramp), beside tdtp's own rows, which are unchanged.
+
+- ``raw-uvloop``, what a careful hand-written Python slave on uvloop would be: one
+  ``DatagramProtocol`` socket; a peer's first datagram (its hello) makes it a session, whose only
+  state is its address (and a count of its samples); one tick source for all sessions, a periodic
+  ``timerfd`` (absolute first expiry, then every period, re-armed by the kernel: one ``read`` per
+  tick) watched with ``loop.add_reader``. Not ``loop.call_at`` on an absolute schedule: on uvloop
+  that is libuv's millisecond timer against a clock cached per loop iteration, whose own error is
+  a large part of the 1 ms that "late" allows (benchmarks/README.md, pacing: naive ``call_at`` on
+  uvloop deviates by 596 us at p99 against the ``timerfd``'s 108, and fired early in 46 % of
+  periods), so the baseline would be late by its timer's rounding, not by the machine.
+  Each tick due (the ``Ticker``'s catch-up rule: a stall of more than 10 periods skips to the tick
+  due now, the skipped ones counted late), for each session: a clock read, the tick's lateness
+  recorded as tdtp's slave records a tick callback's, and a 100-byte sample stamped with that time
+  sent with ``transport.sendto`` (uvloop writes it at once: one system call per sample, where tdtp
+  sends a wake-up's samples with one ``sendmmsg``; each sample is therefore on its way before the
+  next session's lateness is read, a measure a little stricter than tdtp's). Its samples received
+  are counted as tdtp's slave counts ``on_data``'s.
+- ``c``: the same slave in C with no Python (``scale_c.py``: ``epoll``, ``recvmmsg`` in batches of
+  64, the tick's samples in one ``sendmmsg``), compiled with the system's ``cc`` at run time: the
+  machine's limit, what its kernel and its late wake-ups leave for any program.
+
+A baseline slave does not speak TDTP, so its masters are **raw masters**: one uvloop UDP socket per
+session, its hello repeated every 50 ms until the slave's first sample answers, then one shared 1 kHz
+tick source (the same periodic ``timerfd``) sending the same 100-byte payload, stamped as tdtp's
+masters stamp it, to every socket with ``sendto``. tdtp's slave keeps its tdtp masters (so its rows
+measure what they did before). Both slaves are offered N x 1000 samples/s of 100 bytes each way (tdtp
+adds its 5-byte header, its ACKs riding on the samples); the raw masters cost less CPU than
+tdtp's, which only helps a baseline pass the "load really offered" check, never its measure of late,
+which is the slave's own ticks.
 
 Targets (issue 23, raising issue 12's 50): >= 100 sessions in one slave process, masters in another; the pure-Python build no
 fewer than the whole library served before the compiled core (8, the suite's run of 2026-11-21).
