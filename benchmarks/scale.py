@@ -982,11 +982,28 @@ def cost_per_session(results: list[Json]) -> float:
     passed = [r for r in results if r["verdict"] == "pass"]
     if not passed:
         return math.nan
-    best = max(passed, key=lambda r: r["sessions"])
-    workers = max(1, len(best["slave"]["workers"]))
-    per_worker = best["sessions"] / workers  # the busiest has at least its share
-    busy = best["slave"]["cpu_percent"] - best["slave"].get("spin_percent", 0.0)
+    return step_cost(max(passed, key=lambda r: r["sessions"]))
+
+
+def step_cost(step: Json) -> float:
+    """The busiest slave's busy CPU (spin left out) per session and 1 ms period (us) in a step."""
+    workers = max(1, len(step["slave"]["workers"]))
+    per_worker: float = step["sessions"] / workers  # the busiest has at least its share
+    busy: float = step["slave"]["cpu_percent"] - step["slave"].get("spin_percent", 0.0)
     return 10.0 * busy / per_worker
+
+
+def costs_at_common_step(mine: list[Json], theirs: list[Json]) -> tuple[float, float, int]:
+    """Two slaves' busy CPU per session-ms at the largest step both passed in a pair of ramps
+    (a fixed cost per wake-up weighs more per session at fewer sessions, so compare the same N),
+    and that N; NaNs and 0 when they passed no step in common."""
+    passed = {r["sessions"]: r for r in theirs if r["verdict"] == "pass"}
+    common_steps = [r for r in mine if r["verdict"] == "pass" and r["sessions"] in passed]
+    if not common_steps:
+        return math.nan, math.nan, 0
+    step = max(common_steps, key=lambda r: r["sessions"])
+    n = step["sessions"]
+    return step_cost(step), step_cost(passed[n]), n
 
 
 def stop_note(ramps: list[list[Json]]) -> str:
@@ -1047,8 +1064,10 @@ def baseline_rows(ramps_of: dict[Setup, list[list[Json]]], pure: bool) -> list[R
                 ratio_digits=2,
             )
         )
-        my_cost = [cost_per_session(r) for r in tdtp]
-        their_cost = [cost_per_session(r) for r in ramps]
+        pairs = [costs_at_common_step(a, b) for a, b in zip(tdtp, ramps, strict=True)]
+        my_cost = [a for a, _, _ in pairs]
+        their_cost = [b for _, b, _ in pairs]
+        at = ", ".join(str(n) if n else "none" for _, _, n in pairs)
         rows.append(
             Row(
                 "scale",
@@ -1059,7 +1078,7 @@ def baseline_rows(ramps_of: dict[Setup, list[list[Json]]], pure: bool) -> list[R
                 baseline_value=Stat.of(their_cost),
                 ratio=Stat.of(common.paired_ratios(my_cost, their_cost)),
                 ratio_label=f"x {name}",
-                note="busy CPU at each one's largest step passed (not the same N)",
+                note=f"busy CPU at the largest step both passed in a pair of ramps: N = {at}",
                 digits=1,
                 ratio_digits=2,
             )
