@@ -5,9 +5,9 @@ Usage: ``python benchmarks/run_all.py [--quick] [--only NAME ...]``  (``make ben
 Each benchmark runs as its own process (``python benchmarks/NAME.py ... --json``), one after the other,
 with the settings below, chosen so that the suite takes under five minutes on two cores (plus one to
 two for scale.py's baseline slaves), plus about seven for paths.py (80 cells of 3 s: its README table
-uses 10 s cells, run on their own). pacing.py, which has no ``--repeat``, is run three times and its repetitions are combined here. The table (every figure
-with its baseline from the same run, ratio, target, repetitions, median and spread) is printed and
-written to ``latest.md`` with each benchmark's detail; ``latest.json`` has every report in full.
+uses 10 s cells, run on their own). pacing.py, which has no ``--repeat``, is run three times and its
+repetitions are combined here. The table (every figure with its baseline from the same run, ratio,
+target, repetitions, median and spread) is printed and written to ``latest.md`` with each benchmark's detail; ``latest.json`` has every report in full.
 ``--quick`` runs everything for a fraction of a second (a check that the suite works, not a measurement).
 """
 
