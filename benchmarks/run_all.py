@@ -7,7 +7,8 @@ with the settings below, chosen so that the suite takes under five minutes on tw
 two for scale.py's baseline slaves), plus about seven for paths.py (80 cells of 3 s: its README table
 uses 10 s cells, run on their own). pacing.py, which has no ``--repeat``, is run three times and its
 repetitions are combined here. The table (every figure with its baseline from the same run, ratio,
-target, repetitions, median and spread) is printed and written to ``latest.md`` with each benchmark's detail; ``latest.json`` has every report in full.
+target, repetitions, median and spread) is printed and written to ``latest.md`` with each
+benchmark's detail; ``latest.json`` has every report in full.
 ``--quick`` runs everything for a fraction of a second (a check that the suite works, not a measurement).
 """
 
