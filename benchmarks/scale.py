@@ -1165,7 +1165,7 @@ def main(argv: list[str] | None = None) -> int:
                 ramps.append(
                     ramp(ramp_steps, args.seconds, rep, args.repeat, args.controller, setup)
                 )
-    rows: list[Row] = []
+    rows_of: dict[Setup, list[Row]] = {setup: [] for setup in setups}
     lines = [
         "Slave columns: all slave processes together (late %, rx), the busiest one (CPU %, tick "
         "lateness p99); sessions per worker as the kernel spread them.",
@@ -1185,6 +1185,7 @@ def main(argv: list[str] | None = None) -> int:
         "setups": [],
     }
     for setup, ramps in ramps_of.items():
+        rows = rows_of[setup]
         count = setup.workers
         best = [largest_passing(r) for r in ramps]
         value = Stat.of([float(b) for b in best])
@@ -1260,7 +1261,12 @@ def main(argv: list[str] | None = None) -> int:
                     f"| {100 * m['arrival_late_fraction']:.2f} % | {100 * m['late_fraction']:.2f} "
                     f"| {m['cpu_percent']:.0f} | {s['others_percent']:.0f} |"
                 )
+    # Each baseline's rows and the comparisons beside tdtp's one-process rows, the other
+    # tdtp setups after them.
+    first, *others = setups or [Setup()]
+    rows = rows_of.get(first, []) + [r for s in others if s.program != "tdtp" for r in rows_of[s]]
     rows += baseline_rows(ramps_of, args.pure)
+    rows += [r for s in others if s.program == "tdtp" for r in rows_of[s]]
     return common.emit("scale", args, rows, details=details, text="\n".join(lines))
 
 
