@@ -586,16 +586,22 @@ class RawTicker:
     def _fire(self) -> None:
         self._timer.clear()
         now = monotonic()
-        if self.spin > 0.0:
+        while True:
             due_at = self.schedule.deadline(self.schedule.next_tick)
             if due_at - now > self.spin:
-                return  # not this tick's expiry yet
-            started = now
-            while now < due_at:
-                now = monotonic()
-            self.spun += now - started
-        for tick, deadline, gap in self.schedule.due(now):
-            self._on_tick(tick, deadline, gap)
+                return  # the next expiry serves it
+            if due_at > now:
+                # Within ``spin`` of the next deadline, from this expiry or because serving the
+                # last tick took until then (a late wake-up): wait for it here. The periodic
+                # timer's next expiry is ``spin`` before the deadline after it, so a late
+                # wake-up that returned now would leave every later tick ``period - spin`` late.
+                started = now
+                while now < due_at:
+                    now = monotonic()
+                self.spun += now - started
+            for tick, deadline, gap in self.schedule.due(now):
+                self._on_tick(tick, deadline, gap)
+            now = monotonic()
 
     def close(self) -> None:
         if self._timer.fd >= 0:

@@ -170,16 +170,15 @@ int main(int argc, char **argv) {
             } else if (which == tfd) {
                 uint64_t expirations; if (read(tfd, &expirations, 8) < 0) continue;
                 if (!ticking) continue;
-                double due_at = anchor + next_tick * period;
-                if (spin > 0) {
-                    if (due_at - t > spin) continue;
-                    double started = t;
-                    while (t < due_at) t = now();
-                    spun += t - started;
-                }
+                t = now();  /* the socket may have been served first in this wake-up */
                 for (;;) {
+                    /* Within spin of the next deadline (from this expiry, or because serving the
+                     * last tick took until then): wait for it here, else the periodic timer's next
+                     * expiry, spin before the deadline after it, would serve it period - spin late. */
+                    double due_at = anchor + next_tick * period;
+                    if (due_at - t > spin) break;
+                    if (due_at > t) { double started = t; while (t < due_at) t = now(); spun += t - started; }
                     long tick = next_tick; double deadline = anchor + tick * period;
-                    if (deadline > t) break;
                     long gap = 0, behind = (long)((t - deadline) * rate);
                     if (behind > catch_up) { gap = behind; tick += behind; deadline = anchor + tick * period; }
                     next_tick = tick + 1;
@@ -199,6 +198,7 @@ int main(int argc, char **argv) {
                             batch = 0;
                         }
                     }
+                    t = now();
                 }
                 if (t > wend + 0.2) ticking = 0;
             } else {
