@@ -992,11 +992,13 @@ def cost_per_session(results: list[Json]) -> float:
 
 
 def step_cost(step: Json) -> float:
-    """The busiest slave's busy CPU (spin left out) per session and 1 ms period (us) in a step."""
+    """The busiest slave's busy CPU (spin left out) per session and 1 ms period (us) in a step;
+    NaN when the spin, counted in wall time, came to the CPU time or more (a neighbour took the
+    core during the busy-waits: the busy CPU is unknown)."""
     workers = max(1, len(step["slave"]["workers"]))
     per_worker: float = step["sessions"] / workers  # the busiest has at least its share
     busy: float = step["slave"]["cpu_percent"] - step["slave"].get("spin_percent", 0.0)
-    return 10.0 * busy / per_worker
+    return 10.0 * busy / per_worker if busy > 0.0 else math.nan
 
 
 def costs_at_common_step(mine: list[Json], theirs: list[Json]) -> tuple[float, float, int]:
