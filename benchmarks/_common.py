@@ -22,7 +22,9 @@ import multiprocessing.connection
 import os
 import platform
 import resource
+import shutil
 import statistics
+import subprocess
 import sys
 import time
 import traceback
@@ -546,6 +548,20 @@ def start_worker(name: str, target: Worker, *, pure: bool = False, **kwargs: Any
                 os.environ[PURE_ENV] = saved
     child.close()
     return WorkerHandle(process, parent, name)
+
+
+def compile_c(source: str, workdir: Path, name: str, libraries: Sequence[str] = ()) -> Path | None:
+    """A C program written for a benchmark, compiled with the system's ``cc -O2`` into ``workdir``
+    (a temporary directory: nothing is kept); None when there is no C compiler."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        return None
+    path = workdir / f"{name}.c"
+    path.write_text(source)
+    binary = workdir / name
+    command = [cc, "-O2", "-o", str(binary), str(path), *(f"-l{lib}" for lib in libraries)]
+    subprocess.run(command, check=True)
+    return binary
 
 
 def tdtp_build() -> str:

@@ -39,7 +39,6 @@ import asyncio
 import functools
 import json
 import os
-import shutil
 import socket
 import subprocess
 import sys
@@ -290,14 +289,7 @@ def python_worker(conn: Any, *, impl: str, cpu_slot: int, **kwargs: Any) -> None
 
 
 def _compile_c_peer(workdir: Path) -> Path | None:
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        return None
-    source = workdir / "peer.c"
-    source.write_text(C_PEER)
-    binary = workdir / "peer"
-    subprocess.run([cc, "-O2", "-o", str(binary), str(source)], check=True)
-    return binary
+    return common.compile_c(C_PEER, workdir, "peer")
 
 
 def _per_packet(r: Json) -> float:

@@ -3,11 +3,12 @@
 Usage: ``python benchmarks/run_all.py [--quick] [--only NAME ...]``  (``make bench``)
 
 Each benchmark runs as its own process (``python benchmarks/NAME.py ... --json``), one after the other,
-with the settings below, chosen so that the suite takes under five minutes on two cores, plus about seven
-for paths.py (80 cells of 3 s: its README table uses 10 s cells, run on their own). pacing.py, which
-has no ``--repeat``, is run three times and its repetitions are combined here. The table (every figure
-with its baseline from the same run, ratio, target, repetitions, median and spread) is printed and
-written to ``latest.md`` with each benchmark's detail; ``latest.json`` has every report in full.
+with the settings below, chosen so that the suite takes under five minutes on two cores (plus one to
+two for scale.py's baseline slaves), plus about seven for paths.py (80 cells of 3 s: its README table
+uses 10 s cells, run on their own). pacing.py, which has no ``--repeat``, is run three times and its
+repetitions are combined here. The table (every figure with its baseline from the same run, ratio,
+target, repetitions, median and spread) is printed and written to ``latest.md`` with each
+benchmark's detail; ``latest.json`` has every report in full.
 ``--quick`` runs everything for a fraction of a second (a check that the suite works, not a measurement).
 """
 
@@ -84,9 +85,22 @@ SUITE = (
     ),
     Bench(
         "scale",
-        ("--seconds", "2", "--repeat", "2", "--workers", "1,2"),
-        ("--seconds", "0.1", "--repeat", "1", "--ramp", "2", "--workers", "1,2"),
-        timeout=300.0,
+        # tdtp's ramps, and beside the one-process ramp those of a raw uvloop slave and a C slave
+        # (about 2 minutes more): the sessions this machine allows, from the same run.
+        ("--seconds", "2", "--repeat", "2", "--workers", "1,2", "--slave", "tdtp,raw-uvloop,c"),
+        (
+            "--seconds",
+            "0.1",
+            "--repeat",
+            "1",
+            "--ramp",
+            "2",
+            "--workers",
+            "1,2",
+            "--slave",
+            "tdtp,raw-uvloop,c",
+        ),
+        timeout=600.0,
     ),
     Bench(
         "paths",

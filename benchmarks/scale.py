@@ -2,7 +2,7 @@
 
 Usage: ``python benchmarks/scale.py [--seconds 2] [--repeat 2] [--ramp 2,5,10,15,20,30,50,100]
 [--controller trinomial|tfrc|fixed] [--workers 1,2] [--pure] [--serve callback|task] [--spin S]
-[--json]``
+[--slave tdtp,raw-uvloop,c] [--json]``
 
 Method. Two processes on loopback, each pinned to its own CPU (on 2 cores the slave has one to itself):
 
@@ -72,6 +72,42 @@ stops after the first step that does not pass; a later ramp starts from the larg
 of what the one before passed. The figure is the largest N that passed, median over ``--repeat``
 ramps; the row says where and why each ramp stopped, with the figures of that step.
 
+**Baselines** (``--slave tdtp,raw-uvloop,c``; default ``tdtp`` alone). How many sessions would one
+slave process serve on this machine if it were not tdtp? Each baseline slave is ramped as tdtp's is,
+in the same run, interleaved with it repetition by repetition (tdtp's ramp, then each baseline's):
+same steps, window, pinning (slave on CPU 1, masters on CPU 0), ``--spin``, measure of late,
+verdicts and contended rule. Rows: each baseline's sessions and busy CPU per session-ms, and tdtp's
+figures against each (ratios paired by ramp), beside tdtp's own rows, which are unchanged.
+
+- ``raw-uvloop``, what a careful hand-written Python slave on uvloop would be: one
+  ``DatagramProtocol`` socket; a peer's first datagram (its hello) makes it a session, whose only
+  state is its address (and a count of its samples); one tick source for all sessions, a periodic
+  ``timerfd`` (absolute first expiry, then every period, re-armed by the kernel: one ``read`` per
+  tick) watched with ``loop.add_reader``. Not ``loop.call_at`` on an absolute schedule: on uvloop
+  that is libuv's millisecond timer against a clock cached per loop iteration, whose own error is
+  a large part of the 1 ms that "late" allows (benchmarks/README.md, pacing: naive ``call_at`` on
+  uvloop deviates by 596 us at p99 against the ``timerfd``'s 108, and fired early in 46 % of
+  periods), so the baseline would be late by its timer's rounding, not by the machine.
+  Each tick due (the ``Ticker``'s catch-up rule: a stall of more than 10 periods skips to the tick
+  due now, the skipped ones counted late), for each session: a clock read, the tick's lateness
+  recorded as tdtp's slave records a tick callback's, and a 100-byte sample stamped with that time
+  sent with ``transport.sendto`` (uvloop writes it at once: one system call per sample, where tdtp
+  sends a wake-up's samples with one ``sendmmsg``; each sample is therefore on its way before the
+  next session's lateness is read, a measure a little stricter than tdtp's). Its samples received
+  are counted as tdtp's slave counts ``on_data``'s.
+- ``c``: the same slave in C with no Python (``scale_c.py``: ``epoll``, ``recvmmsg`` in batches of
+  64, the tick's samples in one ``sendmmsg``), compiled with the system's ``cc`` at run time: the
+  machine's limit, what its kernel and its late wake-ups leave for any program.
+
+A baseline slave does not speak TDTP, so its masters are **raw masters**: one uvloop UDP socket per
+session, its hello repeated every 50 ms until the slave's first sample answers, then one shared 1 kHz
+tick source (the same periodic ``timerfd``) sending the same 100-byte payload, stamped as tdtp's
+masters stamp it, to every socket with ``sendto``. tdtp's slave keeps its tdtp masters (so its rows
+measure what they did before). Both slaves are offered N x 1000 samples/s of 100 bytes each way (tdtp
+adds its 5-byte header, its ACKs riding on the samples); the raw masters cost less CPU than
+tdtp's, which only helps a baseline pass the "load really offered" check, never its measure of late,
+which is the slave's own ticks.
+
 Targets (issue 23, raising issue 12's 50): >= 100 sessions in one slave process, masters in another; the pure-Python build no
 fewer than the whole library served before the compiled core (8, the suite's run of 2026-11-21).
 """
@@ -81,9 +117,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import os
 import resource
 import struct
 import sys
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -92,6 +130,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
 from _common import Json, Row, Stat
+from scale_c import c_slave_worker, compile_slave
 
 from tdtp import ConnectionClosedError, ConnectionConfig, DataReceived, Endpoint, Ticker, TickHandle
 from tdtp.aio.api import connect, listen
@@ -110,6 +149,10 @@ PERIOD = 1.0 / RATE
 LATE = PERIOD  # more than one period behind
 MAX_LATE_FRACTION = 0.01
 DEFAULT_SPIN = 0.0
+BASELINES = {"raw-uvloop": "raw uvloop baseline", "c": "C baseline (no Python)"}
+"""The baseline slaves (``--slave``), by name: their rows' label."""
+MAX_CATCH_UP = 10
+"""``tdtp.Ticker``'s default ``max_catch_up``: a longer stall skips ticks (counted late)."""
 QUANTILES = (0.5, 0.9, 0.99, 0.999)
 MIN_OFFERED_FRACTION = 0.99
 WARMUP = 0.5
@@ -158,6 +201,13 @@ class Arrivals:
         if self.window.covers(now):
             self.count += 1
             if now - _STAMP.unpack_from(sample.payload)[0] > LATE:
+                self.late += 1
+
+    def record(self, payload: bytes, now: float) -> None:
+        """The same for a raw datagram received at ``now``."""
+        if self.window.covers(now):
+            self.count += 1
+            if now - _STAMP.unpack_from(payload)[0] > LATE:
                 self.late += 1
 
 
@@ -436,6 +486,280 @@ def masters_worker(
     conn.send({"final": report})
 
 
+# ---------------------------------------------------------------------------- raw uvloop baseline
+
+
+class RawSchedule:
+    """The 1 kHz schedule of the raw baseline, with the Ticker's catch-up rule: deadlines
+    ``anchor + k * PERIOD``; a wake-up serves every tick due by then, one after the other, unless it
+    is more than ``MAX_CATCH_UP`` periods behind, in which case it skips to the tick due now and
+    counts the ticks jumped over (``gap``), as ``tdtp.Ticker`` does (its ``max_catch_up``)."""
+
+    def __init__(self, anchor: float, first_tick: int = 0) -> None:
+        self.anchor = anchor
+        self.next_tick = first_tick
+
+    def deadline(self, tick: int) -> float:
+        return self.anchor + tick * PERIOD
+
+    def due(self, now: float) -> list[tuple[int, float, int]]:
+        """The ticks to serve at ``now``, in order: (tick, its deadline, ticks skipped before it)."""
+        served: list[tuple[int, float, int]] = []
+        while True:
+            tick = self.next_tick
+            deadline = self.deadline(tick)
+            if deadline > now:
+                return served
+            gap = 0
+            behind = int((now - deadline) * RATE)
+            if behind > MAX_CATCH_UP:
+                gap = behind
+                tick += behind
+                deadline = self.deadline(tick)
+            served.append((tick, deadline, gap))
+            self.next_tick = tick + 1
+
+
+class PeriodicTimerfd:
+    """A periodic ``timerfd`` on ``CLOCK_MONOTONIC``: first expiry at an absolute time, then every
+    period, re-armed by the kernel (no system call per tick but the ``read`` that clears it).
+    Through ``ctypes`` on libc (``os.timerfd_create`` is Python 3.13+)."""
+
+    def __init__(self, first: float, period: float) -> None:
+        import ctypes  # noqa: PLC0415 - only this baseline needs it
+
+        class Timespec(ctypes.Structure):
+            _fields_ = (("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long))
+
+        class Itimerspec(ctypes.Structure):
+            _fields_ = (("it_interval", Timespec), ("it_value", Timespec))
+
+        def spec(seconds: float) -> Timespec:
+            ns = max(1, round(seconds * 1e9))
+            return Timespec(ns // 1_000_000_000, ns % 1_000_000_000)
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        fd = libc.timerfd_create(1, os.O_NONBLOCK | os.O_CLOEXEC)  # CLOCK_MONOTONIC
+        if fd < 0:
+            raise OSError(ctypes.get_errno(), "timerfd_create")
+        self.fd: int = fd
+        value = Itimerspec(spec(period), spec(first))
+        if libc.timerfd_settime(fd, 1, ctypes.byref(value), None) != 0:  # TFD_TIMER_ABSTIME
+            error = ctypes.get_errno()
+            os.close(fd)
+            raise OSError(error, "timerfd_settime")
+
+    def clear(self) -> None:
+        """Read the expiration count (what makes the descriptor unreadable again)."""
+        with contextlib.suppress(BlockingIOError):
+            os.read(self.fd, 8)
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+class RawTicker:
+    """One 1 kHz tick source for a raw process: a :class:`PeriodicTimerfd` watched with
+    ``loop.add_reader``, the :class:`RawSchedule`, and ``spin`` as ``Ticker(spin=)`` does it (the
+    timer goes off ``spin`` before each deadline, the rest is waited on the CPU, counted in
+    :attr:`spun`). ``on_tick(tick, deadline, gap)`` is called for every tick served."""
+
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        anchor: float,
+        spin: float,
+        on_tick: Callable[[int, float, int], None],
+    ) -> None:
+        now = monotonic()
+        first = max(0, math.ceil((now + spin - anchor) * RATE))
+        self.schedule = RawSchedule(anchor, first)
+        self.spin = spin
+        self.spun = 0.0
+        self._loop = loop
+        self._on_tick = on_tick
+        self._timer = PeriodicTimerfd(self.schedule.deadline(first) - spin, PERIOD)
+        loop.add_reader(self._timer.fd, self._fire)
+
+    def _fire(self) -> None:
+        self._timer.clear()
+        now = monotonic()
+        while True:
+            due_at = self.schedule.deadline(self.schedule.next_tick)
+            if due_at - now > self.spin:
+                return  # the next expiry serves it
+            if due_at > now:
+                # Within ``spin`` of the next deadline, from this expiry or because serving the
+                # last tick took until then (a late wake-up): wait for it here. The periodic
+                # timer's next expiry is ``spin`` before the deadline after it, so a late
+                # wake-up that returned now would leave every later tick ``period - spin`` late.
+                started = now
+                while now < due_at:
+                    now = monotonic()
+                self.spun += now - started
+            for tick, deadline, gap in self.schedule.due(now):
+                self._on_tick(tick, deadline, gap)
+            now = monotonic()
+
+    def close(self) -> None:
+        if self._timer.fd >= 0:
+            self._loop.remove_reader(self._timer.fd)
+            self._timer.close()
+
+
+class RawSlaveProtocol(asyncio.DatagramProtocol):
+    """The raw baseline's slave socket: a peer's first datagram makes it a session (its address is
+    all the state a session has, with a count of what it sent); every datagram is counted as the
+    tdtp slave counts its ``on_data`` samples."""
+
+    def __init__(self, arrivals: Arrivals) -> None:
+        self.arrivals = arrivals
+        self.sessions: dict[Any, int] = {}
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        sessions = self.sessions
+        count = sessions.get(addr)
+        if count is None:
+            sessions[addr] = 0  # the hello: a new session, served from the next tick
+            return
+        sessions[addr] = count + 1
+        self.arrivals.record(data, monotonic())
+
+
+async def _raw_slave(control: Any, seconds: float, spin: float) -> Json:
+    loop = asyncio.get_running_loop()
+    window = Window()
+    ticks = Ticks()
+    arrivals = Arrivals(window)
+    inbox = Inbox(control)
+    transport, protocol = await loop.create_datagram_endpoint(
+        lambda: RawSlaveProtocol(arrivals), local_addr=("127.0.0.1", 0)
+    )
+    control.send({"port": transport.get_extra_info("sockname")[1]})
+    sessions = protocol.sessions
+    sendto = transport.sendto
+    clock = monotonic
+    pack = _STAMP.pack
+    padding = _PADDING
+
+    def on_tick(tick: int, deadline: float, gap: int) -> None:
+        # One sample per session per tick, each handed to the kernel at once (uvloop's sendto
+        # tries the socket first), its lateness measured as the tdtp slave measures each
+        # session's tick callback.
+        for addr in sessions:
+            now = clock()
+            _record_tick(ticks, window, deadline, now, gap)
+            sendto(pack(now, tick) + padding, addr)
+        if clock() > window.end + 0.2:
+            ticker.close()
+
+    ticker = RawTicker(loop, monotonic(), spin, on_tick)
+    await _measure(window, inbox, seconds, lambda: ticker.spun)
+    span = window.end - window.start
+    report = {
+        "sessions": len(sessions),
+        "ticks": ticks.total,
+        "late": ticks.late,
+        "skipped": ticks.skipped,
+        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
+        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
+        "tick_lateness_us": _quantiles_us(ticks.lateness),
+        "late_at": ticks.late_at,
+        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
+        "spin_percent": 100.0 * (window.spun[1] - window.spun[0]) / span,
+        "received": arrivals.count,
+        "received_rate": arrivals.count / span,
+        "arrival_late": arrivals.late,
+        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        "build": "raw-uvloop",
+    }
+    control.send({"window": report})
+    await inbox.wait_for("stop")
+    ticker.close()
+    transport.close()
+    return report
+
+
+def raw_slave_worker(conn: Any, *, seconds: float, cpu_slot: int, spin: float = 0.0) -> None:
+    common.pin_to_cpu(cpu_slot)
+    common.run_in_loop("uvloop", lambda: _raw_slave(conn, seconds, spin))
+    conn.send({"final": True})
+
+
+class RawMasterProtocol(asyncio.DatagramProtocol):
+    """One raw master's socket: counts the slave's samples (and notes the first, the answer to
+    its hello)."""
+
+    def __init__(self, arrivals: Arrivals) -> None:
+        self.arrivals = arrivals
+        self.answered = False
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self.answered = True
+        self.arrivals.record(data, monotonic())
+
+
+async def _raw_masters(control: Any, port: int, sessions: int, seconds: float, spin: float) -> Json:
+    loop = asyncio.get_running_loop()
+    window = Window()
+    arrivals = Arrivals(window)
+    ticks = Ticks()
+    inbox = Inbox(control)
+    ends: list[tuple[asyncio.DatagramTransport, RawMasterProtocol]] = [
+        await loop.create_datagram_endpoint(
+            lambda: RawMasterProtocol(arrivals), remote_addr=("127.0.0.1", port)
+        )
+        for _ in range(sessions)
+    ]
+    # The hello: a datagram that makes the master a session of the slave, sent again until the
+    # slave's first sample answers it.
+    give_up = monotonic() + 30.0
+    while waiting := [t for t, p in ends if not p.answered]:
+        if monotonic() > give_up:
+            raise RuntimeError(f"{len(waiting)} raw masters got no answer from the slave")
+        for transport in waiting:
+            transport.sendto(_payload(0))
+        await asyncio.sleep(0.05)
+    control.send({"connected": True})
+    transports = [t for t, _ in ends]
+
+    def on_tick(tick: int, deadline: float, gap: int) -> None:
+        _record_tick(ticks, window, deadline, monotonic(), gap)
+        payload = _payload(tick)
+        for transport in transports:
+            transport.sendto(payload)
+
+    ticker = RawTicker(loop, monotonic(), spin, on_tick)
+    await _measure(window, inbox, seconds)
+    await inbox.wait_for("stop")
+    ticker.close()
+    span = window.end - window.start
+    report = {
+        "ticks": ticks.total,
+        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
+        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
+        "late_at": ticks.late_at,
+        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
+        "received_rate": arrivals.count / span,
+        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        "build": "raw-uvloop",
+    }
+    for transport in transports:
+        transport.close()
+    return report
+
+
+def raw_masters_worker(
+    conn: Any, *, port: int, sessions: int, seconds: float, cpu_slot: int, spin: float = 0.0
+) -> None:
+    common.pin_to_cpu(cpu_slot)
+    _raise_fd_limit()
+    report = common.run_in_loop("uvloop", lambda: _raw_masters(conn, port, sessions, seconds, spin))
+    conn.send({"final": report})
+
+
 # ---------------------------------------------------------------------------- coordinator
 
 
@@ -476,16 +800,57 @@ def run_step(
     pure: bool = False,
     serve: str = "callback",
     spin: float = 0.0,
+    program: str = "tdtp",
+    binary: str = "",
 ) -> Json:
     """One step: ``workers`` slave processes on one port (``SO_REUSEPORT`` when more than one),
-    ``sessions`` masters in another process, and the verdict."""
+    ``sessions`` masters in another process, and the verdict. ``program="raw-uvloop"`` or ``"c"``: that
+    baseline's slave (one process; ``binary``: the C slave's) and the raw masters instead."""
     others = common.OthersMeter()
     kind = dict(sessions=sessions, seconds=seconds, controller=controller, spin=spin)
     slaves: list[common.WorkerHandle] = []
     masters = None
     try:
         port = 0
-        for i in range(workers):
+        if program != "tdtp":
+            if workers != 1:
+                raise ValueError("a baseline runs one slave process")
+            if program == "c":
+                slaves.append(
+                    common.start_worker(
+                        f"c-slave-{sessions}",
+                        c_slave_worker,
+                        binary=binary,
+                        cpu_slot=1,
+                        seconds=seconds,
+                        spin=spin,
+                        rate=RATE,
+                        late=LATE,
+                        max_catch_up=MAX_CATCH_UP,
+                        payload=PAYLOAD_SIZE,
+                    )
+                )
+            else:
+                slaves.append(
+                    common.start_worker(
+                        f"raw-slave-{sessions}",
+                        raw_slave_worker,
+                        cpu_slot=1,
+                        seconds=seconds,
+                        spin=spin,
+                    )
+                )
+            port = slaves[-1].recv(30)["port"]
+            masters = common.start_worker(
+                f"raw-masters-{sessions}",
+                raw_masters_worker,
+                port=port,
+                cpu_slot=0,
+                sessions=sessions,
+                seconds=seconds,
+                spin=spin,
+            )
+        for i in range(workers if program == "tdtp" else 0):
             slaves.append(
                 common.start_worker(
                     f"slave-{sessions}-{i}",
@@ -499,9 +864,10 @@ def run_step(
                 )
             )
             port = slaves[-1].recv(30)["port"]
-        masters = common.start_worker(
-            f"masters-{sessions}", masters_worker, pure=pure, port=port, cpu_slot=0, **kind
-        )
+        if masters is None:
+            masters = common.start_worker(
+                f"masters-{sessions}", masters_worker, pure=pure, port=port, cpu_slot=0, **kind
+            )
         masters.recv(60 + sessions)  # every master connected
         start = {"start": monotonic() + WARMUP}
         for handle in (*slaves, masters):
@@ -521,7 +887,7 @@ def run_step(
     s = _combine(reports)
     s["others_percent"] = others.percent()  # the whole step, start-up included
     builds = {r["build"] for r in reports} | {m["build"]}
-    if builds != {"pure" if pure else common.tdtp_build()}:
+    if program == "tdtp" and builds != {"pure" if pure else common.tdtp_build()}:
         raise RuntimeError(f"step of {sessions}: the workers ran the {builds} builds")
     offered = sessions * RATE
     slave_ok = s["late_fraction"] <= MAX_LATE_FRACTION
@@ -532,7 +898,7 @@ def run_step(
         verdict = "master-limited"  # the slave kept up, but the masters did not offer the load
     else:
         verdict = "fail"  # the slave's own ticks were late, whatever the masters did
-    return {"sessions": sessions, "verdict": verdict, "slave": s, "masters": m}
+    return {"sessions": sessions, "verdict": verdict, "program": program, "slave": s, "masters": m}
 
 
 @dataclass(frozen=True)
@@ -543,9 +909,17 @@ class Setup:
     pure: bool = False
     serve: str = "callback"
     spin: float = 0.0
+    program: str = "tdtp"
+    """``tdtp``, or a baseline's slave: ``raw-uvloop`` or ``c``."""
+    binary: str = ""
+    """The C slave's program (``c``)."""
 
     @property
     def label(self) -> str:
+        if self.program != "tdtp":
+            return (
+                f"{BASELINES[self.program]}: 1 kHz bidirectional sessions one slave process serves"
+            )
         build = "pure-Python build: " if self.pure else ""
         if self.workers == 1:
             return f"{build}1 kHz bidirectional sessions one slave process serves"
@@ -562,13 +936,21 @@ def ramp(
     for n in steps:
         for attempt in range(1 + CONTENDED_RETRIES):
             print(
-                f"ramp {rep + 1}/{repeat}, workers {setup.workers}"
+                f"ramp {rep + 1}/{repeat}, {setup.program}, workers {setup.workers}"
                 f"{', pure' if setup.pure else ''}: {n} sessions ...",
                 file=sys.stderr,
                 flush=True,
             )
             step = run_step(
-                n, seconds, controller, setup.workers, setup.pure, setup.serve, setup.spin
+                n,
+                seconds,
+                controller,
+                setup.workers,
+                setup.pure,
+                setup.serve,
+                setup.spin,
+                setup.program,
+                setup.binary,
             )
             step["attempt"] = attempt + 1
             others = step["slave"]["others_percent"]
@@ -606,11 +988,30 @@ def cost_per_session(results: list[Json]) -> float:
     passed = [r for r in results if r["verdict"] == "pass"]
     if not passed:
         return math.nan
-    best = max(passed, key=lambda r: r["sessions"])
-    workers = max(1, len(best["slave"]["workers"]))
-    per_worker = best["sessions"] / workers  # the busiest has at least its share
-    busy = best["slave"]["cpu_percent"] - best["slave"].get("spin_percent", 0.0)
-    return 10.0 * busy / per_worker
+    return step_cost(max(passed, key=lambda r: r["sessions"]))
+
+
+def step_cost(step: Json) -> float:
+    """The busiest slave's busy CPU (spin left out) per session and 1 ms period (us) in a step;
+    NaN when the spin, counted in wall time, came to the CPU time or more (a neighbour took the
+    core during the busy-waits: the busy CPU is unknown)."""
+    workers = max(1, len(step["slave"]["workers"]))
+    per_worker: float = step["sessions"] / workers  # the busiest has at least its share
+    busy: float = step["slave"]["cpu_percent"] - step["slave"].get("spin_percent", 0.0)
+    return 10.0 * busy / per_worker if busy > 0.0 else math.nan
+
+
+def costs_at_common_step(mine: list[Json], theirs: list[Json]) -> tuple[float, float, int]:
+    """Two slaves' busy CPU per session-ms at the largest step both passed in a pair of ramps
+    (a fixed cost per wake-up weighs more per session at fewer sessions, so compare the same N),
+    and that N; NaNs and 0 when they passed no step in common."""
+    passed = {r["sessions"]: r for r in theirs if r["verdict"] == "pass"}
+    common_steps = [r for r in mine if r["verdict"] == "pass" and r["sessions"] in passed]
+    if not common_steps:
+        return math.nan, math.nan, 0
+    step = max(common_steps, key=lambda r: r["sessions"])
+    n = step["sessions"]
+    return step_cost(step), step_cost(passed[n]), n
 
 
 def stop_note(ramps: list[list[Json]]) -> str:
@@ -638,6 +1039,59 @@ def stop_note(ramps: list[list[Json]]) -> str:
                 f"{n} failed: late {100 * s['late_fraction']:.1f} % at {s['cpu_percent']:.0f} % CPU"
             )
     return "stopped at " + "; ".join(notes) if notes else "every step passed"
+
+
+def baseline_rows(ramps_of: dict[Setup, list[list[Json]]], pure: bool) -> list[Row]:
+    """tdtp's one-slave-process figures against each baseline's from the same run: sessions passed
+    and busy CPU per session-ms, ratios paired by repetition (ramp i of tdtp against ramp i of the
+    baseline, run back to back)."""
+    tdtp = next((r for s, r in ramps_of.items() if s.program == "tdtp" and s.workers == 1), None)
+    if tdtp is None:
+        return []
+    build = "pure-Python build: " if pure else ""
+    rows = []
+    for setup, ramps in ramps_of.items():
+        if setup.program == "tdtp":
+            continue
+        name = BASELINES[setup.program]
+        mine = [float(largest_passing(r)) for r in tdtp]
+        theirs = [float(largest_passing(r)) for r in ramps]
+        rows.append(
+            Row(
+                "scale",
+                f"{build}1 kHz bidirectional sessions one slave process serves, <= 1 % late: tdtp "
+                f"against the {name}",
+                "sessions",
+                Stat.of(mine),
+                baseline=name,
+                baseline_value=Stat.of(theirs),
+                ratio=Stat.of(common.paired_ratios(mine, theirs)),
+                ratio_label=f"x {name}",
+                note="same run, same ramp, load, pinning and measure of late; ratio paired by ramp",
+                digits=0,
+                ratio_digits=2,
+            )
+        )
+        pairs = [costs_at_common_step(a, b) for a, b in zip(tdtp, ramps, strict=True)]
+        my_cost = [a for a, _, _ in pairs]
+        their_cost = [b for _, b, _ in pairs]
+        at = ", ".join(str(n) if n else "none" for _, _, n in pairs)
+        rows.append(
+            Row(
+                "scale",
+                f"{build}slave CPU per 1 kHz session: tdtp against the {name}",
+                "us per ms",
+                Stat.of(my_cost),
+                baseline=name,
+                baseline_value=Stat.of(their_cost),
+                ratio=Stat.of(common.paired_ratios(my_cost, their_cost)),
+                ratio_label=f"x {name}",
+                note=f"busy CPU at the largest step both passed in a pair of ramps: N = {at}",
+                digits=1,
+                ratio_digits=2,
+            )
+        )
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -677,28 +1131,59 @@ def main(argv: list[str] | None = None) -> int:
         help=f"Ticker(spin=) of slave and masters, seconds before each deadline spent waiting on "
         f"the CPU (default {DEFAULT_SPIN}; 0 sleeps until the deadline)",
     )
+    p.add_argument(
+        "--slave",
+        default="tdtp",
+        help="which slaves to ramp, comma-separated, each with the same ramp in turn: tdtp (the "
+        f"figure judged) and the baselines {', '.join(BASELINES)} (default tdtp)",
+    )
     args = p.parse_args(argv)
     if not 0.0 <= args.spin <= PERIOD:
         p.error(f"--spin takes 0 to {PERIOD} s, got {args.spin}")
     workers = common.as_list(args.workers)
     if not workers or min(workers) < 1:
         p.error(f"--workers takes counts of 1 or more, got {args.workers!r}")
+    programs = common.as_list(args.slave, str)
+    unknown = sorted(set(programs) - {"tdtp", *BASELINES})
+    if not programs or unknown:
+        p.error(f"--slave takes tdtp and {', '.join(BASELINES)}, got {args.slave!r}")
     common.warn_if_loaded()
     if not common.have_uvloop():
         print("uvloop is not installed: this benchmark measures the slave on uvloop; skipped")
         return common.emit("scale", args, [], details={"skipped": "uvloop missing"})
     steps = common.as_list(args.ramp)
-    rows: list[Row] = []
+    setups = [Setup(count, args.pure, args.serve, args.spin) for count in workers]
+    setups = setups if "tdtp" in programs else []
+    with tempfile.TemporaryDirectory(prefix="tdtp-scale-") as tmp:
+        binary = compile_slave(Path(tmp)) if "c" in programs else None
+        if "c" in programs and binary is None:
+            print("no C compiler: no C baseline", file=sys.stderr)
+        setups += [
+            Setup(spin=args.spin, program=b, binary=str(binary) if b == "c" else "")
+            for b in BASELINES
+            if b in programs and (b != "c" or binary is not None)
+        ]
+        # Ramps interleaved, repetition by repetition (tdtp's, then each baseline's), so that a
+        # ratio pairs ramps run minutes apart, not a whole script apart.
+        ramps_of: dict[Setup, list[list[Json]]] = {setup: [] for setup in setups}
+        for rep in range(args.repeat):
+            for setup in setups:
+                ramps = ramps_of[setup]
+                ramp_steps = next_steps(steps, ramps[-1]) if ramps else steps
+                ramps.append(
+                    ramp(ramp_steps, args.seconds, rep, args.repeat, args.controller, setup)
+                )
+    rows_of: dict[Setup, list[Row]] = {setup: [] for setup in setups}
     lines = [
         "Slave columns: all slave processes together (late %, rx), the busiest one (CPU %, tick "
         "lateness p99); sessions per worker as the kernel spread them.",
         "",
-        "| workers | ramp | N | verdict (attempt) | sessions per worker | slave late % "
+        "| slave | workers | ramp | N | verdict (attempt) | sessions per worker | slave late % "
         "| slave tick lateness p99 (us) | slave CPU % (spin) | slave rx (samples/s) "
         "| M->S arrivals > 1 ms | S->M arrivals > 1 ms | masters late % | masters CPU % "
         "| other tenants CPU % |",
-        "| ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
-        "| ---: |",
+        "| --- | ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+        "| ---: | ---: |",
     ]
     details: Json = {
         "controller": args.controller,
@@ -707,15 +1192,14 @@ def main(argv: list[str] | None = None) -> int:
         "spin": args.spin,
         "setups": [],
     }
-    for count in workers:
-        setup = Setup(count, args.pure, args.serve, args.spin)
-        ramps: list[list[Json]] = []
-        for rep in range(args.repeat):
-            ramp_steps = next_steps(steps, ramps[-1]) if ramps else steps
-            ramps.append(ramp(ramp_steps, args.seconds, rep, args.repeat, args.controller, setup))
+    for setup, ramps in ramps_of.items():
+        rows = rows_of[setup]
+        count = setup.workers
         best = [largest_passing(r) for r in ramps]
         value = Stat.of([float(b) for b in best])
-        if args.pure:
+        if setup.program != "tdtp":
+            target, meets = "", None
+        elif args.pure:
             target, meets = (
                 f">= {PURE_BEFORE} (before the compiled core)",
                 value.median >= PURE_BEFORE,
@@ -725,6 +1209,11 @@ def main(argv: list[str] | None = None) -> int:
         else:
             target, meets = "", None
         shared = count + 1 > len(common.usable_cpus())
+        how = {
+            "tdtp": f"{args.controller}, {args.serve}s",
+            "raw-uvloop": "periodic timerfd, sendto per sample",
+            "c": "periodic timerfd, epoll, recvmmsg/sendmmsg",
+        }[setup.program]
         rows.append(
             Row(
                 "scale",
@@ -733,8 +1222,7 @@ def main(argv: list[str] | None = None) -> int:
                 value,
                 target=target,
                 meets=meets,
-                note=f"{args.controller}, {args.serve}s, spin {1e6 * args.spin:.0f} us, "
-                f"ramp {args.ramp}"
+                note=f"{how}, spin {1e6 * args.spin:.0f} us, ramp {args.ramp}"
                 + (", masters share a core with a slave" if count > 1 and shared else "")
                 + f"; {stop_note(ramps)}",
                 digits=0,
@@ -743,11 +1231,13 @@ def main(argv: list[str] | None = None) -> int:
         costs = [cost_per_session(r) for r in ramps]
         cost = Stat.of(costs)
         if count == 1 and cost.n:
+            prefix = (
+                setup.label.split(":")[0] + ": " if args.pure or setup.program != "tdtp" else ""
+            )
             rows.append(
                 Row(
                     "scale",
-                    f"{setup.label.split(':')[0] + ': ' if args.pure else ''}slave CPU per "
-                    "1 kHz session, at the largest step that passed",
+                    f"{prefix}slave CPU per 1 kHz session, at the largest step that passed",
                     "us per ms",
                     cost,
                     note=f"busy CPU (spin excluded); one core at this cost: about "
@@ -757,6 +1247,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         details["setups"].append(
             {
+                "slave": setup.program,
                 "workers": count,
                 "ramps": ramps,
                 "largest_passing": best,
@@ -769,7 +1260,8 @@ def main(argv: list[str] | None = None) -> int:
                 s, m = r["slave"], r["masters"]
                 spread = "/".join(str(w["sessions"]) for w in s["workers"])
                 lines.append(
-                    f"| {count} | {i + 1} | {r['sessions']} | {r['verdict']} ({r.get('attempt', 1)}) "
+                    f"| {setup.program} | {count} | {i + 1} | {r['sessions']} "
+                    f"| {r['verdict']} ({r.get('attempt', 1)}) "
                     f"| {spread} | {100 * s['late_fraction']:.2f} "
                     f"| {s['tick_lateness_p99_us']:.0f} | {s['cpu_percent']:.0f} "
                     f"({s.get('spin_percent', 0.0):.0f}) "
@@ -777,6 +1269,12 @@ def main(argv: list[str] | None = None) -> int:
                     f"| {100 * m['arrival_late_fraction']:.2f} % | {100 * m['late_fraction']:.2f} "
                     f"| {m['cpu_percent']:.0f} | {s['others_percent']:.0f} |"
                 )
+    # Each baseline's rows and the comparisons beside tdtp's one-process rows, the other
+    # tdtp setups after them.
+    first, *others = setups or [Setup()]
+    rows = rows_of.get(first, []) + [r for s in others if s.program != "tdtp" for r in rows_of[s]]
+    rows += baseline_rows(ramps_of, args.pure)
+    rows += [r for s in others if s.program == "tdtp" for r in rows_of[s]]
     return common.emit("scale", args, rows, details=details, text="\n".join(lines))
 
 

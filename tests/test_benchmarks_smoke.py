@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import shutil
 import socket
 import subprocess
 import sys
@@ -142,6 +143,39 @@ def test_scale_pure_build() -> None:
     step = report["details"]["setups"][0]["ramps"][0][0]
     assert step["slave"]["build"] == step["masters"]["build"] == "pure"
     assert report["rows"][0]["figure"].startswith("pure-Python build")
+
+
+@needs_uvloop
+def test_scale_baselines() -> None:
+    # The baseline slaves (raw uvloop; C where there is a compiler) ramp as tdtp's does, with raw
+    # masters: each served the masters it was given, and reported in the same format.
+    slaves = "raw-uvloop,c" if shutil.which("cc") or shutil.which("gcc") else "raw-uvloop"
+    report = _run("scale.py", "--ramp", "2", "--slave", slaves)
+    setups = report["details"]["setups"]
+    assert [s["slave"] for s in setups] == slaves.split(",")
+    for setup in setups:
+        step = setup["ramps"][0][0]
+        assert step["program"] == setup["slave"]
+        assert step["slave"]["sessions"] == 2
+        assert step["masters"]["build"] == "raw-uvloop"  # raw masters for every baseline
+        assert step["slave"]["build"] == step["program"]
+        assert step["slave"]["late"] <= step["slave"]["ticks"]
+    assert any(row["figure"].startswith("raw uvloop baseline") for row in report["rows"])
+
+
+def test_scale_raw_schedule_catches_up_as_the_ticker() -> None:
+    # tdtp.Ticker's rule: a wake-up serves every tick due, one after the other, unless it is more
+    # than max_catch_up (10) periods behind; then it skips to the tick due now, the gap counted.
+    scale = _load("scale")
+    schedule = scale.RawSchedule(anchor=0.0)
+    assert schedule.due(0.0) == [(0, 0.0, 0)]
+    assert [t for t, _, _ in schedule.due(0.0035)] == [1, 2, 3]
+    assert schedule.due(0.0035) == []
+    ((tick, deadline, gap),) = schedule.due(0.0155)  # tick 4 is 11.5 periods late
+    assert (tick, gap) == (15, 11) and deadline == pytest.approx(0.015)
+    served = schedule.due(0.0255)  # tick 16 is 9.5 periods late: within the catch-up
+    assert [t for t, _, _ in served] == list(range(16, 26))
+    assert all(gap == 0 for _, _, gap in served)
 
 
 def test_scale_rejects_zero_workers() -> None:
