@@ -6,31 +6,25 @@ wire, comes out different from finishing it at once."""
 from __future__ import annotations
 
 import math
-import random
 
-from tdtp import Connection, ConnectionConfig, DataReceived, Role, State
+from tdtp import Connection, ConnectionConfig, DataReceived
 from tdtp.control.fixed import FixedConfig
 from tdtp.session.stats import DropReason
 
-MASTER, SLAVE = ("192.0.2.1", 40001), ("192.0.2.2", 40002)
+from pair import MASTER_ADDR as MASTER
+from pair import SLAVE_ADDR as SLAVE
+from pair import Pair
+
 CONFIG = ConnectionConfig(controller="fixed", controller_config=FixedConfig(rate=math.inf))
 
 
 def _established() -> tuple[Connection, Connection, float]:
-    master = Connection(CONFIG, role=Role.MASTER, rng=random.Random(1))
-    slave = Connection(CONFIG, role=Role.SLAVE, rng=random.Random(2))
-    now = 1.0
-    master.connect(SLAVE, now=now)
-    for _ in range(6):
-        for data, _addr in master.datagrams_to_send(now=now):
-            slave.receive_datagram(data, MASTER, now=now)
-        for data, _addr in slave.datagrams_to_send(now=now):
-            master.receive_datagram(data, SLAVE, now=now)
-        now += 0.001
-    assert master.state is State.ESTABLISHED and slave.state is State.ESTABLISHED
+    pair = Pair(CONFIG, CONFIG)
+    pair.open()
+    master, slave = pair.master.conn, pair.slave.conn
     while master.next_event() is not None or slave.next_event() is not None:
         pass
-    return master, slave, now
+    return master, slave, pair.now + 0.001
 
 
 def _data(conn: Connection, now: float) -> bytes:
