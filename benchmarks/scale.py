@@ -275,6 +275,27 @@ def _record_tick(ticks: Ticks, window: Window, deadline: float, now: float, gap:
             ticks.late_at.append(round(deadline - window.start, 4))
 
 
+def _window_report(ticks: Ticks, window: Window, arrivals: Arrivals) -> Json:
+    """What every process of a step reports of its window, slave or masters, tdtp or raw: its
+    ticks and their lateness, its CPU (and spin), the samples it received and how late they came."""
+    span = window.end - window.start
+    return {
+        "ticks": ticks.total,
+        "late": ticks.late,
+        "skipped": ticks.skipped,
+        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
+        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
+        "tick_lateness_us": _quantiles_us(ticks.lateness),
+        "late_at": ticks.late_at,
+        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
+        "spin_percent": 100.0 * (window.spun[1] - window.spun[0]) / span,
+        "received": arrivals.count,
+        "received_rate": arrivals.count / span,
+        "arrival_late": arrivals.late,
+        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+    }
+
+
 def _quantiles_us(values: list[float]) -> Json:
     """The lateness distribution of a step: p50, p90, p99, p99.9 and max, in us."""
     ordered = sorted(values)
@@ -372,23 +393,10 @@ async def _slave(
 
     acceptor = asyncio.create_task(accept())
     await _measure(window, inbox, seconds, spun)
-    span = window.end - window.start
     stats = [ep.stats for ep in server.endpoints]
     report = {
         "sessions": len(tasks) + len(handles),
-        "ticks": ticks.total,
-        "late": ticks.late,
-        "skipped": ticks.skipped,
-        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
-        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
-        "tick_lateness_us": _quantiles_us(ticks.lateness),
-        "late_at": ticks.late_at,
-        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
-        "spin_percent": 100.0 * (window.spun[1] - window.spun[0]) / span,
-        "received": arrivals.count,
-        "received_rate": arrivals.count / span,
-        "arrival_late": arrivals.late,
-        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        **_window_report(ticks, window, arrivals),
         "superseded": sum(s.samples_superseded for s in stats),
         "lost": sum(s.packets_lost for s in stats),
         "ack_packets_sent": sum(s.sent.ack_packets for s in stats),
@@ -458,15 +466,8 @@ async def _masters(
                 continue  # that session is over; the others go on
         if measure.done() and "stop" in inbox.poll():
             break
-    span = window.end - window.start
     report = {
-        "ticks": ticks.total,
-        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
-        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
-        "late_at": ticks.late_at,
-        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
-        "received_rate": arrivals.count / span,
-        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        **_window_report(ticks, window, arrivals),
         "build": common.tdtp_build(),
     }
     for ep in endpoints:
@@ -663,22 +664,9 @@ async def _raw_slave(control: Any, seconds: float, spin: float) -> Json:
 
     ticker = RawTicker(loop, monotonic(), spin, on_tick)
     await _measure(window, inbox, seconds, lambda: ticker.spun)
-    span = window.end - window.start
     report = {
         "sessions": len(sessions),
-        "ticks": ticks.total,
-        "late": ticks.late,
-        "skipped": ticks.skipped,
-        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
-        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
-        "tick_lateness_us": _quantiles_us(ticks.lateness),
-        "late_at": ticks.late_at,
-        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
-        "spin_percent": 100.0 * (window.spun[1] - window.spun[0]) / span,
-        "received": arrivals.count,
-        "received_rate": arrivals.count / span,
-        "arrival_late": arrivals.late,
-        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        **_window_report(ticks, window, arrivals),
         "build": "raw-uvloop",
     }
     control.send({"window": report})
@@ -741,15 +729,8 @@ async def _raw_masters(control: Any, port: int, sessions: int, seconds: float, s
     await _measure(window, inbox, seconds)
     await inbox.wait_for("stop")
     ticker.close()
-    span = window.end - window.start
     report = {
-        "ticks": ticks.total,
-        "late_fraction": ticks.late / ticks.total if ticks.total else math.nan,
-        "tick_lateness_p99_us": 1e6 * common.percentile(sorted(ticks.lateness), 0.99),
-        "late_at": ticks.late_at,
-        "cpu_percent": 100.0 * (window.cpu[1] - window.cpu[0]) / span,
-        "received_rate": arrivals.count / span,
-        "arrival_late_fraction": arrivals.late / arrivals.count if arrivals.count else math.nan,
+        **_window_report(ticks, window, arrivals),
         "build": "raw-uvloop",
     }
     for transport in transports:
