@@ -68,7 +68,10 @@ class Demultiplexer:
             owner.hold_batch(count)
         try:
             peers = self._peers
-            touched: dict[Endpoint, None] = {}
+            # The sessions to flush, in the order first touched: most batches touch one, kept
+            # without a dict (one per wake-up otherwise); a second session makes the dict.
+            single: Endpoint | None = None
+            touched: dict[Endpoint, None] | None = None
             last: Address | None = None
             endpoint: Endpoint | None = None
             for i in range(len(datas)):
@@ -91,12 +94,22 @@ class Demultiplexer:
                 )
                 if conn.state is CLOSED:
                     endpoint._flush(now)  # released: later datagrams from there are strangers
-                    touched.pop(endpoint, None)
+                    if touched is not None:
+                        touched.pop(endpoint, None)
+                    elif single is endpoint:
+                        single = None
                     last = None
-                else:
+                elif touched is not None:
                     touched[endpoint] = None
-            for endpoint in touched:
-                endpoint._flush(now)
+                elif single is None:
+                    single = endpoint
+                elif endpoint is not single:
+                    touched = {single: None, endpoint: None}
+            if touched is not None:
+                for endpoint in touched:
+                    endpoint._flush(now)
+            elif single is not None:
+                single._flush(now)
         finally:
             if owner is not None:
                 owner.release_batch(count)
