@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 BENCH_STAMP := $(VENV)/.installed-bench
 BUILD_STAMP := $(VENV)/.built
 # What setup.py may compile (a superset of its list: any change here recompiles the core in place).
-CORE_SOURCES := $(wildcard tdtp/*.py tdtp/session/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) tdtp/aio/_datagram.c setup.py
+CORE_SOURCES := $(wildcard tdtp/*.py tdtp/session/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) tdtp/aio/_datagram.c tdtp/session/_slot_filler.c setup.py
 # mypyc leaves the library untouched when the sources' content has not changed (a checkout or a
 # `touch` moves only their times); tdtp judges staleness by time, so mark the library as built now.
 MARK_BUILT := find tdtp -name '_core__mypyc.*' -exec touch {} +

@@ -71,6 +71,11 @@ DATAGRAM = "tdtp.aio._datagram"
 """The batched datagram engine (recvmmsg/sendmmsg), plain C: optional, tdtp.aio.datagram falls back
 to its pure-Python engine where it was not built."""
 
+SLOT_FILLER = "tdtp.session._slot_filler"
+"""Builds DataReceived straight into its slots, plain C: optional, tdtp.session.events falls back to
+the slots' descriptors where it was not built."""
+OPTIONAL_C = (DATAGRAM, SLOT_FILLER)
+
 GROUP = "tdtp._core"
 """One shared library for the whole core, inside the package: tdtp/_core__mypyc.*.so."""
 
@@ -89,12 +94,13 @@ class OptionalBuildExt(build_ext):
             _warn(f"the compiled core could not be built ({exc})")
 
     def build_extension(self, ext: object) -> None:
-        if getattr(ext, "name", None) == DATAGRAM:
+        name = getattr(ext, "name", None)
+        if name in OPTIONAL_C:
             try:
                 super().build_extension(ext)  # type: ignore[arg-type]
-            except Exception as exc:  # the core still builds; the pure datagram engine runs
+            except Exception as exc:  # the core still builds; the pure-Python fallback runs
                 print(
-                    f"tdtp: could not compile {DATAGRAM} ({exc}); its pure-Python engine runs",
+                    f"tdtp: could not compile {name} ({exc}); its pure-Python fallback runs",
                     file=sys.stderr,
                 )
             return
@@ -112,10 +118,15 @@ def _datagram_extension() -> list[object]:
     return [Extension(DATAGRAM, ["tdtp/aio/_datagram.c"], extra_compile_args=["-O2", "-std=gnu11"])]
 
 
+def _slot_filler_extension() -> list[object]:
+    """DataReceived built straight into its slots (portable C, any platform)."""
+    return [Extension(SLOT_FILLER, ["tdtp/session/_slot_filler.c"], extra_compile_args=["-O2"])]
+
+
 def _extensions() -> list[object]:
     if os.environ.get("TDTP_PURE_BUILD"):
         return []
-    return _datagram_extension() + _core_extensions()
+    return _datagram_extension() + _slot_filler_extension() + _core_extensions()
 
 
 def _core_extensions() -> list[object]:

@@ -32,7 +32,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Final
 
-__all__ = ["COMPILED_MODULES", "PURE_ENV", "BuildInfo", "build_info"]
+__all__ = ["COMPILED_MODULES", "PURE_ENV", "BuildInfo", "build_info", "load_extension"]
 
 COMPILED_MODULES: Final = (
     "tdtp.wire.header",
@@ -174,6 +174,31 @@ def _choose() -> BuildInfo:
 
 
 _INFO: Final = _choose()
+
+
+def load_extension(name: str, source: Path) -> tuple[ModuleType | None, str]:
+    """One of tdtp's optional plain-C extensions (built by setup.py beside the mypyc core, e.g. the
+    datagram engine): the module, or ``None`` and why not. Not with ``TDTP_PURE_PYTHON=1``, not
+    where it was not built, and not in a checkout whose ``source`` was edited after the build (as
+    for the core, stale machine code would silently ignore the edit)."""
+    if os.environ.get(PURE_ENV, "") not in ("", "0"):
+        return None, f"{PURE_ENV} is set"
+    try:
+        module = importlib.import_module(name)  # optional: setup.py builds it
+    except ImportError:
+        return None, "the C extension is not built: no C compiler, or TDTP_PURE_BUILD"
+    library = getattr(module, "__file__", None) or ""
+    checkout = _PACKAGE_DIR.parent
+    try:
+        stale = (checkout / "setup.py").is_file() and (
+            source.stat().st_mtime > Path(library).stat().st_mtime
+        )
+    except OSError:
+        stale = False
+    if stale:
+        where = source.resolve().relative_to(checkout) if source.is_absolute() else source
+        return None, f"the C extension is older than {where.as_posix()}; run `make build`"
+    return module, ""
 
 
 def build_info() -> BuildInfo:

@@ -54,8 +54,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import importlib
-import os
 import socket
 from collections import deque
 from collections.abc import Callable
@@ -64,7 +62,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Final, Literal, Protocol
 
-from tdtp._build import PURE_ENV
+from tdtp._build import load_extension
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,
@@ -129,21 +127,7 @@ class DatagramLayerInfo:
 
 
 def _load_compiled() -> tuple[ModuleType | None, str]:
-    if os.environ.get(PURE_ENV, "") not in ("", "0"):
-        return None, f"{PURE_ENV} is set"
-    try:
-        _datagram = importlib.import_module("tdtp.aio._datagram")  # optional: setup.py builds it
-    except ImportError:
-        return None, "the C extension is not built: no C compiler, or TDTP_PURE_BUILD"
-    library = getattr(_datagram, "__file__", None) or ""
-    in_checkout = (Path(__file__).resolve().parents[2] / "setup.py").is_file()
-    try:
-        stale = in_checkout and _SOURCE.stat().st_mtime > Path(library).stat().st_mtime
-    except OSError:
-        stale = False
-    if stale:
-        return None, "the C extension is older than tdtp/aio/_datagram.c; run `make build`"
-    return _datagram, ""
+    return load_extension("tdtp.aio._datagram", _SOURCE)
 
 
 _COMPILED, _REASON = _load_compiled()

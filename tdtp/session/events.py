@@ -5,9 +5,12 @@ from __future__ import annotations
 import enum
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Final
+from pathlib import Path
+from typing import Any, Final, cast
 
 from mypy_extensions import mypyc_attr
+
+from tdtp._build import load_extension
 
 Address = tuple[Any, ...]
 """A socket address as asyncio reports it: ``(host, port)`` or ``(host, port, flowinfo, scope_id)``."""
@@ -102,7 +105,30 @@ def _constructor() -> Callable[[bytes, int, float | None, float, float | None], 
     """A :class:`DataReceived` without the frozen dataclass's ``__init__``, which sets each field
     through ``object.__setattr__``: the same object (equal, hashed and printed alike) for a fraction
     of the cost, set through the slots' own descriptors. One per sample received, in both builds
-    (the class stays a plain Python class when compiled, so that it remains a frozen dataclass)."""
+    (the class stays a plain Python class when compiled, so that it remains a frozen dataclass).
+
+    Where the C extension ``tdtp/session/_slot_filler.c`` is built (beside the compiled core), it
+    stores the five values straight into the slots instead: about 3,000 instructions less per sample
+    than the descriptors' generic calls, on the path from a datagram to the application's callback
+    (the same object either way; tests/test_events_are_values.py checks both)."""
+    filler, _why_not = load_extension("tdtp.session._slot_filler", _FILLER_SOURCE)
+    if filler is not None:
+        return cast(
+            "Callable[[bytes, int, float | None, float, float | None], DataReceived]",
+            filler.SlotFiller(DataReceived, DATA_RECEIVED_FIELDS),
+        )
+    return descriptor_constructor()
+
+
+DATA_RECEIVED_FIELDS: Final = ("payload", "seq", "estimated_age", "received_at", "sent_at")
+""":class:`DataReceived`'s fields in the order its constructors take them."""
+_FILLER_SOURCE: Final = Path(__file__).with_name("_slot_filler.c")
+
+
+def descriptor_constructor() -> Callable[
+    [bytes, int, float | None, float, float | None], DataReceived
+]:
+    """:func:`new_data_received` through the slots' descriptors (the pure-Python way)."""
     new = object.__new__
     slots = vars(DataReceived)  # the member descriptors of the five slots
     set_payload = slots["payload"].__set__
