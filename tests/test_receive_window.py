@@ -169,3 +169,56 @@ def test_late_packets_right_after_new_ones_are_still_late() -> None:
     kinds = [window.on_data(seq, 1.0)[0] for seq in (4, 8, 6)]
     assert kinds == [Arrival.DUPLICATE] * 3
     assert window.highest == 10
+
+
+class _MaskModel:
+    """The window as docs/PROTOCOL.md states it: a 64-bit mask of the last 64 sequence numbers (bit 0
+    the highest), full numbers given directly. The reference the ring of slots must agree with."""
+
+    def __init__(self, highest: int) -> None:
+        self.highest = highest
+        self.mask = 0
+
+    def receive(self, seq: int) -> str:
+        distance = seq - self.highest
+        if distance > 0:
+            self.mask = ((self.mask << distance) | 1) & ((1 << 64) - 1) if distance < 64 else 1
+            self.highest = seq
+            return "new"
+        if distance <= -64:
+            return "stale"
+        if self.mask >> -distance & 1:
+            return "duplicate"
+        self.mask |= 1 << -distance
+        return "late"
+
+    def sack_below(self, seq: int) -> int:
+        return (self.mask >> (self.highest - seq + 1)) & 0x3F
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    start=st.integers(0, 4095),
+    steps=st.lists(st.integers(-80, 80), min_size=1, max_size=300),
+)
+def test_the_ring_of_slots_agrees_with_a_64_bit_mask(start: int, steps: list[int]) -> None:
+    """Arrival kinds and SACK bits (of the highest and of every number in the window) are those of
+    the 64-bit mask, over random walks with gaps, reordering, duplicates and stale copies. Times
+    stay within the silence guard and stale numbers never run, so no resync re-anchors the window
+    here (resyncs have tests of their own above)."""
+    window = ReceiveWindow(start)
+    model = _MaskModel(start - 1)
+    seq = start
+    for index, step in enumerate(steps):
+        seq = seq + step if index else start
+        if seq - model.highest > 2000:
+            seq = model.highest + 2000
+        if seq - model.highest <= -64:
+            # Stale, never two in a row one apart (a run of consecutive stale numbers resyncs).
+            seq = model.highest - 64 - 3 * (index % 3)
+        kind, full, _gap = window.on_data(seq & 0xFFF, index * 0.001)
+        assert full == seq
+        assert kind.value == model.receive(seq)
+        assert window.report(index * 0.001)[:2] == (model.highest, model.sack_below(model.highest))
+        for below in range(model.highest - 63, model.highest + 1):
+            assert window.sack_below(below) == model.sack_below(below), below
