@@ -37,7 +37,7 @@ import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
 from time import monotonic  # = tdtp.aio.timer.monotonic, called directly (per packet)
-from typing import Any, Protocol
+from typing import Any, Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.outbox import SocketOutbox
@@ -82,6 +82,10 @@ class DatagramSender(Protocol):
     def sendto(self, data: bytes, addr: Address | None = None, /) -> None: ...
 
 
+_NO_SEQ: Final = -(1 << 40)
+"""Below every sequence number: ``_newest_seq`` before the first sample."""
+
+
 def format_address(addr: Address | None) -> str:
     """``host:port`` (``[v6]:port`` for IPv6), or ``-`` when there is none yet."""
     if addr is None:
@@ -119,7 +123,8 @@ class Endpoint:
         outbox: SocketOutbox | None = None,
     ) -> None:
         self._conn = conn
-        self._transport = transport
+        self._socket = transport
+        self._sendto = transport.sendto  # bound once: looked up by name per datagram otherwise
         # On the batched datagram layer: the socket's outbox, which takes what is sent while the
         # loop serves a wake-up (tdtp.aio.outbox) and sends it with one sendmmsg at its end.
         self._out = outbox
@@ -137,6 +142,7 @@ class Endpoint:
         self._queue: deque[DataReceived] = deque()
         self._max_queue = conn.config.max_pending_events
         self._newest: DataReceived | None = None
+        self._newest_seq = _NO_SEQ  # its seq, kept natively (DataReceived is a plain class)
         self._data_waiters: list[asyncio.Future[None]] = []
         self._watch_waiters: list[asyncio.Future[None]] = []
         self._control: deque[ControlReceived] = deque()
@@ -163,6 +169,16 @@ class Endpoint:
         size = getattr(transport, "get_write_buffer_size", None)
         if size is not None and size() > 0:
             conn.pause_sending()  # a shared socket that is backed up already
+
+    @property
+    def _transport(self) -> DatagramSender:
+        """What this endpoint sends through (the socket's transport or the datagram layer)."""
+        return self._socket
+
+    @_transport.setter
+    def _transport(self, transport: DatagramSender) -> None:
+        self._socket = transport
+        self._sendto = transport.sendto
 
     # ------------------------------------------------------------------ introspection
 
@@ -315,7 +331,7 @@ class Endpoint:
         conn = self._conn
         out = self._out
         queue_out = self._queue_out
-        transmit = self._transport.sendto
+        transmit = self._sendto
         if out is not None and queue_out is not None:
             owner = out.owner
             if owner.depth:
@@ -392,8 +408,9 @@ class Endpoint:
         # A sample held by the reorder wait is newer than anything delivered: a latest-value
         # reader gets it now instead of a gap's wait later (it is still delivered in order).
         held = self._conn.newest_held
-        if held is not None and (newest is None or held.seq > newest.seq):
+        if held is not None and held.seq > self._newest_seq:
             self._newest = newest = held
+            self._newest_seq = held.seq
         return newest
 
     async def recv_latest(self) -> DataReceived:
@@ -592,7 +609,7 @@ class Endpoint:
         if datagrams and out is not None and out.owner.depth:
             out.extend(datagrams, self._connected)  # one sendmmsg when the wake-up ends
         elif datagrams:
-            sendto = self._transport.sendto
+            sendto = self._sendto
             connected = self._connected
             for data, addr in datagrams:
                 try:
@@ -630,9 +647,10 @@ class Endpoint:
             event = conn.next_event()
         while event is not None:
             if isinstance(event, DataReceived):
-                newest = self._newest
-                if newest is None or event.seq > newest.seq:
+                seq = event.seq
+                if seq > self._newest_seq:
                     self._newest = event
+                    self._newest_seq = seq
                 if on_data is not None:
                     try:
                         on_data(event)
