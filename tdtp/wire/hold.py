@@ -34,9 +34,13 @@ def _decode(code: int) -> float:
     return units * HOLD_UNIT
 
 
-_DECODE_TABLE: tuple[float, ...] = tuple(_decode(code) for code in range(HOLD_MAX_CODE + 1))
+_DECODE_TABLE: Final[tuple[float | None, ...]] = tuple(
+    _decode(code) for code in range(HOLD_MAX_CODE + 1)
+)
+"""Every code's hold (as objects: decoding hands one out per packet, unboxed and boxed again
+otherwise in the compiled build)."""
 
-HOLD_MAX: Final = _DECODE_TABLE[HOLD_MAX_CODE]
+HOLD_MAX: Final = _decode(HOLD_MAX_CODE)
 """The longest hold a code can express (31.232 ms)."""
 HOLD_SATURATES_AT: Final = _decode(HOLD_SATURATED)
 """The shortest hold that encodes as :data:`HOLD_SATURATED`: 31.744 ms, the value code 254 would have
