@@ -280,14 +280,18 @@ class SentPacketLog:
 
     def loss_deadline(self, loss_delay: float) -> float | None:
         """When the time threshold next declares a loss, or ``None``."""
-        largest = self.largest_acked
-        seq = self._base
-        for state, send_time in zip(self._states, self._times, strict=True):
-            if seq >= largest:
+        # Asked after most ACKs: usually every record left is above the largest acknowledged
+        # (nothing to look at), and no zip() (compiled, a call with a keyword and a tuple a record).
+        below = self.largest_acked - self._base  # records that may be reported missing
+        if below <= 0:
+            return None
+        index = 0
+        for state in self._states:
+            if index >= below:
                 return None
             if state == MISSING:  # missing and not acknowledged
-                return send_time + loss_delay
-            seq += 1
+                return self._times[index] + loss_delay
+            index += 1
         return None
 
     def _declare_lost(self, seq: int, send_time: float, lost: list[LostPacket]) -> None:
