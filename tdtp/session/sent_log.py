@@ -285,13 +285,11 @@ class SentPacketLog:
         below = self.largest_acked - self._base  # records that may be reported missing
         if below <= 0:
             return None
-        index = 0
-        for state in self._states:
+        for index, state in enumerate(self._states):
             if index >= below:
                 return None
             if state == MISSING:  # missing and not acknowledged
                 return self._times[index] + loss_delay
-            index += 1
         return None
 
     def _declare_lost(self, seq: int, send_time: float, lost: list[LostPacket]) -> None:
