@@ -137,6 +137,7 @@ class Endpoint:
         self._queue: deque[DataReceived] = deque()
         self._max_queue = conn.config.max_pending_events
         self._newest: DataReceived | None = None
+        self._newest_seq = -1  # _newest.seq (-1 while None): one attribute read per sample less
         self._data_waiters: list[asyncio.Future[None]] = []
         self._watch_waiters: list[asyncio.Future[None]] = []
         self._control: deque[ControlReceived] = deque()
@@ -317,7 +318,8 @@ class Endpoint:
         conn = self._conn
         out = self._out
         queue_out = self._queue_out
-        transmit = self._transport.sendto
+        # (The transport's bound sendto is made only when the datagram goes to it.)
+        transmit: Callable[[bytes, Address | None], object]
         if out is not None and queue_out is not None:
             owner = out.owner
             if owner.depth:
@@ -327,7 +329,10 @@ class Endpoint:
                 # pass of the loop sends leaves in one sendmmsg once the callbacks ready now ran.
                 owner.hold_until_ready_ran(self._loop)
                 transmit = queue_out
-            # else: answering the one datagram this wake-up received: to the socket at once
+            else:  # answering the one datagram this wake-up received: to the socket at once
+                transmit = self._transport.sendto
+        else:
+            transmit = self._transport.sendto
         try:
             # The common case leaves at once: encoded and handed to the socket (or to the outbox)
             # before the connection's bookkeeping (the round trip does not wait for it).
@@ -396,6 +401,7 @@ class Endpoint:
         held = self._conn.newest_held
         if held is not None and (newest is None or held.seq > newest.seq):
             self._newest = newest = held
+            self._newest_seq = held.seq
         return newest
 
     async def recv_latest(self) -> DataReceived:
@@ -632,9 +638,10 @@ class Endpoint:
             event = conn.next_event()
         while event is not None:
             if isinstance(event, DataReceived):
-                newest = self._newest
-                if newest is None or event.seq > newest.seq:
+                seq = event.seq
+                if seq > self._newest_seq:
                     self._newest = event
+                    self._newest_seq = seq
                 if on_data is not None:
                     try:
                         on_data(event)

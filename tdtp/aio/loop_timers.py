@@ -350,6 +350,7 @@ class TickHandle:
         self._period: float = group.period
         self._rate: float = ticker.rate
         self._max_catch_up: int = ticker._max_catch_up
+        self._max_lateness: float = ticker.max_lateness  # at most the ticker's (which only grows)
         self.cancelled = False
 
     @property
@@ -385,7 +386,8 @@ class TickHandle:
             if int(late * self._rate) > self._max_catch_up:
                 index = ticker._deliver(now, index, self._deadline_of)
             else:
-                if late > ticker.max_lateness:
+                if late > self._max_lateness:  # (read from the ticker only then)
+                    self._max_lateness = late = max(late, ticker.max_lateness)
                     ticker.max_lateness = late
                 ticker.ticks += 1
                 ticker.deadline = deadline
