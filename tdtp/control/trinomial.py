@@ -188,6 +188,8 @@ class TrinomialController(RateController):
         self._gamma: float = cfg.gamma
         self._alpha_min: float = cfg.alpha_min
         self._no_feedback_rtts: float = cfg.no_feedback_rtts
+        self._app_limited_fraction: float = cfg.app_limited_fraction
+        self._app_headroom: float = cfg.app_headroom
         self._rate = cfg.initial_rate  # the state is the IPG, 1 / rate; kept as a rate so that
         # the bounds (min_rate, max_rate, the cap) hold exactly rather than to within rounding
         self._srtt = cfg.initial_rtt
@@ -412,22 +414,21 @@ class TrinomialController(RateController):
         self._iv_allowance = 0.0
 
     def _end_interval(self, now: float) -> None:
-        cfg = self._cfg
         self._integrate(now)
         duration = now - self._iv_start
         if (
             duration > 0.0
             and self._iv_acks > 0
             and not self._blackout
-            and self._iv_sent >= cfg.app_limited_fraction * self._iv_allowance
+            and self._iv_sent >= self._app_limited_fraction * self._iv_allowance
         ):
             rate = self.rate
-            ceiling = min(cfg.max_rate, self._cap())
+            ceiling = min(self._max_rate, self._cap())
             if self._sending.app_limited:
                 # Most recent packets left as soon as offered: the application sets the pace, so
                 # the allowance grows only to headroom x its rate. (A share, not any one packet:
                 # a jittery 1 kHz loop has the odd pair of samples 0.3 ms apart.)
-                ceiling = min(ceiling, max(rate, cfg.app_headroom * self._sending.send_rate()))
+                ceiling = min(ceiling, max(rate, self._app_headroom * self._sending.send_rate()))
             if ceiling > rate * (1.0 + 1e-9):  # not for a rounding error in the measured rate
                 ipg, w = self.ipg, self._iv_w
                 self._set_rate(now, min(1.0 / (ipg * w / (ipg + w)), ceiling))  # eq. 9
