@@ -140,9 +140,7 @@ async def _client(variant: str, port_file: Path, echoes: int) -> None:
             def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
                 answer()
 
-        transport, _ = await loop.create_datagram_endpoint(
-            Client, remote_addr=("127.0.0.1", port)
-        )
+        transport, _ = await loop.create_datagram_endpoint(Client, remote_addr=("127.0.0.1", port))
         send = transport.sendto
         send(PAYLOAD)
         await asyncio.wait_for(done, CLIENT_TIMEOUT)
@@ -302,7 +300,9 @@ def main(argv: list[str] | None = None) -> int:
         "system call and the bookkeeping after it). Exact to a fraction of a percent from run to "
         "run, unlike the timings of this shared machine."
     )
-    return common.emit("instructions", args, rows_of(per_echo, args.echoes), details=details, text=text)
+    return common.emit(
+        "instructions", args, rows_of(per_echo, args.echoes), details=details, text=text
+    )
 
 
 if __name__ == "__main__":

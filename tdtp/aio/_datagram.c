@@ -50,6 +50,7 @@
 #define DEFAULT_ROUNDS 16
 #define MAX_SEGMENTS 64 /* the kernel's UDP_MAX_SEGMENTS on every kernel that has UDP_SEGMENT */
 #define MAX_COALESCED 65000 /* bytes of one segmented send: below 65535 minus IP and UDP headers */
+#define ADDRESS_SLOTS 256 /* per direction, a power of two: the address tables of a socket with many peers */
 #ifndef SOL_UDP
 #define SOL_UDP 17
 #endif
@@ -80,6 +81,24 @@ typedef struct {
     unsigned long long segmentation_refused; /* segmented sends refused (coalescing then off) */
 } Counters;
 
+/* A server's socket hears from, and sends to, many peers one datagram each, interleaved: the one
+ * address remembered in each direction (last_addr, last_dest) misses on nearly every datagram. Past
+ * the second peer, each direction gets a table of ADDRESS_SLOTS remembered addresses (direct-mapped:
+ * a collision replaces the slot), so a peer's source address is the same tuple every time (no
+ * string or tuple made per datagram, and its string's hash is kept for the demultiplexer's lookup)
+ * and a destination tuple is parsed once. Bounded; an engine with one peer never allocates them. */
+typedef struct {
+    struct sockaddr_in6 name; /* large enough for AF_INET and AF_INET6 */
+    socklen_t len;
+    PyObject *addr; /* the source's tuple (owned), NULL when empty */
+} SourceSlot;
+
+typedef struct {
+    PyObject *addr; /* the destination object (owned: its identity is the key), NULL when empty */
+    struct sockaddr_in6 name;
+    socklen_t len;
+} DestSlot;
+
 typedef struct {
     PyObject_HEAD
     int fd;
@@ -108,6 +127,7 @@ typedef struct {
     struct sockaddr_storage last_name;
     socklen_t last_len;
     PyObject *last_addr;
+    SourceSlot *sources; /* ADDRESS_SLOTS, from the second source on */
     /* send side */
     struct mmsghdr *smsgs;
     struct iovec *siov;
@@ -125,6 +145,7 @@ typedef struct {
     PyObject *last_dest;
     struct sockaddr_storage last_dest_name;
     socklen_t last_dest_len;
+    DestSlot *dests; /* ADDRESS_SLOTS, from the second destination on */
     Counters c;
 } Engine;
 
@@ -172,7 +193,29 @@ address_to_python(const struct sockaddr_storage *ss, socklen_t len)
     Py_RETURN_NONE;
 }
 
-/* The Python tuple for a source address: the same object as last time when the address is. */
+/* An address table's slot for a socket address (FNV-1a over its bytes). */
+static unsigned int
+name_slot(const struct sockaddr_storage *ss, socklen_t len)
+{
+    const unsigned char *p = (const unsigned char *)ss;
+    uint32_t h = 2166136261u;
+    for (socklen_t i = 0; i < len; i++) {
+        h ^= p[i];
+        h *= 16777619u;
+    }
+    return (h ^ (h >> 16)) & (ADDRESS_SLOTS - 1);
+}
+
+/* An address table's slot for a destination object (its identity). */
+static unsigned int
+object_slot(PyObject *addr)
+{
+    uint64_t h = (uint64_t)(uintptr_t)addr * 0x9E3779B97F4A7C15ull;
+    return (unsigned int)(h >> 32) & (ADDRESS_SLOTS - 1);
+}
+
+/* The Python tuple for a source address: the same object as last time when the address is (and,
+ * with many sources, as the last time it was seen: SourceSlot). */
 static PyObject *
 source_address(Engine *self, const struct sockaddr_storage *ss, socklen_t len)
 {
@@ -180,9 +223,28 @@ source_address(Engine *self, const struct sockaddr_storage *ss, socklen_t len)
         Py_INCREF(self->last_addr);
         return self->last_addr;
     }
+    SourceSlot *slot = NULL;
+    if (self->last_addr != NULL && len <= (socklen_t)sizeof(struct sockaddr_in6)) {
+        if (self->sources == NULL)
+            self->sources = PyMem_Calloc(ADDRESS_SLOTS, sizeof(SourceSlot)); /* NULL: no table */
+        if (self->sources != NULL) {
+            slot = &self->sources[name_slot(ss, len)];
+            if (slot->addr != NULL && slot->len == len && memcmp(ss, &slot->name, len) == 0) {
+                Py_XSETREF(self->last_addr, Py_NewRef(slot->addr));
+                memcpy(&self->last_name, ss, len);
+                self->last_len = len;
+                return Py_NewRef(slot->addr);
+            }
+        }
+    }
     PyObject *addr = address_to_python(ss, len);
     if (addr == NULL)
         return NULL;
+    if (slot != NULL) {
+        Py_XSETREF(slot->addr, Py_NewRef(addr));
+        memcpy(&slot->name, ss, len);
+        slot->len = len;
+    }
     Py_XSETREF(self->last_addr, Py_NewRef(addr));
     memcpy(&self->last_name, ss, len);
     self->last_len = len;
@@ -296,8 +358,29 @@ destination(Engine *self, PyObject *addr, struct sockaddr_storage *out, socklen_
         *outlen = self->last_dest_len;
         return 0;
     }
+    DestSlot *slot = NULL;
+    if (self->last_dest != NULL && addr != NULL) {
+        if (self->dests == NULL)
+            self->dests = PyMem_Calloc(ADDRESS_SLOTS, sizeof(DestSlot)); /* NULL: no table */
+        if (self->dests != NULL) {
+            slot = &self->dests[object_slot(addr)];
+            if (slot->addr == addr) {
+                memcpy(out, &slot->name, slot->len);
+                *outlen = slot->len;
+                Py_XSETREF(self->last_dest, Py_NewRef(addr));
+                memcpy(&self->last_dest_name, out, *outlen);
+                self->last_dest_len = *outlen;
+                return 0;
+            }
+        }
+    }
     if (address_from_python(self, addr, out, outlen) < 0)
         return -1;
+    if (slot != NULL && *outlen <= (socklen_t)sizeof(struct sockaddr_in6)) {
+        Py_XSETREF(slot->addr, Py_NewRef(addr));
+        memcpy(&slot->name, out, *outlen);
+        slot->len = *outlen;
+    }
     Py_XSETREF(self->last_dest, Py_NewRef(addr));
     memcpy(&self->last_dest_name, out, *outlen);
     self->last_dest_len = *outlen;
@@ -956,6 +1039,10 @@ Engine_traverse(Engine *self, visitproc visit, void *arg)
     Py_VISIT(self->on_blocked);
     Py_VISIT(self->last_addr);
     Py_VISIT(self->last_dest);
+    for (int i = 0; self->sources != NULL && i < ADDRESS_SLOTS; i++)
+        Py_VISIT(self->sources[i].addr);
+    for (int i = 0; self->dests != NULL && i < ADDRESS_SLOTS; i++)
+        Py_VISIT(self->dests[i].addr);
     return 0;
 }
 
@@ -967,6 +1054,10 @@ Engine_clear(Engine *self)
     Py_CLEAR(self->on_blocked);
     Py_CLEAR(self->last_addr);
     Py_CLEAR(self->last_dest);
+    for (int i = 0; self->sources != NULL && i < ADDRESS_SLOTS; i++)
+        Py_CLEAR(self->sources[i].addr);
+    for (int i = 0; self->dests != NULL && i < ADDRESS_SLOTS; i++)
+        Py_CLEAR(self->dests[i].addr);
     return 0;
 }
 
@@ -975,6 +1066,10 @@ Engine_dealloc(Engine *self)
 {
     PyObject_GC_UnTrack(self);
     Engine_clear(self);
+    PyMem_Free(self->sources);
+    PyMem_Free(self->dests);
+    self->sources = NULL;
+    self->dests = NULL;
     free_buffers(self);
     Py_TYPE(self)->tp_free((PyObject *)self);
 }

@@ -49,6 +49,7 @@ class Demultiplexer:
         self._peers = peers
         self._unattached = unattached
         self._outbox = outbox
+        self._batches = 0
 
     def __call__(
         self,
@@ -68,10 +69,10 @@ class Demultiplexer:
             owner.hold_batch(count)
         try:
             peers = self._peers
-            # The sessions to flush, in the order first touched: most batches touch one, kept
-            # without a dict (one per wake-up otherwise); a second session makes the dict.
-            single: Endpoint | None = None
-            touched: dict[Endpoint, None] | None = None
+            # The sessions this batch touched, in order, each once: a list, and the batch's number
+            # on each endpoint (no dict built and grown per batch).
+            self._batches = batch = self._batches + 1
+            touched: list[Endpoint] = []
             last: Address | None = None
             endpoint: Endpoint | None = None
             for i in range(len(datas)):
@@ -79,7 +80,9 @@ class Demultiplexer:
                 addr = addrs[i]
                 if addr is not last:  # the engine hands one tuple for a run from one source
                     last = addr
-                    endpoint = peers.get((addr[0], addr[1]))
+                    # An IPv4 address is its own key (the server keys a peer by the tuple the
+                    # engine gave its OPEN, which the engine gives again: found by identity).
+                    endpoint = peers.get(addr if len(addr) == 2 else (addr[0], addr[1]))
                 if endpoint is None or is_open(data) or endpoint._conn.state is CLOSED:
                     self._unattached(data, addr)
                     last = None  # the table may have changed
@@ -94,22 +97,15 @@ class Demultiplexer:
                 )
                 if conn.state is CLOSED:
                     endpoint._flush(now)  # released: later datagrams from there are strangers
-                    if touched is not None:
-                        touched.pop(endpoint, None)
-                    elif single is endpoint:
-                        single = None
+                    if endpoint._demux_batch == batch:
+                        touched.remove(endpoint)
+                    endpoint._demux_batch = 0
                     last = None
-                elif touched is not None:
-                    touched[endpoint] = None
-                elif single is None:
-                    single = endpoint
-                elif endpoint is not single:
-                    touched = {single: None, endpoint: None}
-            if touched is not None:
-                for endpoint in touched:
-                    endpoint._flush(now)
-            elif single is not None:
-                single._flush(now)
+                elif endpoint._demux_batch != batch:
+                    endpoint._demux_batch = batch
+                    touched.append(endpoint)
+            for endpoint in touched:
+                endpoint._flush(now)
         finally:
             if owner is not None:
                 owner.release_batch(count)

@@ -166,6 +166,8 @@ class Endpoint:
         self._silence_reopen = False
         self._reopen_handle: asyncio.TimerHandle | None = None
         self._remote: Address | None = None
+        self._demux_batch = 0
+        """The server's receive batch that last handed us a datagram (its Demultiplexer's count)."""
         size = getattr(transport, "get_write_buffer_size", None)
         if size is not None and size() > 0:
             conn.pause_sending()  # a shared socket that is backed up already

@@ -11,7 +11,8 @@ The same reasoning applies to applications that sample at a fixed rate: a :class
 per period for every :class:`~tdtp.aio.ticker.Ticker` of the same rate on the loop, instead of once per
 ticker at scattered phases; and it calls the tickers' tick callbacks
 (:meth:`~tdtp.aio.ticker.Ticker.call_each`) itself, so that serving every session due costs one wake-up
-and one call per session, not one task step each.
+and one call per session, not one task step each. The handle of such a callback
+(:class:`TickHandle`) lives here, compiled with the group: its tick is a native call.
 """
 
 from __future__ import annotations
@@ -22,14 +23,17 @@ import heapq
 import math
 import weakref
 from collections.abc import Callable
-from typing import Final, Protocol
+from typing import TYPE_CHECKING, Final
 
 from mypy_extensions import mypyc_attr
 
 from tdtp.aio.outbox import current_outbox
 from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
 
-__all__ = ["LoopTimers", "TickGroup", "TickMember", "TimerEntry", "loop_timers", "tick_group"]
+if TYPE_CHECKING:  # the ticker imports this module; a handle only reads and writes its attributes
+    from tdtp.aio.ticker import Ticker
+
+__all__ = ["LoopTimers", "TickGroup", "TickHandle", "TimerEntry", "loop_timers", "tick_group"]
 
 _NEVER: Final = math.inf
 
@@ -166,13 +170,6 @@ class LoopTimers:
                 self._timer.arm(heap[0][0])
 
 
-class TickMember(Protocol):
-    """What a :class:`TickGroup` calls synchronously at every tick: a ticker's callback side."""
-
-    def on_group_tick(self, now: float) -> None:
-        """Serve every tick of the member's due at ``now`` (the group's wake-up time)."""
-
-
 @mypyc_attr(native_class=False)  # held weakly by the registry, as LoopTimers
 class TickGroup:
     """The ticks of every :class:`~tdtp.aio.ticker.Ticker` of one rate on one loop: deadlines
@@ -210,7 +207,7 @@ class TickGroup:
         self.anchor = monotonic() if anchor is None else anchor
         self._timer: DeadlineTimer = create_timer(loop, self._fire, prefer=prefer)
         self._waiters: dict[int, list[asyncio.Future[None]]] = {}
-        self._callbacks: list[TickMember] = []
+        self._callbacks: list[TickHandle] = []
         self._next_tick = 0
         """The first tick the callbacks have not been served (while there are any)."""
         self._members = 0
@@ -249,7 +246,7 @@ class TickGroup:
             self._callbacks.clear()
             _forget_group(self._loop, self._key, self)
 
-    def add_callback(self, member: TickMember, first_tick: int) -> None:
+    def add_callback(self, member: TickHandle, first_tick: int) -> None:
         """Call ``member.on_group_tick`` at every wake-up from ``first_tick`` on (the member has
         joined; :meth:`remove_callback` before it leaves)."""
         if not self._callbacks or first_tick < self._next_tick:
@@ -257,7 +254,7 @@ class TickGroup:
         self._callbacks.append(member)
         self._arm_at(self.deadline(first_tick))
 
-    def remove_callback(self, member: TickMember) -> None:
+    def remove_callback(self, member: TickHandle) -> None:
         # A list, not a set: members are served in the order they joined. Removal is rare (a
         # session ends); the wake-up, which is not, only iterates.
         with contextlib.suppress(ValueError):
@@ -332,6 +329,70 @@ class TickGroup:
                 self._loop.call_exception_handler(
                     {"message": "a tdtp tick callback raised", "exception": exc}
                 )
+
+
+class TickHandle:
+    """A :meth:`Ticker.call_each` in progress: :meth:`cancel` stops it."""
+
+    # Compiled with the group that calls it (one call per session per tick in a slave): the
+    # schedule is read from the group once, and the ticker's accounting is written as
+    # ``async for`` writes it.
+
+    def __init__(
+        self, ticker: Ticker, group: TickGroup, first: int, callback: Callable[[int], None]
+    ) -> None:
+        self._ticker = ticker
+        self._group = group
+        self._first = first
+        self._callback = callback
+        self._index = 0
+        self._anchor: float = group.anchor
+        self._period: float = group.period
+        self._rate: float = ticker.rate
+        self._max_catch_up: int = ticker._max_catch_up
+        self._max_lateness: float = ticker.max_lateness  # at most the ticker's (which only grows)
+        self.cancelled = False
+
+    @property
+    def ticker(self) -> Ticker:
+        return self._ticker
+
+    def cancel(self) -> None:
+        """No more calls (from now: one cancelled by another callback of the same wake-up is not
+        called in it). Idempotent."""
+        if not self.cancelled:
+            self.cancelled = True
+            self._group.remove_callback(self)
+            self._group.leave()
+
+    def _deadline_of(self, tick: int) -> float:
+        return self._group.deadline(self._first + tick)
+
+    def on_group_tick(self, now: float) -> None:
+        """The group's wake-up at ``now``: every tick of ours due by then, as ``async for``
+        would deliver them (a stall within ``max_catch_up`` periods gives each missed tick, a
+        longer one skips to the tick due now)."""
+        ticker = self._ticker
+        callback = self._callback
+        anchor = self._anchor
+        period = self._period
+        while not self.cancelled:
+            index = self._index
+            # = TickGroup.deadline(first + index), to the bit
+            deadline = anchor + (self._first + index) * period
+            if deadline > now:
+                return
+            late = now - deadline
+            if int(late * self._rate) > self._max_catch_up:
+                index = ticker._deliver(now, index, self._deadline_of)
+            else:
+                if late > self._max_lateness:  # (read from the ticker only then)
+                    self._max_lateness = late = max(late, ticker.max_lateness)
+                    ticker.max_lateness = late
+                ticker.ticks += 1
+                ticker.deadline = deadline
+            self._index = index + 1
+            callback(index)
 
 
 # Each loop's timers and tick groups, held weakly on both sides: a loop whose endpoints were never

@@ -31,9 +31,11 @@ import math
 import time
 from collections.abc import AsyncIterator, Callable
 
-from tdtp.aio.loop_timers import TickGroup, tick_group
+from tdtp.aio.loop_timers import TickGroup, TickHandle, tick_group
 from tdtp.aio.timer import monotonic
 from tdtp.errors import InvalidArgumentError
+
+__all__ = ["TickHandle", "Ticker"]
 
 
 class Ticker:
@@ -152,53 +154,3 @@ class Ticker:
         self.ticks += 1
         self.deadline = deadline
         return index
-
-
-class TickHandle:
-    """A :meth:`Ticker.call_each` in progress: :meth:`cancel` stops it."""
-
-    def __init__(
-        self, ticker: Ticker, group: TickGroup, first: int, callback: Callable[[int], None]
-    ) -> None:
-        self._ticker = ticker
-        self._group = group
-        self._first = first
-        self._callback = callback
-        self._index = 0
-        self.cancelled = False
-
-    @property
-    def ticker(self) -> Ticker:
-        return self._ticker
-
-    def cancel(self) -> None:
-        """No more calls (from now: one cancelled by another callback of the same wake-up is not
-        called in it). Idempotent."""
-        if not self.cancelled:
-            self.cancelled = True
-            self._group.remove_callback(self)
-            self._group.leave()
-
-    def on_group_tick(self, now: float) -> None:
-        """The group's wake-up at ``now``: every tick of ours due by then, as ``async for``
-        would deliver them (a stall within ``max_catch_up`` periods gives each missed tick, a
-        longer one skips to the tick due now)."""
-        ticker = self._ticker
-        group = self._group
-        first = self._first
-        callback = self._callback
-        while not self.cancelled:
-            index = self._index
-            deadline = group.deadline(first + index)
-            if deadline > now:
-                return
-            late = now - deadline
-            if int(late * ticker.rate) > ticker._max_catch_up:
-                index = ticker._deliver(now, index, lambda tick: group.deadline(first + tick))
-            else:
-                if late > ticker.max_lateness:
-                    ticker.max_lateness = late
-                ticker.ticks += 1
-                ticker.deadline = deadline
-            self._index = index + 1
-            callback(index)

@@ -181,6 +181,15 @@ class TrinomialController(RateController):
     def __init__(self, config: TrinomialConfig | None = None) -> None:
         cfg = config if config is not None else TrinomialConfig()
         self._cfg = cfg
+        # What the per-packet hooks read, copied from the (frozen, plain-class) config: compiled,
+        # an attribute of the config is a dictionary lookup and a float boxed and unboxed.
+        self._max_rate: float = cfg.max_rate
+        self._max_increase: float = cfg.max_increase
+        self._gamma: float = cfg.gamma
+        self._alpha_min: float = cfg.alpha_min
+        self._no_feedback_rtts: float = cfg.no_feedback_rtts
+        self._app_limited_fraction: float = cfg.app_limited_fraction
+        self._app_headroom: float = cfg.app_headroom
         self._rate = cfg.initial_rate  # the state is the IPG, 1 / rate; kept as a rate so that
         # the bounds (min_rate, max_rate, the cap) hold exactly rather than to within rounding
         self._srtt = cfg.initial_rtt
@@ -390,14 +399,13 @@ class TrinomialController(RateController):
 
     def _start_interval(self, now: float) -> None:
         """Begin an increase interval and choose its alpha (hence W) from the state at its start."""
-        cfg = self._cfg
         self._refresh_stale(now)
         rate = self.rate
         srtt = self._srtt
         cap = self._cap()
-        most = (cfg.max_increase - 1.0) * rate
-        step = most if cap == math.inf else min(cfg.gamma * max(cap - rate, 0.0), most)
-        self._iv_alpha = max(cfg.alpha_min, step * srtt)
+        most = (self._max_increase - 1.0) * rate
+        step = most if cap == math.inf else min(self._gamma * max(cap - rate, 0.0), most)
+        self._iv_alpha = max(self._alpha_min, step * srtt)
         self._iv_w = srtt / self._iv_alpha
         self._iv_start = self._iv_mark = now
         self._iv_end = now + max(srtt, 2.0 / rate)
@@ -406,22 +414,21 @@ class TrinomialController(RateController):
         self._iv_allowance = 0.0
 
     def _end_interval(self, now: float) -> None:
-        cfg = self._cfg
         self._integrate(now)
         duration = now - self._iv_start
         if (
             duration > 0.0
             and self._iv_acks > 0
             and not self._blackout
-            and self._iv_sent >= cfg.app_limited_fraction * self._iv_allowance
+            and self._iv_sent >= self._app_limited_fraction * self._iv_allowance
         ):
             rate = self.rate
-            ceiling = min(cfg.max_rate, self._cap())
+            ceiling = min(self._max_rate, self._cap())
             if self._sending.app_limited:
                 # Most recent packets left as soon as offered: the application sets the pace, so
                 # the allowance grows only to headroom x its rate. (A share, not any one packet:
                 # a jittery 1 kHz loop has the odd pair of samples 0.3 ms apart.)
-                ceiling = min(ceiling, max(rate, cfg.app_headroom * self._sending.send_rate()))
+                ceiling = min(ceiling, max(rate, self._app_headroom * self._sending.send_rate()))
             if ceiling > rate * (1.0 + 1e-9):  # not for a rounding error in the measured rate
                 ipg, w = self.ipg, self._iv_w
                 self._set_rate(now, min(1.0 / (ipg * w / (ipg + w)), ceiling))  # eq. 9
@@ -438,18 +445,17 @@ class TrinomialController(RateController):
 
     def _refresh_stale(self, now: float) -> None:
         """Lift the cap once the loss-free run is several times longer than the loss history."""
-        cfg = self._cfg
         if (
             not self._cap_lifted
             and self._last_loss is not None
             and self._p_at_loss > 0.0
-            and self._acked_since_loss * self._p_at_loss >= cfg.stale_loss_intervals
-            and now - self._last_loss >= cfg.stale_min_rtts * self._srtt
+            and self._acked_since_loss * self._p_at_loss >= self._cfg.stale_loss_intervals
+            and now - self._last_loss >= self._cfg.stale_min_rtts * self._srtt
         ):
             self._cap_lifted = True
 
     def _apply_ceiling(self, now: float) -> None:
-        ceiling = min(self._cfg.max_rate, self._cap())
+        ceiling = min(self._max_rate, self._cap())
         if self.rate > ceiling:
             self._set_rate(now, ceiling)
 
@@ -484,4 +490,4 @@ class TrinomialController(RateController):
             self._last_loss = now
 
     def _no_feedback_timeout(self) -> float:
-        return max(self._cfg.no_feedback_rtts * self._srtt, 2.0 / self.rate) + self.feedback_delay
+        return max(self._no_feedback_rtts * self._srtt, 2.0 / self.rate) + self.feedback_delay

@@ -130,6 +130,57 @@ async def test_send_batch_sends_every_datagram_to_its_own_address(engine: str) -
 
 @pytest.mark.asyncio
 @pytest.mark.parametrize("engine", ENGINES)
+async def test_many_peers_interleaved_keep_their_addresses_both_ways(engine: str) -> None:
+    # A server's socket: many peers, one datagram each in turn, several rounds. Every datagram
+    # is reported from its own sender's address and every answer reaches its own peer (the
+    # compiled engine remembers peers' addresses in bounded tables: more peers than a table's
+    # slots must still be right, only slower).
+    rec = Recorder()
+    peers = 300
+    rounds = 3
+    async with await _open(rec, engine, batch=64) as server:
+        port = server.sockname[1]
+        sockets = []
+        try:
+            for _ in range(peers):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                sockets.append(s)
+                s.bind(("127.0.0.1", 0))
+                s.setblocking(False)
+            sent = 0
+            for r in range(rounds):
+                for i, s in enumerate(sockets):
+                    s.sendto(f"{r}:{i}".encode(), ("127.0.0.1", port))
+                    sent += 1
+                    if sent % 50 == 0:  # a chunk at a time: well within the receive buffer
+                        await eventually(lambda n=sent: len(rec.datagrams) == n)
+            senders = [s.getsockname() for s in sockets]
+            got = [(d, a) for batch in rec.batches for d, a in zip(batch[0], batch[1], strict=True)]
+            assert len(got) == peers * rounds
+            for data, addr in got:
+                index = int(data.split(b":")[1])
+                assert tuple(addr[:2]) == senders[index]
+            # Answers to each peer's address as reported, interleaved, in one call.
+            assert server.send_batch([(data, addr) for data, addr in got]) == peers * rounds
+            for i, s in enumerate(sockets):
+                for r in range(rounds):
+                    await eventually(lambda s=s: _readable(s))
+                    assert s.recv(64) == f"{r}:{i}".encode()
+        finally:
+            for s in sockets:
+                s.close()
+
+
+def _readable(s: socket.socket) -> bool:
+    try:
+        s.recv(64, socket.MSG_PEEK)
+    except BlockingIOError:
+        return False
+    return True
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("engine", ENGINES)
 async def test_kernel_timestamps_when_asked(engine: str) -> None:
     rec = Recorder()
     async with await _open(rec, engine, timestamps=True) as rx:
