@@ -57,6 +57,10 @@ $(BENCH_STAMP): pyproject.toml | $(STAMP)
 
 # The benchmark suite (~4 min on 2 cores): prints the table, writes benchmarks/results/latest.*
 bench: $(BENCH_STAMP) $(BUILD_STAMP)
+	@command -v valgrind >/dev/null 2>&1 || { export DEBIAN_FRONTEND=noninteractive; \
+		apt-get install -y -q valgrind >/dev/null 2>&1 || \
+		{ apt-get update -q >/dev/null 2>&1 && apt-get install -y -q valgrind >/dev/null 2>&1; } || \
+		echo "valgrind could not be installed: the instructions benchmark is skipped"; }
 	$(BIN)/python benchmarks/run_all.py
 
 # Every registered controller, Zenoh and raw UDP on 16 impaired paths, 10 s a cell (~20 min):

@@ -42,7 +42,12 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from tdtp import ConnectionConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
@@ -124,6 +129,7 @@ async def _client(variant: str, port_file: Path, echoes: int) -> None:
     loop = asyncio.get_running_loop()
     done: asyncio.Future[None] = loop.create_future()
     answered = 0
+    send: Callable[[bytes], object]
 
     def answer() -> None:
         nonlocal answered
@@ -142,7 +148,7 @@ async def _client(variant: str, port_file: Path, echoes: int) -> None:
 
         transport, _ = await loop.create_datagram_endpoint(Client, remote_addr=("127.0.0.1", port))
         send = transport.sendto
-        send(PAYLOAD)
+        transport.sendto(PAYLOAD)
         await asyncio.wait_for(done, CLIENT_TIMEOUT)
         transport.close()
         return
@@ -162,8 +168,8 @@ def warmup(echoes: int) -> int:
     return max(20, echoes // 10)
 
 
-def _unlimited() -> object:
-    from tdtp import ConnectionConfig  # noqa: PLC0415
+def _unlimited() -> ConnectionConfig:
+    from tdtp import ConnectionConfig  # noqa: PLC0415 - after TDTP_PURE_PYTHON is set
     from tdtp.control.fixed import FixedConfig  # noqa: PLC0415
 
     return ConnectionConfig(controller="fixed", controller_config=FixedConfig(rate=math.inf))
@@ -271,10 +277,13 @@ def main(argv: list[str] | None = None) -> int:
     if args_list[:1] == ["--side"]:  # one side of the ping-pong (the echo runs under callgrind)
         side, variant, port_file, echoes = args_list[1:5]
         return _run_side(side, variant, Path(port_file), int(echoes))
-    p = common.parser(__doc__, seconds=0.0, repeat=1, help_seconds="unused")
+    doc = __doc__ or ""
+    p = common.OneLineParser(prog="instructions.py", description=doc.splitlines()[0])
     p.add_argument("--echoes", type=int, default=2000, help="round trips per variant (2000)")
     p.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS))
+    p.add_argument("--json", action="store_true", help="one JSON report on stdout")
     args = p.parse_args(args_list)
+    args.seconds, args.repeat = 0.0, 1  # (what every report carries; a count needs neither)
     try:
         if args.echoes < 100:
             raise UsageError("--echoes must be at least 100 (the first tenth warms up)")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -38,6 +39,8 @@ class Bench:
     timeout: float = 150.0
     script: str = ""
     """The script, when not ``name``.py (one script run twice with other options)."""
+    requires: str = ""
+    """A program the benchmark needs (on PATH): without it the suite skips it and says so."""
 
     @property
     def path(self) -> Path:
@@ -62,6 +65,14 @@ SUITE = (
         "latency",
         ("--seconds", "3", "--repeat", "3"),
         ("--seconds", "0.1", "--repeat", "1"),
+    ),
+    Bench(
+        "instructions",
+        # (no --seconds or --repeat: a count of instructions, the same from run to run)
+        ("--echoes", "2000"),
+        ("--echoes", "100", "--variants", "raw-uvloop", "tdtp"),
+        timeout=600.0,
+        requires="valgrind",
     ),
     Bench(
         "keyed",
@@ -237,8 +248,13 @@ def main(argv: list[str] | None = None) -> int:
     reports: dict[str, Json] = {}
     rows: list[Row] = []
     failed: list[str] = []
+    skipped: dict[str, str] = {}
     for bench in SUITE:
         if args.only and bench.name not in args.only:
+            continue
+        if bench.requires and shutil.which(bench.requires) is None:
+            skipped[bench.name] = f"{bench.requires} is not installed"
+            print(f"== {bench.name}: skipped ({skipped[bench.name]})", file=sys.stderr)
             continue
         t0 = time.monotonic()
         try:
@@ -273,6 +289,8 @@ def main(argv: list[str] | None = None) -> int:
         "than a few % makes the timings noisy."
     )
     sections = [f"# Benchmark results\n\n{header}\n\n{table}\n"]
+    for name, why in skipped.items():
+        sections.append(f"## {name}\n\nSkipped: {why}.\n")
     for name, report in reports.items():
         if "error" in report:
             sections.append(f"## {name}\n\nFAILED: {report['error']}\n")
@@ -291,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
         "rows": [r.as_json() for r in rows],
         "benchmarks": reports,
         "failed": failed,
+        "skipped": skipped,
     }
     common.write_text(out / "latest.json", json.dumps(summary, indent=1, default=str) + "\n")
     print(f"{header}\n\n{table}")

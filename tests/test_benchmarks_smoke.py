@@ -479,3 +479,41 @@ def test_deadband_cost_misuse_is_one_line_and_status_2(argv: list[str], option: 
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and option in lines[0], done.stderr
+
+
+def _instructions(*argv: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, str(BENCHMARKS / "instructions.py"), *argv],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["--echoes", "5"], "--echoes"),
+        (["--echoes", "many"], "--echoes"),
+        (["--variants", "x"], "--variants"),
+    ],
+)
+def test_instructions_misuse_is_one_line_and_status_2(argv: list[str], option: str) -> None:
+    done = _instructions(*argv)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and option in lines[0], done.stderr
+
+
+def test_instructions_reads_callgrinds_total(tmp_path: Path) -> None:
+    """The figure is callgrind's own total for the part counted (its summary or totals line)."""
+    instructions = _load("instructions")
+    out = tmp_path / "callgrind.out"
+    out.write_text("version: 1\ncreator: callgrind-3.19.0\nevents: Ir\nsummary: 123456\n")
+    assert instructions.collected(out) == 123456
+    out.write_text("events: Ir\nfn=main\n1 5\n")
+    with pytest.raises(RuntimeError, match="no instruction total"):
+        instructions.collected(out)
+    rows = instructions.rows_of({"raw-uvloop": 9000.0, "tdtp": 18000.0}, 2000)
+    assert rows[1].ratio.median == pytest.approx(2.0) and rows[1].baseline == "raw uvloop"
