@@ -45,7 +45,9 @@ whatever it does, at 10 sessions as at 50 (benchmarks/README.md, "Why the slave'
 Under contention spinning backfires (the busy-waiting process loses its time slice), hence not the
 default. The spin is CPU the
 slave burns on purpose: the slave's CPU column includes it, the column beside it says how much it
-was (``TickGroup.spun``), and the CPU per session row leaves it out (busy CPU only).
+was (``TickGroup.spun``, the spinning thread's CPU time, as the baselines count theirs: its wall time
+would also count a neighbour's turns on the core), and the CPU per session row leaves it out (busy
+CPU only).
 
 **Late**, the figure judged: a slave sample is late when the slave's ``Ticker`` hands it to ``ep.send``
 more than one period (1 ms) after its deadline, or when the ticker skipped its tick altogether (a stall
@@ -122,6 +124,7 @@ import resource
 import struct
 import sys
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -602,10 +605,10 @@ class RawTicker:
                 # last tick took until then (a late wake-up): wait for it here. The periodic
                 # timer's next expiry is ``spin`` before the deadline after it, so a late
                 # wake-up that returned now would leave every later tick ``period - spin`` late.
-                started = now
+                spent = time.thread_time()  # CPU time, as TickGroup.spun counts it
                 while now < due_at:
                     now = monotonic()
-                self.spun += now - started
+                self.spun += time.thread_time() - spent
             for tick, deadline, gap in self.schedule.due(now):
                 self._on_tick(tick, deadline, gap)
             now = monotonic()

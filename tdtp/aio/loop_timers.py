@@ -23,6 +23,7 @@ import heapq
 import math
 import weakref
 from collections.abc import Callable
+from time import thread_time
 from typing import TYPE_CHECKING, Final
 
 from mypy_extensions import mypyc_attr
@@ -213,7 +214,7 @@ class TickGroup:
         self._members = 0
         self.wakeups = 0
         self.spun = 0.0
-        """Seconds spent busy-waiting for deadlines (``spin``), for an honest CPU account."""
+        """CPU seconds spent busy-waiting for deadlines (``spin``), for an honest CPU account."""
 
     @property
     def members(self) -> int:
@@ -290,10 +291,12 @@ class TickGroup:
             if due_at - now > self.spin:
                 self._arm_at(due_at)  # woken too early (a spurious readiness): sleep on
                 return
-            started = now
+            # Counted in this thread's CPU time: the wait's wall time would also count the time
+            # another process had the core meanwhile (a spinner loses its time slice).
+            spent = thread_time()
             while now < due_at:
                 now = monotonic()
-            self.spun += now - started
+            self.spun += thread_time() - spent
         due = [tick for tick in self._waiters if self.deadline(tick) <= now]
         outbox = current_outbox(self._loop) if due or callbacks else None
         if outbox is not None:
