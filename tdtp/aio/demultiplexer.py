@@ -16,7 +16,6 @@ from typing import Final
 
 from tdtp.aio.endpoint import Endpoint, rx_time_of
 from tdtp.aio.outbox import SocketOutbox
-from tdtp.aio.timer import monotonic
 from tdtp.session.events import Address
 from tdtp.session.state import CLOSED
 from tdtp.wire.control import ControlCode
@@ -24,6 +23,8 @@ from tdtp.wire.header import HEADER_SIZE, PacketType
 
 __all__ = ["Demultiplexer", "is_open"]
 
+monotonic: Final = time.monotonic
+"""= tdtp.aio.timer.monotonic: a static of the compiled module, not a globals lookup per batch."""
 _CONTROL_BITS: Final = int(PacketType.CONTROL) << 6
 _OPEN: Final = int(ControlCode.OPEN)
 

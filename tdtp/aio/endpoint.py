@@ -36,7 +36,6 @@ import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
-from time import monotonic  # = tdtp.aio.timer.monotonic, called directly (per packet)
 from typing import Any, Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
@@ -69,6 +68,9 @@ __all__ = [
     "WatchdogEvent",
 ]
 
+
+monotonic: Final = time.monotonic
+"""= tdtp.aio.timer.monotonic: a static of the compiled module, not a globals lookup per packet."""
 
 DataCallback = Callable[[DataReceived], None]
 WatchdogEvent = PeerSilent | PeerResumed
