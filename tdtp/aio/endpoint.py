@@ -579,13 +579,16 @@ class Endpoint:
 
     def _flush(self, now: float | None = None) -> None:
         conn = self._conn
-        if conn.pending_events and conn.state is ESTABLISHED:
+        event = conn.next_event()  # (rather than asking pending_events first: one call less)
+        if event is not None and conn.state is ESTABLISHED:
             # The application first: a sample its callback sends in answer leaves at once (with
             # the ACK the connection owes riding on it) instead of after the connection's own
-            # datagrams. Not once the session ends: its CLOSE leaves before the application hears.
-            self._drain_events()
+            # datagrams. Not once the session ends: its CLOSE leaves before the application hears
+            # (the event taken waits until then).
+            self._drain_events(event)
             if conn is not self._conn:
                 return
+            event = None
             now = None  # the callbacks took time, and what they sent was stamped after `now`
         datagrams = conn.datagrams_to_send(now=monotonic() if now is None else now)
         out = self._out
@@ -603,7 +606,8 @@ class Endpoint:
                 except OSError:
                     # No buffer space or an ICMP error reported on this send: lost like any other.
                     self._send_errors += 1
-        event = conn.next_event()  # (rather than asking pending_events first: one call less)
+        if event is None:
+            event = conn.next_event()
         if event is not None:
             self._drain_events(event)
             if conn is not self._conn:
@@ -625,7 +629,6 @@ class Endpoint:
         """Take the connection's events, ``event`` (the first, already taken) and those after it."""
         conn = self._conn
         on_data = self._on_data
-        queue = self._queue
         if event is None:
             event = conn.next_event()
         while event is not None:
@@ -639,6 +642,7 @@ class Endpoint:
                     except Exception as exc:  # the application's error: reported, then on
                         self._callback_failed("on_data", exc)
                 else:
+                    queue = self._queue
                     if len(queue) >= self._max_queue:
                         queue.popleft()  # bounded: the oldest unread sample goes
                         conn.stats.events_discarded += 1

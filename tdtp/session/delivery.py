@@ -156,7 +156,13 @@ class SampleDelivery:
             age = estimate
         if age is not None:
             self.ages.add(age)
-        self._events.push_data(new_data_received(payload, seq, estimate, now, sent_at))
+        event = new_data_received(payload, seq, estimate, now, sent_at)
+        events = self._events
+        items = events.items
+        if len(items) < events.max_events:
+            items.append(event)  # EventQueue.push_data's common case, inline
+        else:
+            events.push_data(event)
 
     def _estimate(self, arrival: float, now: float) -> float | None:
         """Half the smoothed RTT (or of the opening's round trip), plus the reorder wait spent."""

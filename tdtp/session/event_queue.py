@@ -21,65 +21,64 @@ class EventQueue:
     """Events in the order they happened; drops count in ``stats.events_discarded``."""
 
     def __init__(self, max_events: int, stats: ConnectionStats) -> None:
-        self._events: deque[Event] = deque()
-        self._max_events = max_events
-        self._data_pending = 0  # DataReceived events among them
+        self.items: deque[Event] = deque()
+        """The events, oldest first. Read outside only by the connection's per-packet paths, which
+        test it before :meth:`pop` (most calls would find it empty) and append a sample to it
+        directly while it is below :attr:`max_events` (:meth:`push_data`'s common case)."""
+        self.max_events = max_events
         self.control_pending = 0
         """ControlReceived events among them (the control channel's receive bound counts them)."""
         self._stats = stats
 
     def count(self) -> int:
-        return len(self._events)
+        return len(self.items)
 
     def pop(self) -> Event | None:
         """The oldest event, or ``None``."""
-        events = self._events
+        events = self.items
         if not events:
             return None
         event = events.popleft()
-        if type(event) is DataReceived:
-            self._data_pending -= 1
-        elif type(event) is ControlReceived:
+        if type(event) is ControlReceived:
             self.control_pending -= 1
         return event
 
     def push_data(self, event: DataReceived) -> None:
         """A sample delivered: when the queue is full, the oldest data event makes room."""
-        events = self._events
-        if len(events) >= self._max_events and self._data_pending:
+        events = self.items
+        if len(events) >= self.max_events:
             self._discard_oldest_data()
         events.append(event)
-        self._data_pending += 1
 
     def push_control(self, event: ControlReceived) -> None:
         """A control message delivered: always kept (the channel bounds how many wait)."""
-        self._events.append(event)
+        self.items.append(event)
         self.control_pending += 1
 
     def push(self, event: Event) -> None:
         """A lifecycle event: always kept."""
-        self._events.append(event)
+        self.items.append(event)
 
     def push_watchdog(self, event: PeerSilent | PeerResumed) -> None:
         """A watchdog event: within the bound, making room by dropping the oldest data event, or
         failing that the oldest watchdog event."""
-        events = self._events
-        if len(events) >= self._max_events:
-            if self._data_pending:
-                self._discard_oldest_data()
-            else:
-                for index, pending in enumerate(events):
-                    if isinstance(pending, PeerSilent | PeerResumed):
-                        del events[index]
-                        self._stats.events_discarded += 1
-                        break
+        events = self.items
+        if len(events) >= self.max_events and not self._discard_oldest_data():
+            for index, pending in enumerate(events):
+                if isinstance(pending, PeerSilent | PeerResumed):
+                    del events[index]
+                    self._stats.events_discarded += 1
+                    break
         events.append(event)
 
-    def _discard_oldest_data(self) -> None:
-        events = self._events
+    def _discard_oldest_data(self) -> bool:
+        """Drop the oldest data event, if there is one (False if none waits). The queue holds few
+        other events (one of each lifecycle event, watchdog events within the bound, control
+        messages within the channel's window), so the walk ends early."""
+        events = self.items
         for index, pending in enumerate(events):
             if type(pending) is DataReceived:
                 del events[index]
-                self._data_pending -= 1
                 self._stats.events_discarded += 1
-                return
+                return True
+        return False

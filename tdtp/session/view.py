@@ -139,7 +139,7 @@ class ConnectionView:
     @property
     def pending_events(self) -> int:
         """Events waiting for :meth:`next_event`."""
-        return self._events.count()
+        return len(self._events.items)
 
     def control_held(self, count: int) -> None:
         """A driver's count of delivered control messages its application has not read yet: they
