@@ -42,34 +42,41 @@ finite above it)."""
 class SampleAgeHistogram:
     """Counts of sample ages in logarithmic bins; :meth:`quantile` reads them back."""
 
-    __slots__ = ("_bins", "_high", "_last", "_last_high", "_last_low", "_low", "count")
+    __slots__ = ("_bins", "_counted", "_high", "_last", "_last_high", "_last_low", "_low", "_run")
 
     def __init__(self) -> None:
         self._bins = [0] * BINS
         self._low = BINS  # the lowest and highest bins in use: a quantile walks only those
         self._high = -1
-        self.count = 0
-        """Ages added so far."""
+        self._counted = 0  # ages in the bins
         # The bin of the last age added and (almost) the range of ages that fall in it: the next
         # sample's age mostly does (the estimate is constant between RTT samples, a timed age moves
-        # by microseconds) and is then counted without the logarithm.
+        # by microseconds) and is then only counted in ``_run``, which goes into that bin when an
+        # age falls in another one or a quantile is read.
         self._last = -1  # no bin yet
         self._last_low = math.inf
         self._last_high = -math.inf
+        self._run = 0
+
+    @property
+    def count(self) -> int:
+        """Ages added so far."""
+        return self._counted + self._run
 
     def add(self, age: float) -> None:
         """Count one age in seconds (zero, negative or NaN ages land in the first bin)."""
         if self._last_low <= age <= self._last_high:
-            self._bins[self._last] += 1
-            self.count += 1
+            self._run += 1
             return
+        if self._run:
+            self._settle()
         index = 0
         if age > FLOOR:
             index = int((math.log(age) - _LOG_FLOOR) / _LOG_GROWTH)
             if index >= BINS:
                 index = BINS - 1
         self._bins[index] += 1
-        self.count += 1
+        self._counted += 1
         self._last = index
         self._last_low = _LOWS[index]
         self._last_high = _HIGHS[index]
@@ -78,10 +85,19 @@ class SampleAgeHistogram:
         if index > self._high:
             self._high = index
 
+    def _settle(self) -> None:
+        """Put the run of ages counted in the last bin's range into that bin."""
+        run = self._run
+        self._bins[self._last] += run
+        self._counted += run
+        self._run = 0
+
     def quantile(self, fraction: float) -> float:
         """The nearest-rank quantile (``fraction`` in 0..1) as its bin's geometric middle, in
         seconds; 0.0 before any age was added."""
-        count = self.count
+        if self._run:
+            self._settle()
+        count = self._counted
         if not count:
             return 0.0
         rank = max(1, math.ceil(fraction * count))
