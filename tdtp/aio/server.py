@@ -275,7 +275,10 @@ class Server:
         key = addr[:2]  # _peer_key(addr), inline: (host, port) of an IPv4 or IPv6 address
         endpoint = self._peers.get(key)
         if endpoint is not None:
-            endpoint.datagram_received(data, addr)
+            # endpoint.datagram_received(data, addr), inline: one Python call less per datagram
+            now = monotonic()
+            endpoint._conn.receive_datagram(data, addr, now=now)
+            endpoint._flush(now)
             if key in self._peers or not is_open(data):
                 return
             # The connection ended on this OPEN: its master restarted and opens anew.

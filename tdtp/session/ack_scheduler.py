@@ -75,12 +75,12 @@ class AckScheduler:
         """A data packet arrived: classify it and schedule its acknowledgement."""
         quiet = window.unreported_since is None
         arrival = window.classify(seq, now)
-        hint = self._hint
         since = window.unreported_since
         if window.held:
-            hint.value = -math.inf  # an ACK is due at once
+            self._hint.value = -math.inf  # an ACK is due at once
         elif quiet and since is not None:
             due = now + self._ack_delay  # an ACK is due by then
+            hint = self._hint
             if due < hint.value:
                 hint.value = due
         if since is not None:
@@ -95,7 +95,7 @@ class AckScheduler:
         if self.mode is _SEPARATE and arrival is not STALE and arrival is not DUPLICATE:
             # Trinomial acknowledges every arrival, whether or not the sample is delivered.
             self.separate.append((window.last_seq, now))
-            hint.value = -math.inf
+            self._hint.value = -math.inf
         return arrival
 
     def piggyback(self, window: ReceiveWindow, now: float) -> tuple[int, int, int]:
@@ -144,7 +144,9 @@ class AckScheduler:
                 now >= since + self._ack_delay
                 or (low is not None and window.highest - low >= SACK_SPAN)
             ):
-                ack, sack, hold = self.piggyback(window, now)
+                # self.piggyback(window, now), inline: the mode is bidirectional, and an arrival
+                # not reported yet means the window has data.
+                ack, sack, hold = window.report(now)
                 outbox.emit_ack(out, seq, ack, sack, hold, peer, now)
         else:
             acks = self.separate

@@ -290,8 +290,9 @@ class Connection(ConnectionView):
         self._open_session(admitted, addr, now)
 
     def next_event(self) -> Event | None:
-        """The oldest event not yet taken, or ``None``."""
-        return self._events.pop()
+        """The oldest event not yet taken, or ``None`` (pop's first test inline: most find none)."""
+        events = self._events
+        return events.pop() if events.solo is not None or events.items else None
 
     # ------------------------------------------------------------------ input
 

@@ -155,8 +155,17 @@ class SampleDelivery:
         else:
             age = estimate
         if age is not None:
-            self.ages.add(age)
-        self._events.push_data(new_data_received(payload, seq, estimate, now, sent_at))
+            ages = self.ages
+            if ages.run_low <= age <= ages.run_high:
+                ages.run += 1  # the histogram's add, its common case inline
+            else:
+                ages.add(age)
+        event = new_data_received(payload, seq, estimate, now, sent_at)
+        events = self._events
+        if events.solo is None and not events.items:
+            events.solo = event  # EventQueue.push_data's common case, inline
+        else:
+            events.push_data(event)
 
     def _estimate(self, arrival: float, now: float) -> float | None:
         """Half the smoothed RTT (or of the opening's round trip), plus the reorder wait spent."""

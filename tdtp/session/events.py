@@ -104,20 +104,21 @@ class DataReceived:
 def _constructor() -> Callable[[bytes, int, float | None, float, float | None], DataReceived]:
     """A :class:`DataReceived` without the frozen dataclass's ``__init__``, which sets each field
     through ``object.__setattr__``: the same object (equal, hashed and printed alike) for a fraction
-    of the cost, set through the slots' own descriptors. One per sample received, in both builds
-    (the class stays a plain Python class when compiled, so that it remains a frozen dataclass).
+    of the cost. One per sample received, in both builds (the class stays a plain Python class when
+    compiled, so that it remains a frozen dataclass).
 
     Where the C extension ``tdtp/session/_slot_filler.c`` is built (beside the compiled core), it
-    stores the five values straight into the slots instead: about 3,000 instructions less per sample
-    than the descriptors' generic calls, on the path from a datagram to the application's callback
-    (the same object either way; tests/test_events_are_values.py checks both)."""
+    stores the five values straight into the slots: about 3,000 instructions less per sample than
+    Python can do it, on the path from a datagram to the application's callback. Elsewhere (the
+    pure build, no compiler) :func:`python_constructor`. The same object either way
+    (tests/test_events_are_values.py checks both)."""
     filler, _why_not = load_extension("tdtp.session._slot_filler", _FILLER_SOURCE)
     if filler is not None:
         return cast(
             "Callable[[bytes, int, float | None, float, float | None], DataReceived]",
             filler.SlotFiller(DataReceived, DATA_RECEIVED_FIELDS),
         )
-    return descriptor_constructor()
+    return python_constructor()
 
 
 DATA_RECEIVED_FIELDS: Final = ("payload", "seq", "estimated_age", "received_at", "sent_at")
@@ -125,17 +126,13 @@ DATA_RECEIVED_FIELDS: Final = ("payload", "seq", "estimated_age", "received_at",
 _FILLER_SOURCE: Final = Path(__file__).with_name("_slot_filler.c")
 
 
-def descriptor_constructor() -> Callable[
-    [bytes, int, float | None, float, float | None], DataReceived
-]:
-    """:func:`new_data_received` through the slots' descriptors (the pure-Python way)."""
+def python_constructor() -> Callable[[bytes, int, float | None, float, float | None], DataReceived]:
+    """:func:`new_data_received` in Python: the fields are stored into an instance of a plain class
+    with the same slots (plain attribute stores, which cost less than calling each slot's
+    descriptor), whose class is then set to :class:`DataReceived` (allowed: the two layouts are the
+    same), so that it is frozen from then on."""
     new = object.__new__
-    slots = vars(DataReceived)  # the member descriptors of the five slots
-    set_payload = slots["payload"].__set__
-    set_seq = slots["seq"].__set__
-    set_age = slots["estimated_age"].__set__
-    set_received_at = slots["received_at"].__set__
-    set_sent_at = slots["sent_at"].__set__
+    builder = _builder_class()
 
     def construct(
         payload: bytes,
@@ -144,15 +141,22 @@ def descriptor_constructor() -> Callable[
         received_at: float,
         sent_at: float | None,
     ) -> DataReceived:
-        event: DataReceived = new(DataReceived)
-        set_payload(event, payload)
-        set_seq(event, seq)
-        set_age(event, estimated_age)
-        set_received_at(event, received_at)
-        set_sent_at(event, sent_at)
-        return event
+        event: Any = new(builder)
+        event.payload = payload
+        event.seq = seq
+        event.estimated_age = estimated_age
+        event.received_at = received_at
+        event.sent_at = sent_at
+        event.__class__ = DataReceived
+        made: DataReceived = event
+        return made
 
     return construct
+
+
+def _builder_class() -> type:
+    """A plain class laid out as :class:`DataReceived` (its slots, no others), not frozen."""
+    return type("_DataReceivedBuilder", (), {"__slots__": DataReceived.__slots__})
 
 
 new_data_received: Final = _constructor()

@@ -17,7 +17,7 @@ from tdtp.session.liveness import Liveness
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.stats import ConnectionStats
 from tdtp.wire.control import ControlCode, encode_close
-from tdtp.wire.header import HEADER_SIZE, PacketType, encode_header
+from tdtp.wire.header import HEADER_SIZE, SEQ_MASK, PacketType, encode_header, pack_header_words
 from tdtp.wire.hold import HOLD_NO_ACK
 
 _ACK = int(PacketType.ACK)
@@ -85,7 +85,15 @@ class Outbox:
     def emit_ack(
         self, out: Datagrams, seq: int, ack: int, sack: int, hold: int, peer: Address, now: float
     ) -> None:
-        datagram = self.protect(encode_header(_ACK, seq, ack, sack, hold), self._ack_padding)
+        # self.protect(encode_header(_ACK, seq, ack, sack, hold), padding), inline
+        seq &= SEQ_MASK
+        header = pack_header_words(
+            (_ACK << 6) | (seq >> 6),
+            ((seq & 0x3F) << 26) | ((ack & SEQ_MASK) << 14) | (sack << 8) | hold,
+        )
+        sealer = self.sealer
+        padding = self._ack_padding
+        datagram = header + padding if sealer is None else sealer.seal(header, padding)
         self._stats.sent.ack_packets += 1
         self._count(len(datagram), now, self.overhead, True)
         guard = self.reset_guard

@@ -79,9 +79,15 @@ class ReorderBuffer:
         """A new sample skipped ``first .. end - 1``: their gaps open now."""
         if end - first > SPAN:
             first = end - SPAN
+        # opened[seq & _SLOT] = now for each, as at most two slices (a burst of losses skips dozens)
+        start = first & _SLOT
+        stop = start + end - first
         opened = self._opened
-        for seq in range(first, end):
-            opened[seq & _SLOT] = now
+        if stop <= SPAN:
+            opened[start:stop] = [now] * (stop - start)
+        else:
+            opened[start:] = [now] * (SPAN - start)
+            opened[: stop - SPAN] = [now] * (stop - SPAN)
 
     def on_late(self, seq: int, now: float) -> None:
         """A sample arrived after a newer one (within the receive window): measure its displacement."""

@@ -42,46 +42,63 @@ finite above it)."""
 class SampleAgeHistogram:
     """Counts of sample ages in logarithmic bins; :meth:`quantile` reads them back."""
 
-    __slots__ = ("_bins", "_high", "_last", "_last_high", "_last_low", "_low", "count")
+    __slots__ = ("_bins", "_counted", "_high", "_last", "_low", "run", "run_high", "run_low")
 
     def __init__(self) -> None:
         self._bins = [0] * BINS
         self._low = BINS  # the lowest and highest bins in use: a quantile walks only those
         self._high = -1
-        self.count = 0
+        self._counted = 0  # ages in the bins
+        self._last = -1  # the bin of the last age added (none yet)
+        self.run_low = math.inf
+        self.run_high = -math.inf
+        """(Almost) the range of ages that fall in the last age's bin: the next sample's age mostly
+        does (the estimate is constant between RTT samples, a timed age moves by microseconds)."""
+        self.run = 0
+        """Ages in that range not yet put into the bin (when an age falls in another bin, or a
+        quantile is read). ``if run_low <= age <= run_high: run += 1`` is :meth:`add`'s first
+        step, which a per-sample caller may take itself."""
+
+    @property
+    def count(self) -> int:
         """Ages added so far."""
-        # The bin of the last age added and (almost) the range of ages that fall in it: the next
-        # sample's age mostly does (the estimate is constant between RTT samples, a timed age moves
-        # by microseconds) and is then counted without the logarithm.
-        self._last = -1  # no bin yet
-        self._last_low = math.inf
-        self._last_high = -math.inf
+        return self._counted + self.run
 
     def add(self, age: float) -> None:
         """Count one age in seconds (zero, negative or NaN ages land in the first bin)."""
-        if self._last_low <= age <= self._last_high:
-            self._bins[self._last] += 1
-            self.count += 1
+        if self.run_low <= age <= self.run_high:
+            self.run += 1
             return
+        if self.run:
+            self._settle()
         index = 0
         if age > FLOOR:
             index = int((math.log(age) - _LOG_FLOOR) / _LOG_GROWTH)
             if index >= BINS:
                 index = BINS - 1
         self._bins[index] += 1
-        self.count += 1
+        self._counted += 1
         self._last = index
-        self._last_low = _LOWS[index]
-        self._last_high = _HIGHS[index]
+        self.run_low = _LOWS[index]
+        self.run_high = _HIGHS[index]
         if index < self._low:
             self._low = index
         if index > self._high:
             self._high = index
 
+    def _settle(self) -> None:
+        """Put the run of ages counted in the last bin's range into that bin."""
+        run = self.run
+        self._bins[self._last] += run
+        self._counted += run
+        self.run = 0
+
     def quantile(self, fraction: float) -> float:
         """The nearest-rank quantile (``fraction`` in 0..1) as its bin's geometric middle, in
         seconds; 0.0 before any age was added."""
-        count = self.count
+        if self.run:
+            self._settle()
+        count = self._counted
         if not count:
             return 0.0
         rank = max(1, math.ceil(fraction * count))
