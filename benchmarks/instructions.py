@@ -5,11 +5,12 @@ Usage: ``python benchmarks/instructions.py [--echoes 2000] [--variants raw-uvloo
 
 Why. This machine's timings move with its neighbours and with how late the host wakes an idle
 virtual CPU: the suite's RTT ratio of tdtp over raw uvloop moved between 1.25 and 1.33 from run to
-run with the same code. An instruction count does not. Valgrind's callgrind runs the echo side of a
-ping-pong on a synthetic CPU and counts every user-space instruction it executes; the count is the
-same from run to run within a fraction of a percent, so a change to the per-packet path shows up as a
-number, not as a shift in a noisy distribution. Kernel work (the system calls themselves) is not
-counted: it is the same for every variant here.
+run with the same code. An instruction count barely does. Valgrind's callgrind runs the echo side
+of a ping-pong on a synthetic CPU and counts every user-space instruction it executes; the count
+moves by a few per cent at most from run to run (what little depends on timing: a receive that finds
+a second datagram, a collection of the cyclic garbage collector), so a change to the per-packet path
+shows up as a number, not as a shift in a noisy distribution. Kernel work (the system calls
+themselves) is not counted: it is the same for every variant here.
 
 Method. Two processes on loopback: an **echo** under callgrind, which sends back every datagram it
 receives, and a **client** outside it, which sends a 100-byte payload, waits for the answer, sends the
@@ -306,8 +307,8 @@ def main(argv: list[str] | None = None) -> int:
     text = (
         "User-space instructions the echo side of a ping-pong executes per datagram, counted by "
         "callgrind inside the loop's callback for its socket (from the wake-up to the answer's "
-        "system call and the bookkeeping after it). Exact to a fraction of a percent from run to "
-        "run, unlike the timings of this shared machine."
+        "system call and the bookkeeping after it). Within a few per cent from run to run, "
+        "unlike the timings of this shared machine."
     )
     return common.emit(
         "instructions", args, rows_of(per_echo, args.echoes), details=details, text=text

@@ -68,7 +68,7 @@ SUITE = (
     ),
     Bench(
         "instructions",
-        # (no --seconds or --repeat: a count of instructions, the same from run to run)
+        # (no --seconds or --repeat: a count of instructions, within a few % from run to run)
         ("--echoes", "2000"),
         ("--echoes", "100", "--variants", "raw-uvloop", "tdtp"),
         timeout=600.0,
