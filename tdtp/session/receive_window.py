@@ -35,7 +35,8 @@ SACK_SPAN: Final = SACK_BITS
 _RECENT_BITS: Final = SACK_SPAN + 1
 _RECENT_MASK: Final = (1 << _RECENT_BITS) - 1
 _NEVER: Final = -(1 << 40)
-"""What an empty slot holds: no full sequence number is ever that low (they start at 0 or above)."""
+"""What an empty slot holds: no full sequence number is ever that low (they start at the 12-bit
+initial number, and the window never looks more than 2048 below the highest)."""
 RESYNC_RUN: Final = 3
 """Consecutive sequence numbers that all look older than the window: the peer's numbering has moved on by
 more than half the 12-bit space (a loss burst of over 2047 packets), so the window re-anchors one wrap
