@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -181,6 +182,9 @@ class ConnectionStats:
     """Peer control messages not delivered, by reason: ``duplicate`` (delivered or held already),
     ``control_window``, ``control_backlog``, ``oversized``, ``bad_control`` and
     ``optimistic_ack`` (each datagram is also in ``drops`` under the same reason)."""
+    closed: bool = False
+    """The connection has ended: ``srtt`` and ``rttvar`` read NaN, ``rate`` 0 and ``rate_limit``
+    ``"closed"`` (refreshed on access); the counters keep what the session did."""
     rtt_samples: int = 0
     srtt: float = 0.0
     rttvar: float = 0.0
@@ -217,6 +221,7 @@ class ConnectionStats:
         """A JSON-ready copy (``math.inf`` rates become ``None``)."""
         data = asdict(self)
         data["dropped"] = self.dropped
-        if data["rate"] == float("inf"):
-            data["rate"] = None
+        for name in ("rate", "srtt", "rttvar"):
+            if not math.isfinite(data[name]):  # NaN once closed, inf when unlimited
+                data[name] = None
         return data
