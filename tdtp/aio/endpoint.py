@@ -782,6 +782,7 @@ class Endpoint:
                 self._reopen(reconnect, event)
                 return
             self._close_event = event
+            self.reconnects.reopening = False  # (a reconnection that gave up)
             logger.info(
                 "%s: connection closed (%s: %s)", self._name(), event.cause.value, event.detail
             )

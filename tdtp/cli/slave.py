@@ -75,6 +75,11 @@ async def _slave(
         )
         try:
             await every_second(until, lambda interval: _show_slave(display, server, sides))
+        except asyncio.CancelledError:
+            # Ctrl-C or SIGTERM: the masters are told whether to come back (--on-stop), before
+            # the summary is made; the end of --duration closes them NORMAL (listen's exit).
+            await server.close(restarting=args.on_stop == "restart")
+            raise
         finally:
             acceptor.cancel()
             for task in tasks:

@@ -22,8 +22,9 @@ _PEER_CAUSES = {
     ),
     CloseReason.EVICTED: (
         CloseCause.EVICTED,
-        "the slave was full and gave this session's slot to another master: it had heard "
-        "nothing from us for longer than it keeps a silent master's slot; reopen later",
+        "the slave gave this session's slot to another master: it had heard nothing from us "
+        "for longer than it keeps a silent master's slot (or our key opened a newer session "
+        "elsewhere); reopen later",
     ),
 }
 
