@@ -499,8 +499,11 @@ def listen(
 
     At most ``max_peers`` masters are served at once, and at most ``backlog`` established ones wait
     for :meth:`Server.accept` (with ``on_data`` the sessions are served anyway and accept() sees the
-    newest ``backlog``); a master beyond either is refused at once (REJECT ``BUSY``). ``on_data``
-    and ``on_watchdog`` apply to every endpoint (see :func:`connect`).
+    newest ``backlog``); a master beyond either is refused at once (REJECT ``BUSY``), unless a
+    session's master is gone (silent for ``config.admission.reclaim_after``, 10 s): its slot is
+    given to the new master (docs/PROTOCOL.md 5.1, rule 2.7). One source holds at most
+    ``config.admission.source_share`` of the slots. ``on_data`` and ``on_watchdog`` apply to every
+    endpoint (see :func:`connect`).
 
     ``key`` (one pre-shared key) or ``keys`` (a :class:`~tdtp.KeyRing`, several keys, or a mapping
     of master name to secret) makes the server keyed: it accepts only masters holding one of the
