@@ -482,54 +482,34 @@ def master_session() -> dict[str, Any]:
     }
 
 
-def master_told_why() -> dict[str, Any]:
+def master_closed_by(reason: CloseReason) -> dict[str, Any]:
     """Section 5.2, "What a CLOSE says": a slave's CLOSE RESTARTING ends the master's session as
-    peer_restarting (a reconnecting master reopens at once); a CLOSE after it is dropped."""
-    open_ack = _open_ack()
+    peer_restarting (a reconnecting master reopens at once), a CLOSE EVICTED (section 5.1, rule
+    2.7) as evicted (it backs off first); a CLOSE after the end is dropped."""
     header = encode_header(2, SLAVE_ISN, 0, 0, 255)
+    what = {
+        CloseReason.RESTARTING: "the slave stops and will be back soon",
+        CloseReason.EVICTED: "a full slave gave this session's slot to another master",
+    }[reason]
     steps = [
         _action(0.0, "connect"),
-        _step(0.001, "slave", open_ack),
+        _step(0.001, "slave", _open_ack()),
         _step(0.002, "slave", _data(SLAVE_ISN, b"one")),
         _step(
             0.003,
             "slave",
-            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.RESTARTING)),
-            note="CLOSE RESTARTING: the slave stops and will be back soon",
+            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, reason)),
+            note=f"CLOSE {reason.name}: {what}",
         ),
         _step(
             0.004,
             "slave",
-            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.EVICTED)),
+            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
             note="after the close: dropped",
         ),
     ]
     return {
-        "name": "master: the slave's CLOSE says it is restarting",
-        "role": "master",
-        "config": {},
-        "random": _master_random(),
-        "steps": steps,
-    }
-
-
-def master_evicted() -> dict[str, Any]:
-    """Section 5.1 rule 2.7: a CLOSE EVICTED ends the master's session as evicted (a reconnecting
-    master backs off before it reopens)."""
-    open_ack = _open_ack()
-    header = encode_header(2, SLAVE_ISN, 0, 0, 255)
-    steps = [
-        _action(0.0, "connect"),
-        _step(0.001, "slave", open_ack),
-        _step(
-            0.002,
-            "slave",
-            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.EVICTED)),
-            note="CLOSE EVICTED: a full slave gave this session's slot to another master",
-        ),
-    ]
-    return {
-        "name": "master: evicted by a full slave",
+        "name": f"master: the slave closes with {reason.name}",
         "role": "master",
         "config": {},
         "random": _master_random(),
@@ -625,7 +605,7 @@ def all_scripts() -> list[dict[str, Any]]:
         master_payload_too_small(),
         keyed_master_session(),
         slave_control_channel(),
-        master_told_why(),
-        master_evicted(),
+        master_closed_by(CloseReason.RESTARTING),
+        master_closed_by(CloseReason.EVICTED),
         slave_restarting(),
     ]
