@@ -164,7 +164,8 @@ def one_run(master_kind: str, stop: str, restart: bool = True) -> dict[str, Any]
         raise SystemExit(f"the master failed ({master.returncode}): {err.strip()}")
     second.send_signal(signal.SIGINT)
     slave_out, _ = second.communicate(timeout=60)
-    summary = json.loads(out.strip().splitlines()[-1])
+    # The CLI prints one indented JSON object; the api-master role one line.
+    summary = json.loads(out if master_kind == "cli" else out.strip().splitlines()[-1])
     result: dict[str, Any] = {
         "reached_slaves": first_received + _slave_received(slave_out),
         "master_received": summary["samples_received"],

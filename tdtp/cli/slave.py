@@ -91,6 +91,8 @@ async def _slave(
                 "command": "slave",
                 "masters_served": server.stats.peers_accepted,
                 "masters_refused": server.stats.peers_refused,
+                "masters_evicted": server.stats.peers_evicted,
+                "slots": asdict(server.stats.slots),
                 "datagrams_unattached": server.stats.datagrams_unattached,
                 "admission": asdict(server.stats.admission),
                 "sessions": sessions,
