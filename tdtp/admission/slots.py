@@ -45,7 +45,7 @@ from typing import Generic, Protocol, TypeVar
 
 from tdtp.config import ConnectionConfig
 from tdtp.protection.keys import PresharedKey
-from tdtp.session.events import Address
+from tdtp.wire.address import Address
 
 SAME_MASTER_TEXT = (
     "the same master (key {key}) opened a new session from {where} while this one was silent "

@@ -370,7 +370,7 @@ class Endpoint:
             self.reconnects.samples_dropped += 1
             return
         if not sent or conn.timer_hint < self._timer.deadline:
-            self._flush(now)
+            self.flush(now)
 
     def send_control(self, message: bytes | bytearray | memoryview) -> None:
         """Queue a message on the reliable control channel: the peer gets it exactly once and in
@@ -395,7 +395,7 @@ class Endpoint:
                 "next is opening; the message was not queued: send it again once the endpoint "
                 "is established (await ep.wait_resumed())"
             ) from None
-        self._flush(now)
+        self.flush(now)
 
     async def recv_control(self) -> ControlReceived:
         """The peer's next control message, in the order it sent them. Raises
@@ -526,7 +526,7 @@ class Endpoint:
             self._reconnect.cancel()
         if not self.is_closed:
             self._conn.close(now=monotonic(), restarting=restarting)
-            self._flush()
+            self.flush()
         self._release()
         closed = self._transport_closed
         if closed is not None:
@@ -548,7 +548,7 @@ class Endpoint:
     def datagram_received(self, data: bytes, addr: Address) -> None:
         now = monotonic()
         self._conn.receive_datagram(data, addr, now=now)
-        self._flush(now)
+        self.flush(now)
 
     def receive_batch(
         self,
@@ -577,9 +577,9 @@ class Endpoint:
                 ecn = classes[i] & 3 if classes is not None and classes[i] >= 0 else None
                 conn.receive_datagram(datas[i], addrs[i], now=now, rx_time=rx_time, ecn=ecn)
                 if conn.state is CLOSED:
-                    self._flush(now)  # ended (or reopening): what follows finds the next session
+                    self.flush(now)  # ended (or reopening): what follows finds the next session
                     conn = self._conn
-            self._flush(now)
+            self.flush(now)
         finally:
             if owner is not None:
                 owner.release_batch(count)
@@ -596,35 +596,40 @@ class Endpoint:
         if self._conn.sending_paused:
             self._conn.resume_sending()
             if not self.is_closed:
-                self._flush()
+                self.flush()
 
     def evict(self, detail: str, now: float) -> bytes | None:
         """Slave side: end this session so that a new master can have its slot (the server's slot
         policy chose it; the session closes as ``EVICTED``, its master gets a CLOSE ``EVICTED``,
         which is returned so that the server can repeat it)."""
         close = self._conn.evict(detail, now=now)
-        self._flush(now)
+        self.flush(now)
         self._release()
         return close
 
     def fail_open(self, exc: BaseException) -> None:
         """The transport reported an error that ends a connection still opening (e.g. ICMP port
-        unreachable): :meth:`wait_established` raises ``exc``."""
+        unreachable): :meth:`wait_established` raises ``exc``, and the endpoint lets go of its
+        timer and socket at once (nobody listens: there is no one to send a CLOSE to)."""
         if not self._established.done():
             self._established.set_exception(exc)
             self._established.exception()  # retrieved: connect() reports it itself
+            self._release()
 
     def _on_timer(self) -> None:
         now = monotonic()
         self._conn.handle_timer(now=now)
-        self._flush(now)
+        self.flush(now)
 
     async def wait_established(self) -> None:
         await asyncio.shield(self._established)
 
-    # ------------------------------------------------------------------ internals
-
-    def _flush(self, now: float | None = None) -> None:
+    def flush(self, now: float | None = None) -> None:
+        """Hand the core's events to the application, send what is due and re-arm the timer: what
+        follows every input. The endpoint's own entry points (:meth:`send`, :meth:`datagram_received`,
+        the timer) do it themselves; a driver that feeds :attr:`connection` directly (the server and
+        its demultiplexer) calls it after each batch. ``now``: the clock read with the input, if any.
+        """
         conn = self._conn
         event = conn.next_event()  # (rather than asking pending_events first: one call less)
         if event is not None and conn.state is ESTABLISHED:
@@ -671,6 +676,8 @@ class Endpoint:
             deadline = conn.get_timer()
             if deadline is not None and deadline < timer.deadline:
                 timer.arm(deadline)
+
+    # ------------------------------------------------------------------ internals
 
     def _drain_events(self, event: Event | None = None) -> None:
         """Take the connection's events, ``event`` (the first, already taken) and those after it."""
@@ -816,7 +823,7 @@ class Endpoint:
     def _start_reopen(self) -> None:
         reconnect = self._reconnect
         if reconnect is not None and not self._closing and reconnect.open(self._conn, monotonic()):
-            self._flush()
+            self.flush()
 
     def _reopened(self) -> None:
         now = monotonic()
@@ -839,7 +846,7 @@ class Endpoint:
             return
         self._reconnect.silence_reopen = True
         conn.close(now=monotonic())
-        self._flush()
+        self.flush()
 
     def _name(self) -> str:
         return f"tdtp {self._conn.role.value} {format_address(self._conn.peer)}"

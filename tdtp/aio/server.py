@@ -299,7 +299,7 @@ class Server:
             # endpoint.datagram_received(data, addr), inline: one Python call less per datagram
             now = monotonic()
             endpoint._conn.receive_datagram(data, addr, now=now)
-            endpoint._flush(now)
+            endpoint.flush(now)
             if key in self._peers or not is_open(data):
                 return
             # The connection ended on this OPEN: its master restarted and opens anew.
@@ -359,7 +359,7 @@ class Server:
                     old_key[1],
                     format_address(addr),
                 )
-                endpoint._flush(now)
+                endpoint.flush(now)
                 return
 
     def _exclusive_refuses(self, admitted: AdmittedOpen, addr: Address, now: float) -> bool:
@@ -386,7 +386,7 @@ class Server:
                 " (takeover flag)" if takeover else " (silent)",
             )
             endpoint.connection.close(now=now, taken_over=True)
-            endpoint._flush(now)
+            endpoint.flush(now)
         return False
 
     def _open(
@@ -444,7 +444,7 @@ class Server:
             pending.popleft()
         pending.append(endpoint)
         conn.accept_open(admitted, addr, now=now)
-        endpoint._flush(now)
+        endpoint.flush(now)
 
     def _evict(self, holder: Connection, detail: str, now: float) -> None:
         """End the session the slot policy chose (its master is gone, or restarted elsewhere) and
