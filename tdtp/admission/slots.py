@@ -13,7 +13,7 @@ an address that holds no session asks :meth:`SessionSlots.place` for a slot and 
 * ``BUSY`` / ``SHARE``: refused with REJECT ``BUSY``; every slot is held by a master heard within
   ``reclaim_after`` (BUSY), or the source already holds its share of the slots (SHARE).
 
-Before version 4 of this rule a full slave gave the slot of any session silent for the watchdog's
+Before issue 31 a full slave gave the slot of any session silent for the watchdog's
 ``silence_timeout`` (0.1 s) to any validated OPEN: an attacker re-sending cookie-validated OPENs took
 a live operator's slot in every 0.2 s hiccup.
 
