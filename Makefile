@@ -2,8 +2,13 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
-BENCH_STAMP := $(VENV)/.installed-bench
+# (Named for the install mode: a .venv made with the older mode is reinstalled once.)
+STAMP := $(VENV)/.installed-compat
+BENCH_STAMP := $(VENV)/.installed-bench-compat
+# The editable install puts the checkout itself on sys.path (a path entry, setuptools' "compat"
+# mode) rather than an import hook: a script run from the clone's parent directory, where the clone's
+# folder is also called tdtp, then still imports the package, not that folder (issue 35).
+EDITABLE := --no-build-isolation --config-settings editable_mode=compat -e
 BUILD_STAMP := $(VENV)/.built
 # What setup.py may compile (a superset of its list: any change here recompiles the core in place).
 CORE_SOURCES := $(wildcard tdtp/*.py tdtp/session/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) tdtp/aio/_datagram.c tdtp/session/_slot_filler.c setup.py
@@ -33,7 +38,7 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -c 'import tomllib; print("\n".join(tomllib.load(open("pyproject.toml", "rb"))["build-system"]["requires"]))' \
 		| xargs -d '\n' $(BIN)/python -m pip install --quiet --upgrade
-	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,plot,loop]'
+	$(BIN)/python -m pip install --quiet $(EDITABLE) '.[test,fast,plot,loop]'
 	$(MARK_BUILT)
 	touch $(STAMP) $(BUILD_STAMP)
 
@@ -52,7 +57,7 @@ demo: $(BUILD_STAMP)
 	$(BIN)/tdtp demo --duration 5
 
 $(BENCH_STAMP): pyproject.toml | $(STAMP)
-	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,bench,plot]'
+	$(BIN)/python -m pip install --quiet $(EDITABLE) '.[test,fast,bench,plot]'
 	touch $(BENCH_STAMP)
 
 # The benchmark suite (~4 min on 2 cores): prints the table, writes benchmarks/results/latest.*

@@ -51,6 +51,7 @@ class ConnectionView:
 
     @property
     def state(self) -> State:
+        """Where the session is in its life (:class:`~tdtp.State`)."""
         return self._state
 
     @property
@@ -84,6 +85,7 @@ class ConnectionView:
 
     @property
     def controller(self) -> RateController:
+        """The rate controller deciding when data packets may leave."""
         return self._controller
 
     @property

@@ -165,6 +165,7 @@ class DeadbandReceiver:
     _slope: list[float] | None = None
 
     def receive(self, values: Sequence[float], *, now: float) -> None:
+        """Take the values of a sample that arrived at ``now`` (the newest the sender let through)."""
         current = list(values)
         last = self._last
         if (

@@ -170,6 +170,7 @@ class OpenBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.OPEN
 
 
@@ -188,6 +189,7 @@ class OpenAckBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.OPEN_ACK
 
 
@@ -201,6 +203,7 @@ class CookieBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.COOKIE
 
 
@@ -231,6 +234,7 @@ class ResetBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.RESET
 
 
@@ -241,6 +245,7 @@ class PathChallengeBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.PATH_CHALLENGE
 
 
@@ -254,6 +259,7 @@ class PathResponseBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.PATH_RESPONSE
 
 
@@ -270,6 +276,7 @@ class MessageBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MESSAGE
 
 
@@ -281,6 +288,7 @@ class MessageAckBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MESSAGE_ACK
 
 
@@ -377,6 +385,7 @@ def encode_open_ack(body: OpenAckBody) -> bytes:
 
 
 def encode_cookie(nonce: bytes, cookie: bytes) -> bytes:
+    """A COOKIE body (code byte included): the version, the master's nonce echoed, the cookie."""
     return _COOKIE.pack(ControlCode.COOKIE, PROTOCOL_VERSION, nonce, cookie)
 
 
@@ -412,10 +421,12 @@ def encode_keepalive(nonce: bytes) -> bytes:
 
 
 def encode_path_challenge(token: bytes) -> bytes:
+    """A PATH_CHALLENGE body (code byte included): the token the new address must echo."""
     return _PATH_CHALLENGE.pack(ControlCode.PATH_CHALLENGE, token)
 
 
 def encode_path_response(token: bytes, nonce: bytes) -> bytes:
+    """A PATH_RESPONSE body (code byte included): the challenge's token and the session's nonce."""
     return _PATH_RESPONSE.pack(ControlCode.PATH_RESPONSE, token, nonce)
 
 
