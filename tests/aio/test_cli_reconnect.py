@@ -2,7 +2,7 @@
 (reconnecting by default) tells it from a RESET, opens a new session and keeps receiving. The test
 checks what the run recorded (a reconnect, samples after it, on both ends); the sample count the
 issue targets (>= 7,500 of a 10 s run at 1 kHz with the slave down from 3 s to 4 s) is a
-measurement: benchmarks/README.md, "Slave restart", with the command that produced it."""
+measurement: benchmarks/HISTORY.md, "Slave restart", with the command that produced it."""
 
 from __future__ import annotations
 
