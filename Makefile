@@ -10,6 +10,7 @@ BENCH_STAMP := $(VENV)/.installed-bench-compat
 # folder is also called tdtp, then still imports the package, not that folder (issue 35).
 EDITABLE := --no-build-isolation --config-settings editable_mode=compat -e
 BUILD_STAMP := $(VENV)/.built
+DOCS_STAMP := $(VENV)/.installed-docs
 # What setup.py may compile (a superset of its list: any change here recompiles the core in place).
 CORE_SOURCES := $(wildcard tdtp/*.py tdtp/session/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) tdtp/aio/_datagram.c tdtp/session/_slot_filler.c setup.py
 # mypyc leaves the library untouched when the sources' content has not changed (a checkout or a
@@ -25,7 +26,7 @@ PURE_REST := $(filter-out tests/wire/ tests/control/,$(wildcard tests/*/))
 
 CLOSED_LOOP_ARGS ?=
 
-.PHONY: demo bench paths kernel-check closed-loop build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
+.PHONY: demo bench paths kernel-check closed-loop build figures docs test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -91,6 +92,16 @@ closed-loop: $(BENCH_STAMP) $(BUILD_STAMP)
 figures: $(BUILD_STAMP)
 	$(BIN)/tdtp simulate all --out docs/figures --jobs 2
 
+$(DOCS_STAMP): pyproject.toml | $(STAMP)
+	$(BIN)/python -c 'import tomllib; print("\n".join(tomllib.load(open("pyproject.toml", "rb"))["project"]["optional-dependencies"]["docs"]))' \
+		| xargs -d '\n' $(BIN)/python -m pip install --quiet
+	touch $(DOCS_STAMP)
+
+# The documentation site (docs/_build/html/index.html): tutorial, how-to guides, the API reference
+# from the docstrings, the protocol's explanation pages. Warnings are errors; it builds offline.
+docs: $(DOCS_STAMP)
+	TDTP_PURE_PYTHON=1 $(BIN)/python -m sphinx -q -W --keep-going -b html docs docs/_build/html
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
@@ -112,8 +123,8 @@ unit-pure: $(STAMP)
 unit-pure-rest: $(STAMP)
 	TDTP_PURE_PYTHON=1 $(BIN)/python -m pytest -q -n 2 $(PURE_REST)
 
-test: lint typecheck unit
+test: lint typecheck docs unit
 
 clean:
-	rm -rf $(VENV) .mypy_cache .pytest_cache .ruff_cache .hypothesis build
+	rm -rf $(VENV) .mypy_cache .pytest_cache .ruff_cache .hypothesis build dist docs/_build
 	find tdtp -name '*.so' -delete
