@@ -2,7 +2,7 @@
 
     tdtp keygen arm.keys --name operator-1
     python examples/arm/robot.py --key-file arm.keys --port 7000
-    python examples/arm/operator.py 127.0.0.1:7000 --key-file arm.keys   # another terminal
+    python examples/arm/operator_station.py 127.0.0.1:7000 --key-file arm.keys   # another terminal
 
 Every millisecond the robot takes the newest joint command (typed with SampleCodec), moves its joints
 toward it as the mode allows (``position``: stiffly; ``compliant``: slowly) and answers with its joint

@@ -66,13 +66,7 @@ def _robot(keys: Path, port: int, summary: Path) -> Iterator[subprocess.Popen[st
         _wait_for_line(robot, "robot listening on")
         yield robot
     finally:
-        if robot.poll() is None:
-            robot.send_signal(signal.SIGINT)
-        try:
-            robot.communicate(timeout=BOUND)
-        except subprocess.TimeoutExpired:
-            robot.kill()
-            robot.communicate()
+        _stop(robot)
 
 
 def _stop(process: subprocess.Popen[str]) -> None:
@@ -86,6 +80,18 @@ def _stop(process: subprocess.Popen[str]) -> None:
         raise
 
 
+def _operator(keys: Path, port: int, summary: Path, *args: str) -> subprocess.Popen[str]:
+    return _start(
+        ARM / "operator_station.py",
+        f"127.0.0.1:{port}",
+        "--key-file",
+        str(keys),
+        "--json",
+        str(summary),
+        *args,
+    )
+
+
 def _keys(tmp_path: Path) -> Path:
     path = tmp_path / "arm.keys"
     tdtp.write_key_file(path, [tdtp.PresharedKey.generate("operator-1")])
@@ -96,11 +102,10 @@ def test_the_arm_teleoperation_applies_mode_estop_and_resume_in_order(tmp_path: 
     keys, port = _keys(tmp_path), _free_port()
     robot_json, operator_json = tmp_path / "robot.json", tmp_path / "operator.json"
     with _robot(keys, port, robot_json):
-        operator = _start(
-            ARM / "operator.py",
-            f"127.0.0.1:{port}",
-            "--key-file",
-            str(keys),
+        operator = _operator(
+            keys,
+            port,
+            operator_json,
             "--seconds",
             "3",
             "--mode-at",
@@ -109,8 +114,6 @@ def test_the_arm_teleoperation_applies_mode_estop_and_resume_in_order(tmp_path: 
             "1.2",
             "--resume-at",
             "2",
-            "--json",
-            str(operator_json),
         )
         output, _ = operator.communicate(timeout=BOUND)
         assert operator.returncode == 0, output
@@ -137,16 +140,7 @@ def test_the_arm_holds_on_silence_and_the_operator_reconnects_to_a_restarted_rob
     operator = None
     try:
         _wait_for_line(first, "robot listening on")
-        operator = _start(
-            ARM / "operator.py",
-            f"127.0.0.1:{port}",
-            "--key-file",
-            str(keys),
-            "--seconds",
-            "120",
-            "--json",
-            str(operator_json),
-        )
+        operator = _operator(keys, port, operator_json, "--seconds", "120")
         _wait_for_line(first, "operator operator-1 connected")
         operator.send_signal(signal.SIGSTOP)  # the operator's station freezes for 0.5 s
         time.sleep(0.5)
@@ -214,7 +208,13 @@ def test_the_tutorials_robot_and_operator_run(tmp_path: Path) -> None:
     try:
         _wait_for_line(robot, "robot listening on")
         operator = subprocess.run(
-            [sys.executable, str(tutorial / "operator.py"), f"127.0.0.1:{port}", str(keys), "2"],
+            [
+                sys.executable,
+                str(tutorial / "operator_station.py"),
+                f"127.0.0.1:{port}",
+                str(keys),
+                "2",
+            ],
             capture_output=True,
             text=True,
             timeout=BOUND,

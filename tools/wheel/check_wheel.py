@@ -59,30 +59,22 @@ def main(directory: str) -> int:
         ):
             if name in os.environ:
                 env[name] = os.environ[name]
-        install = subprocess.run(
-            [str(bin_dir / "python"), "-m", "pip", "install", "--quiet", str(wheel)],
-            env=env,
-            cwd=tmp,
-            capture_output=True,
-            text=True,
-            check=False,
+        steps = (
+            (f"installing {wheel.name}", ["-m", "pip", "install", "--quiet", str(wheel)]),
+            ("importing tdtp", ["-c", CHECK]),
         )
-        if install.returncode != 0:
-            print(
-                f"check_wheel: installing {wheel.name} failed:\n{install.stderr}", file=sys.stderr
+        for what, args in steps:
+            run = subprocess.run(
+                [str(bin_dir / "python"), *args],
+                env=env,
+                cwd=tmp,
+                capture_output=True,
+                text=True,
+                check=False,
             )
-            return 1
-        run = subprocess.run(
-            [str(bin_dir / "python"), "-c", CHECK],
-            env=env,
-            cwd=tmp,
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        if run.returncode != 0:
-            print(f"check_wheel: importing tdtp failed:\n{run.stderr}", file=sys.stderr)
-            return 1
+            if run.returncode != 0:
+                print(f"check_wheel: {what} failed:\n{run.stderr}", file=sys.stderr)
+                return 1
         print(f"{wheel.name}: {run.stdout.strip()}")
         report = run.stdout
         failed = [

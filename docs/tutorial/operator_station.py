@@ -36,5 +36,7 @@ async def main(robot: str, key_file: str, seconds: float) -> None:
 
 
 if __name__ == "__main__":
-    robot, key_file, seconds = sys.argv[1:4]  # python operator.py 192.0.2.7:7000 station.keys 5
+    robot, key_file, seconds = sys.argv[
+        1:4
+    ]  # python operator_station.py 192.0.2.7:7000 station.keys 5
     asyncio.run(main(robot, key_file, float(seconds)))

@@ -1,6 +1,6 @@
 """The operator's station of a 7-joint arm teleoperation: a keyed TDTP master with a live status line.
 
-    python examples/arm/operator.py 127.0.0.1:7000 --key-file arm.keys --seconds 30 \\
+    python examples/arm/operator_station.py 127.0.0.1:7000 --key-file arm.keys --seconds 30 \\
         --mode-at 5=compliant --estop-at 10 --resume-at 12
 
 A stand-in for the operator's hand moves the seven joints along slow sine waves; every millisecond
