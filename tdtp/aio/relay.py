@@ -24,6 +24,7 @@ __all__ = [
     "BACKLOG_LIMIT",
     "NetemRelay",
     "RelayStats",
+    "start_relay",
 ]
 
 BACKLOG_LIMIT = 64
