@@ -200,6 +200,7 @@ class Endpoint:
 
     @property
     def peer(self) -> Address | None:
+        """The peer's address once known (a slave's master, a master's slave), else ``None``."""
         return self._conn.peer
 
     @property
@@ -265,6 +266,7 @@ class Endpoint:
 
     @property
     def is_closed(self) -> bool:
+        """Whether the session has ended (:attr:`close_event` says why)."""
         return self._conn.state is State.CLOSED
 
     @property
@@ -546,6 +548,7 @@ class Endpoint:
     # ------------------------------------------------------------------ driven by the transport
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
+        """The transport's hand-off: one datagram from ``addr``, taken in and answered at once."""
         now = monotonic()
         self._conn.receive_datagram(data, addr, now=now)
         self.flush(now)
@@ -622,6 +625,7 @@ class Endpoint:
         self.flush(now)
 
     async def wait_established(self) -> None:
+        """Wait until the opening handshake completes; raises what ended it otherwise."""
         await asyncio.shield(self._established)
 
     def flush(self, now: float | None = None) -> None:

@@ -199,6 +199,7 @@ class Server:
 
     @property
     def port(self) -> int:
+        """The UDP port the server listens on (the one the system chose for ``port=0``)."""
         return int(self.sockname[1])
 
     @property

@@ -28,7 +28,7 @@ from tdtp.admission.admission import Admission, AdmittedOpen
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.registry import create_controller
 from tdtp.errors import ArgumentTypeError, ConnectionStateError
-from tdtp.protection.keys import KeyInput, KeysInput
+from tdtp.protection.keys import KeysInput, OneKeyInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session import ending
 from tdtp.session.ack_scheduler import AckScheduler
@@ -104,7 +104,7 @@ class Connection(ConnectionView):
         *,
         role: Role,
         rng: random.Random | None = None,
-        key: KeyInput | None = None,
+        key: OneKeyInput | None = None,
         keys: KeysInput | None = None,
         admission: Admission | None = None,
     ) -> None:

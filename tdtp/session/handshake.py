@@ -25,7 +25,7 @@ from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.errors import InvalidKeyError
 from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
-from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey, as_key, as_key_ring
+from tdtp.protection.keys import KeysInput, OneKeyInput, PresharedKey, as_key, as_key_ring
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
 from tdtp.session.events import Address
 from tdtp.session.liveness import Liveness
@@ -95,7 +95,7 @@ class Handshake:
         role: Role,
         rng: random.Random,
         *,
-        key: KeyInput | None,
+        key: OneKeyInput | None,
         keys: KeysInput | None,
         admission: Admission | None,
         stats: ConnectionStats,

@@ -143,6 +143,7 @@ class ConnectionStats:
 
     @property
     def dropped(self) -> int:
+        """Datagrams dropped, all reasons together (``drops`` has them by reason)."""
         return sum(self.drops.values())
 
     def count_handshake(self, size: int, tag: int) -> None:
@@ -157,6 +158,7 @@ class ConnectionStats:
         received.control_packets += 1
 
     def count_drop(self, reason: DropReason) -> None:
+        """Count one datagram dropped for ``reason``."""
         key = reason.value
         self.drops[key] = self.drops.get(key, 0) + 1
         if _logger.isEnabledFor(logging.DEBUG):

@@ -53,6 +53,7 @@ class ConnectionView:
 
     @property
     def state(self) -> State:
+        """Where the session is in its life (:class:`~tdtp.State`)."""
         return self._state
 
     @property
@@ -86,6 +87,7 @@ class ConnectionView:
 
     @property
     def controller(self) -> RateController:
+        """The rate controller deciding when data packets may leave."""
         return self._controller
 
     @property

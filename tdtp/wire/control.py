@@ -178,6 +178,7 @@ class OpenBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.OPEN
 
 
@@ -196,6 +197,7 @@ class OpenAckBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.OPEN_ACK
 
 
@@ -209,6 +211,7 @@ class CookieBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.COOKIE
 
 
@@ -239,6 +242,7 @@ class ResetBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.RESET
 
 
@@ -249,6 +253,7 @@ class PathChallengeBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.PATH_CHALLENGE
 
 
@@ -262,6 +267,7 @@ class PathResponseBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.PATH_RESPONSE
 
 
@@ -278,6 +284,7 @@ class MessageBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MESSAGE
 
 
@@ -289,6 +296,7 @@ class MessageAckBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MESSAGE_ACK
 
 
@@ -385,6 +393,7 @@ def encode_open_ack(body: OpenAckBody) -> bytes:
 
 
 def encode_cookie(nonce: bytes, cookie: bytes) -> bytes:
+    """A COOKIE body (code byte included): the version, the master's nonce echoed, the cookie."""
     return _COOKIE.pack(ControlCode.COOKIE, PROTOCOL_VERSION, nonce, cookie)
 
 
@@ -420,10 +429,12 @@ def encode_keepalive(nonce: bytes) -> bytes:
 
 
 def encode_path_challenge(token: bytes) -> bytes:
+    """A PATH_CHALLENGE body (code byte included): the token the new address must echo."""
     return _PATH_CHALLENGE.pack(ControlCode.PATH_CHALLENGE, token)
 
 
 def encode_path_response(token: bytes, nonce: bytes) -> bytes:
+    """A PATH_RESPONSE body (code byte included): the challenge's token and the session's nonce."""
     return _PATH_RESPONSE.pack(ControlCode.PATH_RESPONSE, token, nonce)
 
 

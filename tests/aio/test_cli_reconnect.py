@@ -4,7 +4,7 @@ as the slave is back and keeps receiving. (A slave killed without a word is foun
 asyncio tests of tests/aio/test_restart_and_eviction.py.) The test checks what the run recorded (a
 reconnect for the restart, samples after it, on both ends); the sample count the issue targets
 (>= 7,500 of a 10 s run at 1 kHz with the slave down from 3 s to 4 s) is a measurement:
-benchmarks/README.md, "Slave restart", with the command that produced it."""
+benchmarks/HISTORY.md, "Ctrl-C instead of SIGKILL", with the command that produced it."""
 
 from __future__ import annotations
 
