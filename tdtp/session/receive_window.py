@@ -166,6 +166,10 @@ class ReceiveWindow:
             elif distance <= -WINDOW:
                 self.last_seq = seq
                 return STALE
+        else:
+            # Any other arrival ends a run: only numbers that arrive one after the other re-anchor
+            # the window (three stale numbers spread between live packets once did).
+            self._stale_run = 0
         if distance > 0:
             if self._coverage:
                 reach = seq - SACK_SPAN  # the lowest sequence number an ACK of ``seq`` describes
