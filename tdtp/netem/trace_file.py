@@ -15,6 +15,8 @@ milliseconds) and a file already loaded, unchanged since, is not read again.
 
 from __future__ import annotations
 
+import itertools
+import operator
 import os
 import re
 from array import array
@@ -121,13 +123,10 @@ def _parse(path: str, text: str) -> array[int]:
         lines.pop()  # a file ending with newlines is fine; blank lines inside are not
     try:
         times = array("q", map(int, lines))
-        bad = None
     except (ValueError, OverflowError):
-        times = array("q")
+        times = None
+    if times is None or (times and min(times) < 0):
         bad = next(n for n, line in enumerate(lines, 1) if not _is_millisecond(line))
-    if bad is not None or any(t < 0 for t in times):
-        if bad is None:
-            bad = next(n for n, t in enumerate(times, 1) if t < 0)
         shown = lines[bad - 1].strip()
         what = "an empty line" if not shown else repr(shown[:40])
         raise TraceFileError(
@@ -136,14 +135,14 @@ def _parse(path: str, text: str) -> array[int]:
             path=path,
             line=bad,
         )
-    for n in range(1, len(times)):
-        if times[n] < times[n - 1]:
-            raise TraceFileError(
-                f"line {n + 1} of trace file {path!r} goes back in time ({times[n]} ms after "
-                f"{times[n - 1]} ms): timestamps must never decrease",
-                path=path,
-                line=n + 1,
-            )
+    if not all(map(operator.le, times, itertools.islice(times, 1, None))):
+        n = next(n for n in range(1, len(times)) if times[n] < times[n - 1])
+        raise TraceFileError(
+            f"line {n + 1} of trace file {path!r} goes back in time ({times[n]} ms after "
+            f"{times[n - 1]} ms): timestamps must never decrease",
+            path=path,
+            line=n + 1,
+        )
     return times
 
 

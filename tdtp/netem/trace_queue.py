@@ -113,33 +113,36 @@ class TraceQueue:
         queue is full (a drop). ``now`` must not go backwards between calls."""
         if self.origin is None:
             self.origin = now
-        self._release(now)
-        wire = max(size + self.overhead, 0)
+        waiting = self._waiting
+        while waiting and waiting[0][0] <= now:  # their service has begun: out of the queue
+            self._bytes -= waiting.popleft()[1]
+        wire = size + self.overhead
+        if wire < 0:
+            wire = 0
         if self.limit_bytes is not None:
             if self._bytes + wire > self.limit_bytes:
                 return None
-        elif len(self._waiting) + 1 > self.limit:
+        elif len(waiting) >= self.limit:
             return None
-        need = wire
-        if self._index_time > now and self._left > 0:
-            start = self._index_time  # share the opportunity the datagram before us finished in
-            if need <= self._left:
-                self._left -= need
-                return self._accept(start, wire, start)
-            need -= self._left
+        current, left = self._index_time, self._left
+        if current > now:  # the datagram before us is still waiting: we follow it
+            if left > 0 and wire <= left:  # share the opportunity it finished in
+                self._left = left - wire
+                return self._accept(current, wire, current)
+            need = wire - left
             index = self._index + 1
-        elif self._index_time > now:
-            index = self._index + 1
+            start = current if left > 0 else None
         else:
+            need = wire
             index = self._first_after(max(now, self._not_before))
-        start = self.opportunity_time(index)
-        while need > OPPORTUNITY_BYTES:  # a datagram larger than what one opportunity carries
-            need -= OPPORTUNITY_BYTES
-            index += 1
-        self._index = index
-        self._index_time = departure = self.opportunity_time(index)
-        self._left = OPPORTUNITY_BYTES - need
-        return self._accept(start, wire, departure)
+            start = None
+        extra = (need - 1) // OPPORTUNITY_BYTES if need > 0 else 0  # more than one opportunity
+        first = self.opportunity_time(index)
+        departure = first if not extra else self.opportunity_time(index + extra)
+        self._index = index + extra
+        self._index_time = departure
+        self._left = (extra + 1) * OPPORTUNITY_BYTES - need
+        return self._accept(first if start is None else start, wire, departure)
 
     def _accept(self, start: float, wire: int, departure: float) -> float:
         self._waiting.append((start, wire))

@@ -226,6 +226,24 @@ def test_limit_bytes_counts_the_waiting_datagrams_not_the_one_being_served(write
     assert out == [(pytest.approx(0.020), 0), (pytest.approx(0.040), 2)]
 
 
+def test_a_datagram_spanning_opportunities_is_in_service_from_the_first(write_trace) -> None:  # type: ignore[no-untyped-def]
+    # One opportunity every 10 ms. 100 bytes leave at 10 ms; the 3000 bytes behind them start
+    # in the same opportunity (its last 1400 bytes), so from 10 ms on they are being served and the
+    # queue's 3000 bytes are free again, although they leave only at 30 ms.
+    path = write_trace(range(10, 101, 10))
+    link = NetemLink(parse_netem(f"trace {path} limit-bytes 3100"), seed=1)
+    link.deliver(0.0)
+    link.send(bytes(100), 0.001, 0)
+    link.send(bytes(3000), 0.002, 1)
+    link.send(bytes(3000), 0.011, 2)  # accepted: the first 3000 are in service
+    assert link.stats.queue_dropped == 0
+    assert [tag for _, tag in link.deliver(0.011)] == [0]  # it left at 10 ms
+    assert run(link, [], start=0.011) == [
+        (pytest.approx(0.030), 1),
+        (pytest.approx(0.050), 2),
+    ]
+
+
 def test_limit_in_packets_counts_the_trace_queue_not_the_delay_line(write_trace) -> None:  # type: ignore[no-untyped-def]
     # 200 ms of delay after a fast trace: 100 datagrams on the delay line do not fill a 10-packet
     # queue, since the delay is propagation, after the queue.
