@@ -160,16 +160,6 @@ class Log:
             self.arrived.append(now)
 
 
-class _Udp(asyncio.DatagramProtocol):
-    def __init__(self, log: Log) -> None:
-        self.log = log
-        self.peer: tuple[str, int] | None = None
-
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.peer = addr
-        self.log.arrived_payload(data, tdtp.monotonic())
-
-
 async def window(
     logs: tuple[Log, Log], senders: tuple[Callable[[bytes], None], ...], duration: float
 ) -> list[int]:
@@ -233,79 +223,18 @@ async def tdtp_real(controller: str, ms: str, sm: str, duration: float, seed: in
 async def relayed(row: str, ms: str, sm: str, duration: float, seed: int) -> Json:
     """``udp-real`` or ``zenoh`` through ``tdtp netem-relay`` (ms forward, sm back)."""
     at_slave, at_master = Log(), Log()
-    loop = asyncio.get_running_loop()
-    sessions: list[Any] = []
-    transports: list[Any] = []
-    if row == "zenoh":
-        import zenoh  # noqa: PLC0415
-
-        slave_port = paths.free_udp_port()
-        relay = paths.Relay(ms, slave_port, seed, return_spec=sm)
-    else:
-        slave_t, slave_p = await loop.create_datagram_endpoint(
-            lambda: _Udp(at_slave),
-            local_addr=("127.0.0.1", 0),
-        )
-        transports.append(slave_t)
-        relay = paths.Relay(ms, slave_t.get_extra_info("sockname")[1], seed, return_spec=sm)
-    try:
-        await asyncio.sleep(0.5)  # the relay's interpreter starting
-        origin = tdtp.monotonic()
-        if row == "zenoh":
-            slave = zenoh.open(paths.zenoh_config([f"udp/127.0.0.1:{slave_port}"], []))
-            sessions.append(slave)
-            master = zenoh.open(paths.zenoh_config([], [f"udp/127.0.0.1:{relay.port}"]))
-            sessions.append(master)
-
-            def on(log: Log) -> Callable[[Any], None]:
-                return lambda sample: log.arrived_payload(
-                    sample.payload.to_bytes(), tdtp.monotonic()
-                )
-
-            subscribers = [
-                slave.declare_subscriber("tdtp-bench/ms", on(at_slave)),
-                master.declare_subscriber("tdtp-bench/sm", on(at_master)),
-            ]
-            options: Json = {
-                "congestion_control": zenoh.CongestionControl.DROP,
-                "reliability": zenoh.Reliability.BEST_EFFORT,
-                "express": True,
-            }
-            pubs = (
-                master.declare_publisher("tdtp-bench/ms", **options),
-                slave.declare_publisher("tdtp-bench/sm", **options),
-            )
-            senders: tuple[Callable[[bytes], None], ...] = (pubs[0].put, pubs[1].put)
-        else:
-            master_t, _ = await loop.create_datagram_endpoint(
-                lambda: _Udp(at_master),
-                remote_addr=("127.0.0.1", relay.port),
-            )
-            transports.append(master_t)
-
-            def to_master(data: bytes) -> None:
-                if slave_p.peer is not None:  # the relay's socket for this client
-                    slave_t.sendto(data, slave_p.peer)
-
-            senders = (master_t.sendto, to_master)
-        logs = (at_slave, at_master)
-        await paths.wait_for_probes(logs, senders, row)  # type: ignore[arg-type]
-        offered = await window(logs, senders, duration)
-        if row == "zenoh":
-            for s in subscribers:
-                s.undeclare()
-            for p in pubs:
-                p.undeclare()
-    finally:
-        for s in reversed(sessions):
-            s.close()
-        for t in transports:
-            t.close()
-        summary = relay.close()
+    logs = (at_slave, at_master)
+    kind = "udp" if row == "udp-real" else row
+    async with paths.baseline_pair(
+        kind, ms, seed, at_slave.arrived_payload, at_master.arrived_payload, return_spec=sm
+    ) as pair:
+        await paths.wait_for_probes(logs, pair.senders, row)  # type: ignore[arg-type]
+        offered = await window(logs, pair.senders, duration)
+    summary = pair.relay_summary
     return {
         "logs": logs,
         "offered": offered,
-        "origin": origin,
+        "origin": pair.opened_at,
         "relay": {"forward": summary["forward"], "return": summary["return"]},
     }
 

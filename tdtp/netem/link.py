@@ -323,13 +323,8 @@ class NetemLink:
         elif old is not None and self.spec.trace == trace:
             old.limit, old.limit_bytes = spec.limit, spec.limit_bytes  # same trace: same clock
         else:
-            self._queue = TraceQueue(
-                trace.trace,
-                offset=trace.offset,
-                overhead=trace.overhead,
-                limit=spec.limit,
-                limit_bytes=spec.limit_bytes,
-                not_before=old.last_departure if old is not None else -math.inf,
+            self._queue = TraceQueue.of(
+                spec, not_before=old.last_departure if old is not None else -math.inf
             )
 
     # -- the sans-IO interface ---------------------------------------------------------------------

@@ -305,14 +305,7 @@ class Link:
                     f"there instead of byte_limit ({spec})"
                 )
             # The trace's clock starts with the link, so that an offset means the same in every run.
-            self._trace = TraceQueue(
-                trace.trace,
-                offset=trace.offset,
-                overhead=trace.overhead,
-                limit=queue_spec.limit,
-                limit_bytes=queue_spec.limit_bytes,
-                origin=sim.now,
-            )
+            self._trace = TraceQueue.of(queue_spec, origin=sim.now)
             rate_bps = trace.trace.mean_rate_bps
             self._transmit = RateSpec(rate_bps).transmit_time  # not used: the trace serves
         else:

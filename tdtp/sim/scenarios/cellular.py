@@ -249,6 +249,20 @@ def _arrivals(recorder: FlowRecorder, start: float, end: float, rate: float) -> 
     return out
 
 
+def _judged(
+    net: Network,
+    ms: tuple[Arrivals, float],
+    sm: tuple[Arrivals, float],
+    senders: dict[str, dict[str, Any]],
+) -> CellularRun:
+    """The run's arrivals (each with its direction's propagation delay) and their figures."""
+    figures = {
+        key: direction_figures(arrivals, propagation=delay)
+        for key, (arrivals, delay) in (("ms", ms), ("sm", sm))
+    }
+    return CellularRun(ms[0], sm[0], figures, _link_counts(net), senders)
+
+
 def _link_counts(net: Network) -> dict[str, dict[str, int]]:
     counts = {}
     for key, link in (("ms", net.link(MASTER, SLAVE)), ("sm", net.link(SLAVE, MASTER))):
@@ -312,16 +326,7 @@ def run_tdtp(
             "ack_packets": endpoint.ack_packets,
             "packets_lost": stats.packets_lost,
         }
-    return CellularRun(
-        ms_arrivals,
-        sm_arrivals,
-        {
-            "ms": direction_figures(ms_arrivals, propagation=ms_delay),
-            "sm": direction_figures(sm_arrivals, propagation=sm_delay),
-        },
-        _link_counts(net),
-        senders,
-    )
+    return _judged(net, (ms_arrivals, ms_delay), (sm_arrivals, sm_delay), senders)
 
 
 def run_udp(
@@ -359,12 +364,4 @@ def run_udp(
     net.run(total)
     ms_arrivals = _arrivals(streams["ms"].recorder, start, start + duration, rate)
     sm_arrivals = _arrivals(streams["sm"].recorder, start + phase, start + phase + duration, rate)
-    return CellularRun(
-        ms_arrivals,
-        sm_arrivals,
-        {
-            "ms": direction_figures(ms_arrivals, propagation=ms_delay),
-            "sm": direction_figures(sm_arrivals, propagation=sm_delay),
-        },
-        _link_counts(net),
-    )
+    return _judged(net, (ms_arrivals, ms_delay), (sm_arrivals, sm_delay), {})
