@@ -477,6 +477,10 @@ def plot(summary: Json, default: str, out: Path) -> list[Path]:
                     )
             ax.set_xscale("log")
             ax.xaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.xaxis.set_minor_formatter(
+                ticker.FuncFormatter(lambda v, _: f"{v:g}" if f"{v:g}"[0] in "235" else "")
+            )
+            ax.tick_params(axis="x", which="minor", labelsize=7)
             ax.set_xlabel("one-way delay p95 (ms, log)")
             ax.set_title(f"{trace}: {label}")
             ax.axvline(TARGET_P95, color="grey", lw=0.8, ls=":")
