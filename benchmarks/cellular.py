@@ -193,28 +193,16 @@ async def tdtp_real(controller: str, ms: str, sm: str, duration: float, seed: in
     config = tdtp.ConnectionConfig(controller=controller, min_peer_payload=SIZE)  # type: ignore[arg-type]
     at_slave, at_master = Log(), Log()
     async with contextlib.AsyncExitStack() as stack:
-        server = await stack.enter_async_context(
-            tdtp.listen(
-                "127.0.0.1",
-                0,
-                config=config,
-                on_data=lambda e: at_slave.arrived_payload(e.payload, e.received_at),
-                netem=sm,
-                netem_seed=seed + 1,
-            )
+        origin = tdtp.monotonic()  # the links' traces start with the first datagrams, just after
+        master, slave = await paths.tdtp_pair(
+            stack,
+            config,
+            lambda e: at_slave.arrived_payload(e.payload, e.received_at),
+            lambda e: at_master.arrived_payload(e.payload, e.received_at),
+            ms=ms,
+            sm=sm,
+            seed=seed,
         )
-        origin = tdtp.monotonic()
-        master = await stack.enter_async_context(
-            tdtp.connect(
-                "127.0.0.1",
-                server.port,
-                config=config,
-                on_data=lambda e: at_master.arrived_payload(e.payload, e.received_at),
-                netem=ms,
-                netem_seed=seed,
-            )
-        )
-        slave = await server.accept()
         offered = await window((at_slave, at_master), (master.send, slave.send), duration)
         closed = master.is_closed or slave.is_closed
     return {"logs": (at_slave, at_master), "offered": offered, "origin": origin, "closed": closed}
