@@ -46,7 +46,6 @@ import struct
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +53,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
 import paths
 from _common import Json, Row, Stat
+from paths import Meter
 
 import tdtp
 import tdtp.control
@@ -137,31 +137,8 @@ def ideal_job(job: Json) -> Json:
 # ---------------------------------------------------------------------------- real sockets
 
 
-@dataclass
-class Log:
-    """One direction at the receiving application (the interface paths.py's helpers expect)."""
-
-    start: float = math.inf
-    until: float = math.inf
-    probes: int = 0
-    last_arrival: float = 0.0
-    generated: list[float] = field(default_factory=list)
-    arrived: list[float] = field(default_factory=list)
-
-    def arrived_payload(self, payload: bytes, now: float) -> None:
-        self.last_arrival = now
-        if len(payload) < STAMP.size:
-            return
-        sent_at, index = STAMP.unpack_from(payload)
-        if index == PROBE:
-            self.probes += 1
-        elif self.start <= sent_at < self.until:
-            self.generated.append(sent_at)
-            self.arrived.append(now)
-
-
 async def window(
-    logs: tuple[Log, Log], senders: tuple[Callable[[bytes], None], ...], duration: float
+    logs: tuple[Meter, Meter], senders: tuple[Callable[[bytes], None], ...], duration: float
 ) -> list[int]:
     """Both ends send a stamped sample every millisecond for ``duration``; then wait for the
     queues to drain (nothing arriving for 0.3 s, at most 8 s)."""
@@ -191,14 +168,14 @@ async def window(
 
 async def tdtp_real(controller: str, ms: str, sm: str, duration: float, seed: int) -> Json:
     config = tdtp.ConnectionConfig(controller=controller, min_peer_payload=SIZE)  # type: ignore[arg-type]
-    at_slave, at_master = Log(), Log()
+    at_slave, at_master = Meter(), Meter()
     async with contextlib.AsyncExitStack() as stack:
         origin = tdtp.monotonic()  # the links' traces start with the first datagrams, just after
         master, slave = await paths.tdtp_pair(
             stack,
             config,
-            lambda e: at_slave.arrived_payload(e.payload, e.received_at),
-            lambda e: at_master.arrived_payload(e.payload, e.received_at),
+            lambda e: at_slave.arrived(e.payload, e.received_at),
+            lambda e: at_master.arrived(e.payload, e.received_at),
             ms=ms,
             sm=sm,
             seed=seed,
@@ -210,13 +187,13 @@ async def tdtp_real(controller: str, ms: str, sm: str, duration: float, seed: in
 
 async def relayed(row: str, ms: str, sm: str, duration: float, seed: int) -> Json:
     """``udp-real`` or ``zenoh`` through ``tdtp netem-relay`` (ms forward, sm back)."""
-    at_slave, at_master = Log(), Log()
+    at_slave, at_master = Meter(), Meter()
     logs = (at_slave, at_master)
     kind = "udp" if row == "udp-real" else row
     async with paths.baseline_pair(
-        kind, ms, seed, at_slave.arrived_payload, at_master.arrived_payload, return_spec=sm
+        kind, ms, seed, at_slave.arrived, at_master.arrived, return_spec=sm
     ) as pair:
-        await paths.wait_for_probes(logs, pair.senders, row)  # type: ignore[arg-type]
+        await paths.wait_for_probes(logs, pair.senders, row)
         offered = await window(logs, pair.senders, duration)
     summary = pair.relay_summary
     return {
@@ -244,7 +221,7 @@ def real_worker(conn: Any, *, job: Json) -> None:
         ("sm", at_master, sm, result["offered"][1]),
     ):
         arrivals = scenario.Arrivals(log.start, log.start + duration, offered)
-        arrivals.generated, arrivals.arrived = log.generated, log.arrived
+        arrivals.generated, arrivals.arrived = log.sent_times, log.arrival_times
         figures = scenario.direction_figures(arrivals, propagation=PROPAGATION)
         allowed = scenario.allowed(
             text, start=log.start, duration=duration, origin=result["origin"]

@@ -167,6 +167,9 @@ class Meter:
     newest_sent: float = -math.inf
     ages: list[float] = field(default_factory=list)
     last_arrival: float = 0.0
+    sent_times: list[float] = field(default_factory=list)
+    """Send time of each sample of the window that arrived, in arrival order (cellular.py)."""
+    arrival_times: list[float] = field(default_factory=list)
 
     def arrived(self, payload: bytes, now: float) -> None:
         self.last_arrival = now
@@ -183,6 +186,8 @@ class Meter:
         else:
             self.received_late += 1
         self.latencies.append(now - sent_at)
+        self.sent_times.append(sent_at)
+        self.arrival_times.append(now)
         if sent_at > self.newest_sent:
             self.newest_sent = sent_at
 

@@ -166,8 +166,9 @@ def ideal(
     ideal_wire: int = SAMPLE_SIZE + UDP_IP,
     origin: float = 0.0,
 ) -> Arrivals:
-    """What the direction's trace allowed (see the module's docstring): samples generated at ``rate``
-    from ``start`` for ``duration``, the trace's clock started at ``origin`` (at its offset)."""
+    """What a sender that knew the link would deliver with nothing queued (see the module's
+    docstring): samples generated at ``rate`` from ``start`` for ``duration``, the trace's clock
+    started at ``origin`` (at its offset)."""
     trace, offset_ms, propagation = _trace_of(spec)
     count = round(duration * rate)
     out = Arrivals(start, start + duration, count)
