@@ -29,7 +29,8 @@ samples/s delivered and their share of what the trace allowed (min(offered, capa
 counted in 128-byte samples); one-way delay p50/p95/p99 from generation to delivery; dropouts (100 ms
 windows of the receiver's timeline with no sample); age p99 of the newest sample. Medians over the
 offsets, min-max spreads. A throughput-vs-p95-delay plot per trace (Pantheon's way), the JSON and a
-Markdown table in ``--out`` (benchmarks/results/cellular; --quick writes none unless --out is given).
+Markdown table in ``--out``: by default benchmarks/results/cellular for the full run only (a --quick
+or filtered run writes no file unless --out is given, so it never replaces the results of record).
 
 Issue 32's targets (default controller, 150 kB, each direction): p95 <= 60 ms, p99 <= 150 ms,
 >= 90 % of what the trace allowed.
@@ -498,6 +499,19 @@ def parse_args(argv: Sequence[str] | None) -> Any:
     p.add_argument("--no-plots", action="store_true", help="skip the PNGs")
     p.add_argument("--json", action="store_true", help="one JSON report on stdout")
     args = p.parse_args(argv)
+    # Only the full default run writes the results of record; a partial one writes where told.
+    complete = not any(
+        given is not None
+        for given in (
+            args.duration,
+            args.offsets,
+            args.trace,
+            args.queue,
+            args.controller,
+            args.real,
+            args.real_offsets,
+        )
+    )
     if args.duration is None:
         args.duration = QUICK_DURATION if args.quick else DURATION
     if not 1.0 <= args.duration <= 3600.0:
@@ -550,7 +564,7 @@ def parse_args(argv: Sequence[str] | None) -> Any:
     if missing:
         p.error(f"--traces: {traces} lacks {', '.join(missing)}")
     args.traces = traces.resolve()
-    if args.out is None and not args.quick:
+    if args.out is None and complete and not args.quick:
         args.out = common.RESULTS / "cellular"
     args.seconds, args.repeat = args.duration, len(args.offsets)  # what common.emit reports
     return args
