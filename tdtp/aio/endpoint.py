@@ -49,6 +49,7 @@ from tdtp.errors import (
     EndpointClosedError,
     ReconnectingError,
 )
+from tdtp.netem import NetemLink
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
@@ -247,6 +248,13 @@ class Endpoint:
             return None
         stats: dict[str, int] = layer.stats
         return stats
+
+    @property
+    def netem_link(self) -> NetemLink | None:
+        """The emulated link this endpoint sends through (``netem=`` on connect or listen), or
+        ``None``: its ``stats``, and with a trace its ``trace_queue``."""
+        link: NetemLink | None = getattr(getattr(self._socket, "line", None), "link", None)
+        return link
 
     def _datagram_layer(self) -> Any:
         """The socket's datagram layer under any wrappers (a pcap capture, in-process impairment:
