@@ -61,6 +61,10 @@ __all__ = ["Server", "ServerStats", "listen"]
 
 logger = logging.getLogger("tdtp")
 
+_MAX_CLOSING = 16
+"""Taken-over sessions a server keeps answering with their CLOSE (an exclusive server has one
+master in control at a time, so takeovers come one by one)."""
+
 
 @dataclass(slots=True)
 class ServerStats:
@@ -169,6 +173,9 @@ class Server:
         """Endpoints of admitted masters nobody has accepted yet, opening or established."""
         self._waiters: list[asyncio.Future[None]] = []
         """Tasks waiting in accept(): each one looks again when a master is established."""
+        self._closing: dict[tuple[object, object], tuple[Connection, float]] = {}
+        """Sessions a takeover ended, by their master's address, until their idle timeout: the
+        displaced master's datagrams get the CLOSE again, never a RESET (PROTOCOL.md 5.9)."""
         self._closed = False
         self.stats = ServerStats(
             admission=self._admission.stats, migration=self._admission.paths.stats
@@ -284,6 +291,8 @@ class Server:
             # The connection ended on this OPEN: its master restarted and opens anew.
         if self._closed:
             return
+        if self._closing and self._answer_closed(data, key, addr):
+            return
         # Only an OPEN may lead to state, and only once admitted. Anything else may be a master
         # whose address changed (path migration, within a bounded budget) or, when no session
         # claims it, a master whose session died with a restart of ours: it gets a RESET.
@@ -298,6 +307,39 @@ class Server:
             self._sender.sendto(verdict.datagram, addr)
         elif isinstance(verdict, AdmittedOpen):
             self._open(verdict, key, addr, now)
+
+    def _answer_closed(self, data: bytes, key: tuple[object, object], addr: Address) -> bool:
+        """A datagram from the master of a session that a takeover ended: its connection answers
+        with its CLOSE again (at most once per keep-alive interval), so that the displaced master
+        learns it was taken over even if the first CLOSE was lost or overtaken, instead of drawing
+        a RESET. False: not such a master's (an OPEN goes to the front door as ever)."""
+        entry = self._closing.get(key)
+        if entry is None or is_open(data):
+            return False
+        conn, until = entry
+        now = monotonic()
+        if now >= until:
+            del self._closing[key]
+            return False
+        conn.receive_datagram(data, addr, now=now)
+        assert self._sender is not None
+        for datagram, destination in conn.datagrams_to_send(now=now):
+            self._sender.sendto(datagram, destination)
+        return True
+
+    def _remember_closing(self, endpoint: Endpoint, now: float) -> None:
+        """Keep an ended session's connection to answer its master (:meth:`_answer_closed`);
+        expired ones go, and at most ``_MAX_CLOSING`` are kept."""
+        peer = endpoint.peer
+        if peer is None:
+            return
+        closing = self._closing
+        for old_key in [k for k, (_, until) in closing.items() if until <= now]:
+            del closing[old_key]
+        while len(closing) >= _MAX_CLOSING:
+            del closing[next(iter(closing))]
+        conn = endpoint.connection
+        closing[_peer_key(peer)] = (conn, now + conn.config.idle_timeout)
 
     def _on_unattached(self, data: bytes, key: tuple[object, object], addr: Address) -> None:
         """A datagram from an address no session holds: a master that moved (PROTOCOL.md 5.8)?"""
@@ -357,6 +399,7 @@ class Server:
             )
             endpoint.connection.close(now=now, taken_over=True)
             endpoint._flush(now)
+            self._remember_closing(endpoint, now)
         return False
 
     def _open(
