@@ -8,6 +8,8 @@ to the master it *is* the slave's, so a datagram the script sends from the relay
 forged from that address, and the datagrams the relay forwards are what an observer on the path
 sees. The attacks (docs/SECURITY.md, PROTOCOL.md 5.7, 5.8, 5.10):
 
+* ``baseline``: unkeyed, 1 kHz both ways, no attack: the samples per second this machine delivers
+  in the same run, to compare the others with.
 * ``reset_oracle``: keyed, the master at 100 Hz (its session goes quiet between datagrams). Every
   50 ms the attacker takes the master's newest datagram, replays it from a fresh address to the
   same slave (``same``) or to a second slave holding the same key (``second``), and forwards any
@@ -316,7 +318,14 @@ async def _quiet_master(relay: Relay, ctx: dict[str, Any]) -> None:
     victim.close()
 
 
+async def _no_attack(relay: Relay, ctx: dict[str, Any]) -> None:
+    """The baseline: the same session through the relay, nobody attacking (what the machine's load
+    leaves of 1000 samples/s in this run)."""
+    await ctx["stop"].wait()
+
+
 ATTACKS = {
+    "baseline": dict(keyed=False, master_rate=1000, slave_rate=1000, attack=_no_attack),
     "reset_oracle_same": dict(
         keyed=True, master_rate=100, slave_rate=0, attack=_reset_oracle("same")
     ),
