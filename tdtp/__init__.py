@@ -31,6 +31,7 @@ from tdtp.errors import (
     PayloadTooLargeError,
     PayloadTypeError,
     PortUnreachableError,
+    ReconnectingError,
     ServerClosedError,
     TdtpError,
 )
@@ -104,6 +105,7 @@ __all__ = [
     "PresharedKey",
     "ReconnectPolicy",
     "ReconnectRecord",
+    "ReconnectingError",
     "Role",
     "Server",
     "ServerClosedError",

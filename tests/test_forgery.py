@@ -14,6 +14,7 @@ import pytest
 
 from tdtp import CloseCause, Connection, ConnectionClosed, ConnectionConfig, Role, State
 from tdtp.admission import Admission
+from tdtp.admission.slots import EvictionNotices
 from tdtp.protection.keys import PresharedKey, as_key_ring
 from tdtp.session.events import ControlReceived
 from tdtp.wire import ControlCode, PacketType, encode_header, encode_path_response
@@ -349,24 +350,60 @@ def test_path_challenges_per_session_are_bounded() -> None:
 # ---------------------------------------------------------------------- takeover
 
 
-def _taken_over(pair: Pair) -> None:
-    """The slave hands control to another master (an exclusive server's takeover)."""
-    pair.slave.conn.close(now=pair.now, taken_over=True)
+class _ServerAfterTakeover:
+    """An exclusive server's front door once a takeover has ended the master's session (in fake
+    time, standing in for the slave connection): the displaced master's datagrams get the CLOSE
+    TAKEN_OVER again (the notices a server keeps, tdtp.admission.slots), anything else from an
+    unknown address a RESET, as tdtp.aio.server does."""
+
+    def __init__(self, close: bytes, now: float) -> None:
+        config = ConnectionConfig()
+        self.notices = EvictionNotices(4, config.idle_timeout, config.silence_timeout)
+        self.notices.add(MASTER_ADDR, close, now)
+        self.admission = Admission(config, as_key_ring([KEY]), rng=random.Random(3))
+        self.peer = None
+        self.state = State.LISTENING
+        self.repeated = 0
+        self._out: list[tuple[bytes, Address]] = []
+
+    def receive_datagram(self, data: bytes, addr: Address, *, now: float) -> None:
+        if self.notices.holds(addr, now):
+            close = self.notices.answer(addr, len(data), now)
+            if close is not None:
+                self.repeated += 1
+                self._out.append((close, addr))
+            return
+        reset = self.admission.reset(data, now)
+        if reset is not None:
+            self._out.append((reset, addr))
+
+    def datagrams_to_send(self, *, now: float) -> list[tuple[bytes, Address]]:
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> None:
+        return None
+
+    def handle_timer(self, *, now: float) -> None:
+        pass
+
+    def next_event(self) -> None:
+        return None
 
 
 @pytest.mark.parametrize("race", ["reset_first", "close_lost"])
 def test_a_displaced_master_always_ends_taken_over(race: str) -> None:
     """Keyed, exclusive: another master took control. The displaced master's datagrams still in
-    flight reach a server that holds no session for it any more: a RESET may overtake the CLOSE
-    (reset_first), or the CLOSE may be lost (close_lost). The master ends ``taken_over`` either
-    way: a RESET is not believed from a slave heard a moment ago (``peer_alive``), and the closed
-    session answers the master's next datagrams with its CLOSE again."""
+    flight reach a server that holds no session for it any more: a RESET from its front may
+    overtake the CLOSE (reset_first: on the batched datagram layer a RESET left at once while the
+    CLOSE waited for the end of the wake-up), or the CLOSE may be lost (close_lost). The master
+    ends ``taken_over`` either way: a RESET is not believed from a slave heard a moment ago
+    (``peer_alive``), and the server answers the master's next datagrams with the same CLOSE."""
     pair = Pair(master_key=KEY, slave_keys=[KEY])
     pair.ms.keep_wire = True
     pair.open()
     pair.start_samples(1000, 1000)
     pair.run_for(0.5)
-    other_server = Connection(role=Role.SLAVE, rng=random.Random(2), keys=[KEY])
     closes_to_lose = 1 if race == "close_lost" else 0
 
     def lose_the_close(datagram: bytes) -> bool:
@@ -377,18 +414,25 @@ def test_a_displaced_master_always_ends_taken_over(race: str) -> None:
         return False
 
     pair.sm.drop_datagram = lose_the_close
-    _taken_over(pair)
+    pair.slave.rate = 0.0
+    close = pair.slave.conn.close(now=pair.now, taken_over=True)
+    assert close is not None
+    pair._flush(pair.slave)  # the CLOSE leaves (or is lost)
+    server = _ServerAfterTakeover(close, pair.now)
+    pair.slave.conn = server  # type: ignore[assignment]  # the session is forgotten
     if race == "reset_first":
-        # The next datagram of the master finds no session at the server's front: its RESET
-        # reaches the master before the CLOSE does.
-        other_server.receive_datagram(_newest_data(pair), MASTER_ADDR, now=pair.now)
-        for reset, _ in other_server.datagrams_to_send(now=pair.now):
-            pair.inject(reset, to_slave=False, source=SLAVE_ADDR)
-    pair._flush(pair.slave)
+        # Another datagram of the master, from an address the server holds nothing for: its
+        # RESET reaches the master before the CLOSE does.
+        copy = Admission(ConnectionConfig(), as_key_ring([KEY]), rng=random.Random(4))
+        reset = copy.reset(_newest_data(pair), pair.now)
+        assert reset is not None
+        pair.inject(reset, to_slave=False, source=SLAVE_ADDR)
     pair.run_for(1.0)
     (closed,) = _closes(pair)
     assert closed.cause is CloseCause.PEER_CLOSE and closed.detail == "taken_over"
     if race == "reset_first":
         assert pair.master.conn.stats.drops["peer_alive"] == 1
+        assert server.repeated == 0
     else:
-        assert pair.slave.conn.stats.drops["closed"] >= 1  # it answered with its CLOSE again
+        assert server.repeated >= 1  # the CLOSE again, not a RESET
+        assert server.admission.stats.resets_sent == 0

@@ -10,8 +10,6 @@ us (which holds back the next KEEPALIVE). The hottest path, a sample sent straig
 
 from __future__ import annotations
 
-import math
-
 from tdtp.config import ConnectionConfig
 from tdtp.protection.packet_protection import PacketSealer
 from tdtp.session.events import Address
@@ -48,9 +46,6 @@ class Outbox:
         self._ack_padding = bytes(config.ack_size - HEADER_SIZE)
         self._stats = stats
         self._liveness = liveness
-        self._closed: tuple[int, bytes, int, Address] | None = None
-        """Our CLOSE (its SEQ, nonce, reason and destination), once we sent one."""
-        self._close_again = -math.inf
 
     def protect(self, prefix: bytes, body: bytes) -> bytes:
         """Seal a session datagram in a keyed session; plain ``prefix + body`` otherwise."""
@@ -62,22 +57,11 @@ class Outbox:
         self.control.append((datagram, addr, protection, session))
 
     def queue_close(self, seq: int, nonce: bytes, reason: int, addr: Address) -> None:
-        self._closed = (seq, nonce, reason, addr)
         datagram = self.protect(
             encode_header(_CONTROL, seq, 0, 0, HOLD_NO_ACK) + _CLOSE_PREFIX,
             encode_close(ControlCode.CLOSE, nonce, reason)[1:],
         )
         self.control.append((datagram, addr, self.overhead, True))
-
-    def repeat_close(self, addr: Address, now: float) -> None:
-        """A datagram from ``addr`` after we closed: if it is the peer we sent a CLOSE to, that
-        CLOSE may have been lost; send it again (sealed anew), at most once per keep-alive
-        interval (PROTOCOL.md 5.2)."""
-        closed = self._closed
-        if closed is None or now < self._close_again or addr[:2] != closed[3][:2]:
-            return
-        self._close_again = now + self._liveness.keepalive
-        self.queue_close(*closed)
 
     def flush(self, out: Datagrams, now: float) -> None:
         """Move the queued control datagrams to ``out``."""

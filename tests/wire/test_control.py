@@ -241,6 +241,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEY_EXHAUSTED": 11,
         "IN_USE": 12,
         "TAKEN_OVER": 13,
+        "EVICTED": 14,
+        "RESTARTING": 15,
     }
     assert int(OpenFlags.NONE) == 0
     assert {f.name: int(f) for f in OpenFlags if f.name} == {

@@ -493,20 +493,7 @@ def master_session() -> dict[str, Any]:
             "elsewhere): peer_alive, the session goes on",
         ),
         _action(0.008, "close", exact=True),
-        _step(
-            0.009,
-            "slave",
-            _data(SLAVE_ISN + 1, b"two"),
-            exact=True,
-            note="after our close: dropped, and the CLOSE sent again (it may have been lost)",
-        ),
-        _step(
-            0.010,
-            "slave",
-            _data(SLAVE_ISN + 2, b"three"),
-            note="within a keep-alive interval of that: dropped, nothing sent",
-        ),
-        _step(0.045, "slave", _data(SLAVE_ISN + 3, b"four"), note="later: the CLOSE again"),
+        _step(0.009, "slave", _data(SLAVE_ISN + 1, b"two")),
     ]
     return {
         "name": "master: an unkeyed session and its close",
@@ -548,6 +535,58 @@ def master_slave_restarted() -> dict[str, Any]:
         "role": "master",
         "config": {},
         "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def master_closed_by(reason: CloseReason) -> dict[str, Any]:
+    """Section 5.2, "What a CLOSE says": a slave's CLOSE RESTARTING ends the master's session as
+    peer_restarting (a reconnecting master reopens at once), a CLOSE EVICTED (section 5.1, rule
+    2.7) as evicted (it backs off first); a CLOSE after the end is dropped."""
+    header = encode_header(2, SLAVE_ISN, 0, 0, 255)
+    what = {
+        CloseReason.RESTARTING: "the slave stops and will be back soon",
+        CloseReason.EVICTED: "a full slave gave this session's slot to another master",
+    }[reason]
+    steps = [
+        _action(0.0, "connect"),
+        _step(0.001, "slave", _open_ack()),
+        _step(0.002, "slave", _data(SLAVE_ISN, b"one")),
+        _step(
+            0.003,
+            "slave",
+            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, reason)),
+            note=f"CLOSE {reason.name}: {what}",
+        ),
+        _step(
+            0.004,
+            "slave",
+            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
+            note="after the close: dropped",
+        ),
+    ]
+    return {
+        "name": f"master: the slave closes with {reason.name}",
+        "role": "master",
+        "config": {},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def slave_restarting() -> dict[str, Any]:
+    """The slave's application stops with restarting=True (Ctrl-C of `tdtp slave`): its CLOSE
+    carries reason 15, byte for byte."""
+    steps = [
+        *_opening(),
+        _step(0.021, "master", _data(MASTER_ISN, b"s1")),
+        _action(0.022, "close", restarting=True, exact=True),
+    ]
+    return {
+        "name": "slave: a restarting slave's CLOSE",
+        "role": "slave",
+        "config": {"max_payload": 1200},
+        "random": _slave_random(),
         "steps": steps,
     }
 
@@ -642,4 +681,7 @@ def all_scripts() -> list[dict[str, Any]]:
         master_payload_too_small(),
         keyed_master_session(),
         slave_control_channel(),
+        master_closed_by(CloseReason.RESTARTING),
+        master_closed_by(CloseReason.EVICTED),
+        slave_restarting(),
     ]
