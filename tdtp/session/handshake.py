@@ -367,6 +367,25 @@ class Handshake:
             return Reaction.REPLACED
         return Reaction.IGNORED
 
+    def session_control(self, data: bytes) -> CloseBody | KeepaliveBody | None:
+        """A KEEPALIVE or CLOSE of our session (protection removed), or ``None`` with the drop
+        counted: malformed, another code, or another session's nonce. The nonce is what an
+        off-path attacker does not know: a forged KEEPALIVE must not pass for a sign of life and
+        hide a dead master, nor a forged CLOSE end the session."""
+        stats = self._stats
+        try:
+            body = decode_control(data[HEADER_SIZE:])
+        except MalformedPacketError:
+            stats.count_drop(DropReason.BAD_CONTROL)
+            return None
+        if not isinstance(body, CloseBody | KeepaliveBody):
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            return None
+        if body.nonce != self.master_nonce:
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+            return None
+        return body
+
     def on_stranger(self, data: bytes, addr: Address, now: float) -> None:
         """A session datagram while we hold no session: a listening slave answers it with a RESET
         within admission's budget (PROTOCOL.md 5.7); a master before connect() drops it."""

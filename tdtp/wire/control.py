@@ -34,9 +34,10 @@ from typing import Final, NamedTuple
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.protected import TAG_SIZE
 
-PROTOCOL_VERSION: Final = 3
+PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
-had no RESET, no path validation, and its KEEPALIVE carried no nonce)."""
+had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3's MESSAGE and
+MESSAGE_ACK carried no nonce)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -76,11 +77,12 @@ class ControlCode(enum.IntEnum):
     """master -> slave: the PATH_CHALLENGE's token and the master's nonce, from the master's current
     address."""
     MESSAGE = 10
-    """either way: one message of the reliable control channel (its 16-bit number, the cumulative
-    acknowledgement of the peer's messages, the message), retransmitted until acknowledged."""
+    """either way: one message of the reliable control channel (the master's nonce, its 16-bit
+    number, the cumulative acknowledgement of the peer's messages, the message), retransmitted until
+    acknowledged."""
     MESSAGE_ACK = 11
-    """either way: the cumulative acknowledgement of the peer's control messages alone, when no
-    MESSAGE of ours leaves to carry it."""
+    """either way: the master's nonce and the cumulative acknowledgement of the peer's control
+    messages alone, when no MESSAGE of ours leaves to carry it."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -274,6 +276,8 @@ class PathResponseBody(NamedTuple):
 class MessageBody(NamedTuple):
     """MESSAGE (either way): one message of the reliable control channel."""
 
+    nonce: bytes
+    """The master's nonce, as a KEEPALIVE carries it: a blind attacker cannot forge a message."""
     seq: int
     """The low 16 bits of the message's number (the sender numbers its messages consecutively)."""
     ack: int
@@ -291,6 +295,8 @@ class MessageBody(NamedTuple):
 class MessageAckBody(NamedTuple):
     """MESSAGE_ACK (either way): the cumulative acknowledgement of control messages alone."""
 
+    nonce: bytes
+    """The master's nonce."""
     ack: int
     """As :attr:`MessageBody.ack`."""
 
@@ -325,8 +331,8 @@ _CLOSE: Final = struct.Struct(">B16sB")  # code nonce reason
 _KEEPALIVE: Final = struct.Struct(">B16s")  # code nonce
 _PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
 _PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
-_MESSAGE: Final = struct.Struct(">BHH")  # code seq ack, then the message
-_MESSAGE_ACK: Final = struct.Struct(">BH")  # code ack
+_MESSAGE: Final = struct.Struct(">B16sHH")  # code nonce seq ack, then the message
+_MESSAGE_ACK: Final = struct.Struct(">B16sH")  # code nonce ack
 
 OPEN_BODY_SIZE: Final = _OPEN.size
 """48 bytes: with the header an unkeyed OPEN is 53 bytes, a keyed one 69."""
@@ -353,9 +359,14 @@ that can trigger one (an unkeyed KEEPALIVE)."""
 PATH_RESPONSE_BODY_SIZE: Final = _PATH_RESPONSE.size
 """33 bytes: a PATH_RESPONSE datagram is 38 bytes."""
 MESSAGE_PREFIX_SIZE: Final = _MESSAGE.size
-"""5 bytes before a MESSAGE's data (code, seq, ack): an unkeyed MESSAGE is 10 bytes + the message."""
+"""21 bytes before a MESSAGE's data (code, nonce, seq, ack): an unkeyed MESSAGE is 26 bytes + the
+message."""
+MESSAGE_NONCE_OFFSET: Final = 1
+"""Where a MESSAGE or MESSAGE_ACK body carries the master's nonce (after the code byte)."""
+MESSAGE_NUMBERS_OFFSET: Final = MESSAGE_NONCE_OFFSET + NONCE_SIZE
+"""Where a MESSAGE body carries its seq and ack (a MESSAGE_ACK its ack): 17."""
 MESSAGE_ACK_BODY_SIZE: Final = _MESSAGE_ACK.size
-"""3 bytes: an unkeyed MESSAGE_ACK is 8 bytes, a keyed one 26."""
+"""19 bytes: an unkeyed MESSAGE_ACK is 24 bytes, a keyed one 42."""
 MESSAGE_SEQ_MODULUS: Final = 1 << 16
 """Message numbers travel as their low 16 bits."""
 OPEN_NONCE_OFFSET: Final = struct.calcsize(">BBBBHH")
@@ -438,14 +449,15 @@ def encode_path_response(token: bytes, nonce: bytes) -> bytes:
     return _PATH_RESPONSE.pack(ControlCode.PATH_RESPONSE, token, nonce)
 
 
-def encode_message(seq: int, ack: int, data: bytes) -> bytes:
-    """A MESSAGE body (code byte included): the low 16 bits of ``seq`` and ``ack``, then ``data``."""
-    return _MESSAGE.pack(ControlCode.MESSAGE, seq & 0xFFFF, ack & 0xFFFF) + data
+def encode_message(nonce: bytes, seq: int, ack: int, data: bytes) -> bytes:
+    """A MESSAGE body (code byte included): the master's nonce, the low 16 bits of ``seq`` and
+    ``ack``, then ``data``."""
+    return _MESSAGE.pack(ControlCode.MESSAGE, nonce, seq & 0xFFFF, ack & 0xFFFF) + data
 
 
-def encode_message_ack(ack: int) -> bytes:
-    """A MESSAGE_ACK body (code byte included)."""
-    return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, ack & 0xFFFF)
+def encode_message_ack(nonce: bytes, ack: int) -> bytes:
+    """A MESSAGE_ACK body (code byte included): the master's nonce and ``ack``'s low 16 bits."""
+    return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, nonce, ack & 0xFFFF)
 
 
 def _tagged(body: bytes | memoryview, size: int, name: str) -> bytes | memoryview:
@@ -504,16 +516,16 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             raise MalformedPacketError(
                 "bad_control", f"MESSAGE body of {len(body)} bytes carries no message"
             )
-        _, seq, ack = _MESSAGE.unpack_from(body)
-        return MessageBody(seq, ack, bytes(body[MESSAGE_PREFIX_SIZE:]))
+        _, nonce, seq, ack = _MESSAGE.unpack_from(body)
+        return MessageBody(nonce, seq, ack, bytes(body[MESSAGE_PREFIX_SIZE:]))
     if code is ControlCode.MESSAGE_ACK:
         if len(body) != MESSAGE_ACK_BODY_SIZE:
             raise MalformedPacketError(
                 "bad_control",
                 f"MESSAGE_ACK body is {len(body)} bytes, not {MESSAGE_ACK_BODY_SIZE}",
             )
-        _, ack = _MESSAGE_ACK.unpack(body)
-        return MessageAckBody(ack)
+        _, nonce, ack = _MESSAGE_ACK.unpack(body)
+        return MessageAckBody(nonce, ack)
     if code is ControlCode.PATH_CHALLENGE:
         if len(body) != PATH_CHALLENGE_BODY_SIZE:
             raise MalformedPacketError(

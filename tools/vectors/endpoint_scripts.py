@@ -1,4 +1,4 @@
-"""The inputs of tdtp-v3-endpoint.json: what each script feeds an endpoint (generate.py records the
+"""The inputs of tdtp-v4-endpoint.json: what each script feeds an endpoint (generate.py records the
 expected outcomes by running tdtp). Every drop reason of PROTOCOL.md section 5.5 appears."""
 
 from __future__ import annotations
@@ -126,7 +126,8 @@ def slave_session() -> dict[str, Any]:
             0.031,
             "master",
             _data(s + 3, b"s4", ack=(SLAVE_ISN + 5, 0, 0)),
-            note="acknowledges a packet the slave never sent",
+            note="acknowledges a packet the slave never sent: the acknowledgement is ignored, the "
+            "sample delivered",
         ),
         _step(0.032, "master", _hex(encode_header(2, s, 0, 0, 255) + b"\x09")),
         _step(
@@ -166,15 +167,27 @@ def slave_session() -> dict[str, Any]:
             _open(OTHER_NONCE, cookie=True, attempt=1),
             note="another nonce, valid cookie, session alive: a replay",
         ),
-        _step(0.041, "master", _data(s + 100, b"far ahead")),
-        _step(0.042, "master", _data(s + 36, b"64 below the highest")),
-        _step(0.043, "master", _data(s + 37, b"63 below: late")),
         _step(
-            0.050,
+            0.041,
+            "master",
+            _data(s + 80, b"77 ahead"),
+            note="77 above the highest, 10 ms after it arrived: more than 32 + 10 ms at 1000/s, "
+            "the least rate assumed (a blind forgery): far_ahead",
+        ),
+        _step(
+            0.100,
+            "master",
+            _data(s + 100, b"97 ahead"),
+            note="97 above the highest, 69 ms after it: 32 + 69 at 1000/s, a loss burst: taken",
+        ),
+        _step(0.101, "master", _data(s + 36, b"64 below the highest")),
+        _step(0.102, "master", _data(s + 37, b"63 below: late")),
+        _step(
+            0.110,
             "master",
             _hex(header_close + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
         ),
-        _step(0.051, "master", _data(s + 101, b"after the close")),
+        _step(0.111, "master", _data(s + 101, b"after the close")),
     ]
     return {
         "name": "slave: opening, a session's bad input, closing",
@@ -454,9 +467,10 @@ def master_session() -> dict[str, Any]:
             0.004,
             "slave",
             _data(SLAVE_ISN, b"one", ack=(MASTER_ISN, 0, 0)),
-            note="acknowledges the master's first DATA, which it never sent",
+            note="acknowledges the master's first DATA, which it never sent: the acknowledgement "
+            "is ignored, the sample delivered",
         ),
-        _step(0.005, "slave", _data(SLAVE_ISN, b"one")),
+        _step(0.005, "slave", _data(SLAVE_ISN, b"one"), note="the same again: a duplicate"),
         _step(
             0.006,
             "slave",
@@ -470,11 +484,54 @@ def master_session() -> dict[str, Any]:
             _hex(encode_header(2, 0, 0, 0, 255) + encode_reset(bytes(range(16)))),
             note="a RESET that echoes nothing the master sent: unmatched_reset, the session goes on",
         ),
+        _step(
+            0.0076,
+            "slave",
+            _reset_of_first_keepalive(),
+            note="a RESET echoing the master's KEEPALIVE, 2.6 ms after the slave was last heard: "
+            "a slave that holds the session is talking (a copy of the KEEPALIVE drew it "
+            "elsewhere): peer_alive, the session goes on",
+        ),
         _action(0.008, "close", exact=True),
         _step(0.009, "slave", _data(SLAVE_ISN + 1, b"two")),
     ]
     return {
         "name": "master: an unkeyed session and its close",
+        "role": "master",
+        "config": {},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def _reset_of_first_keepalive() -> str:
+    """An unkeyed RESET echoing the master's KEEPALIVE sent on its OPEN_ACK (no data yet: HOLD 255)."""
+    keepalive = encode_header(2, MASTER_ISN, 0, 0, 255) + encode_keepalive(MASTER_NONCE)
+    return _hex(encode_header(2, 0, 0, 0, 255) + encode_reset(keepalive[:16]))
+
+
+def master_slave_restarted() -> dict[str, Any]:
+    """A RESET is believed only from a slave the master has not heard for its silence_timeout
+    (section 5.7): one that holds the session is talking."""
+    steps = [
+        _action(0.0, "connect"),
+        _step(0.001, "slave", _open_ack(), note="established: the master sends a KEEPALIVE"),
+        _step(
+            0.050,
+            "slave",
+            _reset_of_first_keepalive(),
+            note="the slave was heard 49 ms ago: peer_alive",
+        ),
+        _step(
+            0.102,
+            "slave",
+            _reset_of_first_keepalive(),
+            note="nothing from the slave for 101 ms (every KEEPALIVE since had the same first "
+            "bytes): it lost the session, PEER_RESTARTED",
+        ),
+    ]
+    return {
+        "name": "master: a RESET from a slave that talks, then from one that lost the session",
         "role": "master",
         "config": {},
         "random": _master_random(),
@@ -542,11 +599,11 @@ def slave_control_channel() -> dict[str, Any]:
     s = 0xF000 | SLAVE_ISN  # the slave's
     header = encode_header(2, MASTER_ISN, 0, 0, 255)
 
-    def message(seq: int, ack: int, data: bytes) -> str:
-        return _hex(header + encode_message(seq, ack, data))
+    def message(seq: int, ack: int, data: bytes, nonce: bytes = MASTER_NONCE) -> str:
+        return _hex(header + encode_message(nonce, seq, ack, data))
 
-    def message_ack(ack: int) -> str:
-        return _hex(header + encode_message_ack(ack))
+    def message_ack(ack: int, nonce: bytes = MASTER_NONCE) -> str:
+        return _hex(header + encode_message_ack(nonce, ack))
 
     steps = [
         *_opening(),
@@ -578,7 +635,25 @@ def slave_control_channel() -> dict[str, Any]:
         _step(0.36, "master", message_ack(s + 1), note="the master acknowledges it"),
         _step(0.37, "master", message_ack(s + 5), note="acknowledges messages never sent"),
         _step(0.38, "master", message(m + 6, s + 1, b"c6"), note="4 past the next expected"),
-        _step(0.39, "master", _hex(header + encode_message(m + 2, s + 1, b"")), note="no message"),
+        _step(
+            0.39,
+            "master",
+            _hex(header + encode_message(MASTER_NONCE, m + 2, s + 1, b"")),
+            note="no message",
+        ),
+        _step(
+            0.395,
+            "master",
+            message(m + 2, s + 1, b"c2", nonce=bytes(16)),
+            note="another nonce (an off-path forgery: right numbers, wrong nonce): nothing in it "
+            "is read, no sign of life",
+        ),
+        _step(
+            0.396,
+            "master",
+            message_ack(s + 1, nonce=bytes(16)),
+            note="a MESSAGE_ACK with another nonce: dropped the same way",
+        ),
         _step(0.40, "master", message(m + 2, s + 1, bytes(257)), note="over control_max_message"),
         _action(0.41, "hold_control", count=4, note="the application holds 4 unread messages"),
         _step(0.411, "master", message(m + 2, s + 1, b"c2"), note="the receive bound is full"),
@@ -601,6 +676,7 @@ def all_scripts() -> list[dict[str, Any]]:
         slave_refusals(),
         keyed_slave_refusals(),
         master_session(),
+        master_slave_restarted(),
         master_rejected(),
         master_payload_too_small(),
         keyed_master_session(),

@@ -1,6 +1,6 @@
-"""Generate the TDTP version 2 conformance vectors in tests/vectors/ (see tests/vectors/README.md).
+"""Generate the TDTP version 4 conformance vectors in tests/vectors/ (see tests/vectors/README.md).
 
-    python tools/vectors/generate.py            # rewrite tests/vectors/tdtp-v3-*.json
+    python tools/vectors/generate.py            # rewrite tests/vectors/tdtp-v4-*.json
     python tools/vectors/generate.py --check    # exit 1 if the committed files differ
 
 The expected values come from tdtp, the reference implementation, except where the specification
@@ -361,9 +361,12 @@ def control_vectors() -> dict[str, Any]:
         ("CLOSE NORMAL", encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
         (
             "MESSAGE E-STOP, number 0xFFFF, next expected 0xF0C4 (7.7)",
-            encode_message(0xFFFF, 0xF0C4, b"E-STOP"),
+            encode_message(MASTER_NONCE, 0xFFFF, 0xF0C4, b"E-STOP"),
         ),
-        ("MESSAGE_ACK, next expected 0x0000 (past the wrap)", encode_message_ack(0)),
+        (
+            "MESSAGE_ACK, next expected 0x0000 (past the wrap)",
+            encode_message_ack(MASTER_NONCE, 0),
+        ),
         ("CLOSE with an unknown reason 200", encode_close(ControlCode.CLOSE, MASTER_NONCE, 200)),
         (
             "CLOSE RESTARTING (5.2: the sender will be back soon)",
@@ -402,9 +405,11 @@ def control_vectors() -> dict[str, Any]:
         ("no code byte", b""),
         ("code 0", b"\x00"),
         ("code 12", b"\x0c" + bytes(17)),
-        ("MESSAGE without a message", encode_message(1, 2, b"")),
-        ("MESSAGE_ACK one byte long", encode_message_ack(1) + b"\x00"),
-        ("MESSAGE_ACK one byte short", encode_message_ack(1)[:-1]),
+        ("MESSAGE without a message", encode_message(MASTER_NONCE, 1, 2, b"")),
+        ("MESSAGE without its nonce (version 3's layout)", b"\x0a\x00\x01\x00\x02E-STOP"[:21]),
+        ("MESSAGE_ACK one byte long", encode_message_ack(MASTER_NONCE, 1) + b"\x00"),
+        ("MESSAGE_ACK one byte short", encode_message_ack(MASTER_NONCE, 1)[:-1]),
+        ("MESSAGE_ACK without its nonce (version 3's layout)", b"\x0b\x00\x01"),
         ("RESET one byte short of its echo", b"\x07" + bytes(15)),
         ("RESET with a partial tag", b"\x07" + bytes(16 + 15)),
         ("code 255", b"\xff"),
