@@ -32,6 +32,7 @@ from tdtp.protection.derivation import (  # noqa: E402  # noqa: E402
 from tdtp.protection.keys import PresharedKey  # noqa: E402
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
 from tdtp.session.receive_window import ReceiveWindow  # noqa: E402
+from tdtp.session.recovery import loss_delay_of  # noqa: E402
 from tdtp.session.rtt import RttEstimator  # noqa: E402
 from tdtp.session.sent_log import LostPacket, SentPacketLog  # noqa: E402
 from tdtp.session.stats import DropReason  # noqa: E402
@@ -576,15 +577,25 @@ def _sender_case(
     for at in sends:
         sent_out.append({"at": at, "seq": log.on_sent(at, 100, lost)})
 
-    def loss_delay() -> float:
-        return 1.2 * rtt.srtt + max(4.0 * rtt.rttvar, 0.001) + ack_delay
+    def spec_loss_delay() -> float:
+        """Section 5.4 by hand: srtt + max(reorder window, 4 rttvar, 1 ms) + ack_delay, the reorder
+        window min(k min_rtt / 4, srtt) only once there is an RTT sample."""
+        margin = max(4.0 * rtt.rttvar, 0.001)
+        if rtt.has_sample:
+            margin = max(margin, min(log.reorder_window_scale * rtt.min_rtt / 4.0, rtt.srtt))
+        delay = rtt.srtt + margin + ack_delay
+        tdtp_delay = loss_delay_of(rtt, log.reorder_window_scale, ack_delay)
+        _check(abs(delay - tdtp_delay) <= 1e-12, f"loss delay in {name!r}")
+        return tdtp_delay
 
+    # Computed at the start and after each RTT sample only (section 5.4).
+    delay = spec_loss_delay()
     events = []
     for item in acks:
         if item[1] == "timer":
             at = item[0]
             lost = []
-            log.detect_losses(at, loss_delay(), lost)
+            log.detect_losses(at, delay, lost)
             events.append(
                 {
                     "at": at,
@@ -592,7 +603,8 @@ def _sender_case(
                     "expect": {
                         "lost": [p.seq for p in lost],
                         "unknown_total": log.unknown,
-                        "loss_timer": log.loss_deadline(loss_delay()),
+                        "loss_delay": delay,
+                        "loss_timer": log.loss_deadline(delay),
                     },
                 }
             )
@@ -614,8 +626,9 @@ def _sender_case(
         outcome = log.on_ack(full, sack, hold, at)
         if outcome.rtt_sample is not None:
             rtt.on_sample(outcome.rtt_sample)
+            delay = spec_loss_delay()
         lost = []
-        log.detect_losses(at, loss_delay(), lost)
+        log.detect_losses(at, delay, lost)
         events.append(
             {
                 "at": at,
@@ -633,7 +646,8 @@ def _sender_case(
                     "lost": [p.seq for p in lost],
                     "unknown_total": log.unknown,
                     "spurious": outcome.spurious,
-                    "loss_timer": log.loss_deadline(loss_delay()),
+                    "loss_delay": delay,
+                    "loss_timer": log.loss_deadline(delay),
                 },
             }
         )
@@ -671,7 +685,7 @@ def sender_vectors() -> dict[str, Any]:
             "the time threshold runs from the send time",
             0,
             _ms(3),
-            [(0.05, 1, 0b000000, 0), (0.17, "timer"), (0.177, "timer")],
+            [(0.05, 1, 0b000000, 0), (0.1665, "timer"), (0.1675, "timer")],
         ),
         _sender_case(
             "reported absent after loss_delay has passed since it was sent: lost at once",
@@ -710,6 +724,20 @@ def sender_vectors() -> dict[str, Any]:
             [(0.05, 8, 0b111111, 0), (0.051, 6, 0b111111, 0), (0.052, 8, 0b111111, 0)],
         ),
         _sender_case(
+            "the reorder window: k grows with a spurious loss, and the loss delay follows at the "
+            "next RTT sample",
+            0,
+            _ms(24),
+            [
+                *[(0.040 + i * 0.001, i, 0b111111, 0) for i in range(15)],
+                (0.056, 16, 0b111110, 0),
+                (0.057, 17, 0b111101, 0),
+                (0.058, 18, 0b111011, 0),
+                (0.0585, 18, 0b111111, 254),
+                (0.060, 20, 0b111111, 0),
+            ],
+        ),
+        _sender_case(
             "the RTT sample subtracts the hold",
             0,
             _ms(3),
@@ -727,8 +755,9 @@ def sender_vectors() -> dict[str, Any]:
         "code 'hold', arriving 'at') or a 'timer' expiry at 'at', with what must follow: the ACK's "
         "full value or that it is optimistic, packets newly acknowledged, the RTT sample, srtt and "
         "rttvar after it, the largest acknowledged, packets declared lost by this event in order, "
-        "the running count of unknown packets, spurious losses, and when the loss timer is due "
-        "(null: none). Times in seconds.",
+        "the running count of unknown packets, spurious losses, the loss delay in force (computed "
+        "at the start and after each RTT sample only), and when the loss timer is due (null: "
+        "none). Times in seconds.",
         {"cases": cases},
     )
 
@@ -778,7 +807,7 @@ def keyed_vectors() -> dict[str, Any]:
         for attempt in (0, 1, 65535):
             datagram = encode_header(2, MASTER_ISN, 0, 0, 255) + encode_open(
                 OpenBody(
-                    2,
+                    WIRE_VERSION,
                     6,
                     int(suite),
                     1200,
@@ -873,7 +902,7 @@ def keyed_vectors() -> dict[str, Any]:
         ("101 for real", sealed(101, b"h")),
         (
             "65436 ahead, across the 16-bit wrap: 65537 arrives as 0x0001 and is found by the "
-            "resynchronisation search (section 6)",
+            "resynchronisation search (section 5.6)",
             sealed(65537, b"i"),
         ),
         ("the old 1 now reads as 65537: a replay", sealed(1, b"b")),
