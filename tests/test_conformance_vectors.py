@@ -159,7 +159,7 @@ def check_receiver(data: dict[str, Any]) -> int:
                     window.mark_reported()
                 assert acks == event["acks"], (case["name"], event)
             else:
-                arrival, full, gap = window.on_data(event["seq"], 0.0)
+                arrival, full, gap = window.on_data(event["seq"], event.get("at", 0.0))
                 assert (arrival.value, full, gap) == (event["kind"], event["full"], event["gap"])
                 acks = [[held.ack, held.sack] for held in window.take_held()]
                 if window.coverage_exhausted():

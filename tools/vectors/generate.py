@@ -476,13 +476,16 @@ def _receiver_case(name: str, initial: int, events: list[Any]) -> dict[str, Any]
                 window.mark_reported()
             out.append({"event": "ack_delay", "acks": owed})
             continue
-        seq = event
-        kind, full, gap = window.on_data(seq & 0xFFF, 0.0)
+        seq, at = event if isinstance(event, tuple) else (event, None)
+        kind, full, gap = window.on_data(seq & 0xFFF, 0.0 if at is None else at)
         acks = [[held.ack, held.sack] for held in window.take_held()]
         if window.coverage_exhausted():
             acks.append([window.highest, window.sack_below(window.highest)])
             window.mark_reported()
-        out.append({"seq": seq & 0xFFF, "kind": kind.value, "full": full, "gap": gap, "acks": acks})
+        arrival: dict[str, Any] = {"seq": seq & 0xFFF}
+        if at is not None:
+            arrival["at"] = at
+        out.append({**arrival, "kind": kind.value, "full": full, "gap": gap, "acks": acks})
     return {"name": name, "initial_seq": initial, "events": out}
 
 
@@ -501,7 +504,7 @@ def receiver_vectors() -> dict[str, Any]:
             [0, 1, 2, 13, 14, 15, "ack_delay"],
         ),
         _receiver_case(
-            "late within 6 is reported again; late beyond 6 is not",
+            "a late packet within 6 of the highest is reported by the next ACK of the highest",
             0,
             [
                 0,
@@ -543,17 +546,52 @@ def receiver_vectors() -> dict[str, Any]:
             0,
             [0, 1, 2, *range(3003, 3010), "ack_delay"],
         ),
+        _receiver_case(
+            "late rule: a late packet more than 6 below the highest gets a stand-alone ACK naming "
+            "it (3.2)",
+            0,
+            [0, 1, *range(3, 13), 2, "ack_delay"],
+        ),
+        _receiver_case(
+            "three consecutive stale numbers arriving between live packets: no re-anchoring (3.1)",
+            0,
+            [*range(0, 10), 3000, 10, 3001, 11, 3002, 12, "ack_delay"],
+        ),
+        _receiver_case(
+            "a stale run broken by another stale number starts again at 1 (3.1)",
+            0,
+            [*range(0, 10), 3000, 3001, 3005, 3006, 3007, 3008, "ack_delay"],
+        ),
+        _receiver_case(
+            "after a silence of 0.1 s (the silence_timeout) three consecutive numbers inside the "
+            "window below the newest re-anchor it one wrap ahead; without the silence they are "
+            "duplicates (3.1)",
+            0,
+            [
+                *[(n, round(0.001 * n, 6)) for n in range(0, 20)],
+                (5, 0.02),
+                (6, 0.021),
+                (7, 0.022),
+                (8, 0.2),
+                (9, 0.201),
+                (10, 0.202),
+                (11, 0.203),
+                "ack_delay",
+            ],
+        ),
         _receiver_case("10 % random loss", 300, [*random_loss, "ack_delay"]),
     ]
     return _file(
         "receiver",
-        "The receiver (sections 3.1, 3.2, 5.3, 5.5) in bidirectional mode with its reverse flow "
-        "idle. Events in order: an arriving DATA packet's 12-bit 'seq' (its arrival kind new, "
-        "late, duplicate or stale, its full number, the gap it left, and the stand-alone ACKs "
-        "owed right after it, [ack, sack] with ack as a full number, jump-rule ACK first), "
-        "'piggyback' (an acknowledgement of the highest leaves in a DATA or KEEPALIVE: the "
-        "[ack, sack] it carries) or 'ack_delay' (ack_delay passed: the ACK owed, if any). The "
-        "first packet's full number is initial_seq.",
+        "The receiver (sections 3.1, 3.2, 5.3, 5.5) of a keyed session (no far-ahead check) in "
+        "bidirectional mode with its reverse flow idle and a silence_timeout of 0.1 s. Events in "
+        "order: an arriving DATA packet's 12-bit 'seq', arriving 'at' seconds (0 when absent; "
+        "only the re-anchoring after a silence looks at it), with its arrival kind new, late, "
+        "duplicate or stale, its full number, the gap it left, and the stand-alone ACKs owed "
+        "right after it, [ack, sack] with ack as a full number, a jump-rule or late-rule ACK "
+        "first, then a full-rule ACK; 'piggyback' (an acknowledgement of the highest leaves in a "
+        "DATA or KEEPALIVE: the [ack, sack] it carries) or 'ack_delay' (ack_delay passed: the ACK "
+        "owed, if any). The first packet's full number is initial_seq.",
         {"cases": cases},
     )
 
