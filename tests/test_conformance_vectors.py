@@ -42,10 +42,20 @@ from tdtp.wire.errors import MalformedPacketError
 VECTORS = Path(__file__).resolve().parent / "vectors"
 sys.path.insert(0, str(VECTORS))
 
-from tdtp_adapter import ScriptRunner  # noqa: E402
+from tdtp_adapter import ScriptRunner, ServerRunner  # noqa: E402
 
 FORMAT_VERSION = 1
-SUITES = ("header", "hold", "seqnum", "control", "receiver", "sender", "keyed", "endpoint")
+SUITES = (
+    "header",
+    "hold",
+    "seqnum",
+    "control",
+    "receiver",
+    "sender",
+    "keyed",
+    "endpoint",
+    "server",
+)
 
 
 def _load(suite: str) -> dict[str, Any]:
@@ -305,6 +315,18 @@ def check_endpoint(data: dict[str, Any]) -> int:
     return checked
 
 
+def check_server(data: dict[str, Any]) -> int:
+    checked = 0
+    for script in data["scripts"]:
+        runner = ServerRunner(script)
+        for number, step in enumerate(script["steps"]):
+            inputs = {k: v for k, v in step.items() if k != "expect"}
+            got = runner.step(inputs)
+            assert got == step["expect"], f"{script['name']}, step {number} at {step['at']}"
+            checked += 1
+    return checked
+
+
 def test_the_endpoint_scripts_cover_every_drop_reason() -> None:
     covered = {
         step["expect"]["drop"]
@@ -324,6 +346,7 @@ CHECKS: dict[str, Callable[[dict[str, Any]], int]] = {
     "sender": check_sender,
     "keyed": check_keyed,
     "endpoint": check_endpoint,
+    "server": check_server,
 }
 
 

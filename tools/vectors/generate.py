@@ -72,8 +72,9 @@ from endpoint_scripts import (  # noqa: E402  (beside this file)
     SLAVE_NONCE,
     all_scripts,
 )
+from server_scripts import all_server_scripts  # noqa: E402  (beside this file)
 
-from tdtp_adapter import ADDRESSES, ScriptRunner  # noqa: E402  (tests/vectors/)
+from tdtp_adapter import ADDRESSES, ScriptRunner, ServerRunner  # noqa: E402  (tests/vectors/)
 
 FORMAT = "tdtp-conformance-vectors"
 FORMAT_VERSION = 1
@@ -1007,6 +1008,21 @@ def drop_vectors() -> dict[str, Any]:
     )
 
 
+def server_vectors() -> dict[str, Any]:
+    scripts = [ServerRunner(script).record() for script in all_server_scripts()]
+    return _file(
+        "server",
+        "Server scripts (sections 5.1, 5.7, 5.8, 5.9): one slave serving several masters on one "
+        "address, fed datagrams from named addresses at given times. After each step: the drop "
+        "reasons counted (by a session, admission or path migration), the sessions by master "
+        "address and their states, every datagram sent and to whom, and what the sessions' "
+        "applications got. Addresses: "
+        + ", ".join(f"{name} {host}:{port}" for name, (host, port) in ADDRESSES.items())
+        + ".",
+        {"scripts": scripts},
+    )
+
+
 SUITES: dict[str, Callable[[], dict[str, Any]]] = {
     "header": header_vectors,
     "hold": hold_vectors,
@@ -1016,6 +1032,7 @@ SUITES: dict[str, Callable[[], dict[str, Any]]] = {
     "sender": sender_vectors,
     "keyed": keyed_vectors,
     "endpoint": drop_vectors,
+    "server": server_vectors,
 }
 
 
