@@ -996,7 +996,8 @@ def drop_vectors() -> dict[str, Any]:
     _check(not missing, f"drop reasons without a vector: {sorted(missing)}")
     return _file(
         "endpoint",
-        "Endpoint scripts (sections 5.1, 5.2, 5.5): a fresh endpoint with the given role, "
+        "Endpoint scripts (sections 5.1, 5.2, 5.5, 5.7, 5.8, 5.10): a fresh endpoint with the "
+        "given role, "
         "configuration and random values is fed datagrams (hex, '{cookie}' replaced by the 16 "
         "cookie bytes of the last COOKIE it sent) from named addresses at given times, or told "
         "to connect or close. After each step: the one drop reason it counted (null: taken in), "
