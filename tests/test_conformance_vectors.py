@@ -303,28 +303,24 @@ def check_keyed(data: dict[str, Any]) -> int:
 # ---------------------------------------------------------------------------- endpoint scripts
 
 
-def check_endpoint(data: dict[str, Any]) -> int:
+def _check_scripts(data: dict[str, Any], runner: type[ScriptRunner] | type[ServerRunner]) -> int:
     checked = 0
     for script in data["scripts"]:
-        runner = ScriptRunner(script)
+        run = runner(script)
         for number, step in enumerate(script["steps"]):
             inputs = {k: v for k, v in step.items() if k != "expect"}
-            got = runner.step(inputs)
+            got = run.step(inputs)
             assert got == step["expect"], f"{script['name']}, step {number} at {step['at']}"
             checked += 1
     return checked
+
+
+def check_endpoint(data: dict[str, Any]) -> int:
+    return _check_scripts(data, ScriptRunner)
 
 
 def check_server(data: dict[str, Any]) -> int:
-    checked = 0
-    for script in data["scripts"]:
-        runner = ServerRunner(script)
-        for number, step in enumerate(script["steps"]):
-            inputs = {k: v for k, v in step.items() if k != "expect"}
-            got = runner.step(inputs)
-            assert got == step["expect"], f"{script['name']}, step {number} at {step['at']}"
-            checked += 1
-    return checked
+    return _check_scripts(data, ServerRunner)
 
 
 def test_the_endpoint_scripts_cover_every_drop_reason() -> None:

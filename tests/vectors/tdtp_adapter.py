@@ -107,7 +107,24 @@ def control_name(datagram: bytes, keyed: bool) -> str:
     return code.name
 
 
-class ScriptRunner:
+class _Runner:
+    """What both script runners share: a script, run step by step."""
+
+    script: dict[str, Any]
+
+    def step(self, step: dict[str, Any]) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def record(self) -> dict[str, Any]:
+        """The script with each step's expectations: what tdtp does."""
+        steps = []
+        for step in self.script["steps"]:
+            inputs = {k: v for k, v in step.items() if k != "expect"}
+            steps.append({**inputs, "expect": self.step(inputs)})
+        return {**self.script, "steps": steps}
+
+
+class ScriptRunner(_Runner):
     """Runs one script against a fresh Connection; :meth:`record` returns the script with the
     expectations tdtp meets filled in."""
 
@@ -198,14 +215,6 @@ class ScriptRunner:
             expect["control_sent_hex"] = control_hex
         return expect
 
-    def record(self) -> dict[str, Any]:
-        """The script with each step's expectations: what tdtp does."""
-        steps = []
-        for step in self.script["steps"]:
-            inputs = {k: v for k, v in step.items() if k != "expect"}
-            steps.append({**inputs, "expect": self.step(inputs)})
-        return {**self.script, "steps": steps}
-
 
 def _address_name(addr: Address) -> str:
     for name, known in ADDRESSES.items():
@@ -233,7 +242,7 @@ def is_open(data: bytes) -> bool:
     return len(data) > HEADER_SIZE and data[0] >> 6 == PacketType.CONTROL and data[5] == 1
 
 
-class ServerRunner:
+class ServerRunner(_Runner):
     """Runs one script of tdtp-v4-server.json: a slave serving several masters on one address.
 
     tdtp's :class:`tdtp.aio.server.Server` does this with a socket and a clock; here the same
@@ -476,14 +485,6 @@ class ServerRunner:
         if step.get("exact"):
             expect["sent_hex"] = [datagram.hex() for datagram, _ in self._out]
         return expect
-
-    def record(self) -> dict[str, Any]:
-        """The script with each step's expectations: what tdtp does."""
-        steps = []
-        for step in self.script["steps"]:
-            inputs = {k: v for k, v in step.items() if k != "expect"}
-            steps.append({**inputs, "expect": self.step(inputs)})
-        return {**self.script, "steps": steps}
 
 
 def _new_drops(before: dict[str, int], after: dict[str, int]) -> list[str]:
