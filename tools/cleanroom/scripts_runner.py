@@ -8,6 +8,7 @@ from tdtp_cleanroom import crypto, wire
 from tdtp_cleanroom.config import Addr, Config
 from tdtp_cleanroom.connection import Sent
 from tdtp_cleanroom.endpoint import Master, StandaloneSlave
+from tdtp_cleanroom.server import Server
 
 ADDRS: dict[str, Addr] = {
     "master": ("192.0.2.1", 40001), "slave": ("192.0.2.2", 40002), "stranger": ("198.51.100.7", 666),
@@ -133,5 +134,62 @@ def server_suite(d: dict) -> Iterable[tuple[str, Callable[[], None]]]:
         yield script["name"], (lambda s=script: run_server_script(s))
 
 
+def build_open(o: dict, history: list[Sent]) -> bytes:
+    """An OPEN the runner builds (README, "Server scripts"; section 4.3), tagged with a psk."""
+    psk = bytes.fromhex(o["psk"]) if "psk" in o else None
+    flags = o.get("flags", 6 if psk else 0)
+    suite = o.get("suite", 1 if psk else 0)
+    cookie = (last_token(history, wire.COOKIE, COOKIE_OFFSET) if o.get("cookie") else None) or bytes(16)
+    nonce = bytes.fromhex(o["nonce"])
+    op = wire.Open(wire.PROTOCOL_VERSION, flags, suite, o.get("max_payload", 1200), o["attempt"], nonce,
+                   crypto.key_id(psk) if psk else bytes(8), cookie)
+    dg = wire.control_datagram(op, wire.plain_header(wire.CONTROL, o["seq"]))
+    if psk:
+        key, iv = crypto.open_key_iv(psk, suite, nonce)
+        dg += crypto.handshake_tag(crypto.make_aead(suite, key), iv, o["attempt"], dg)
+    return dg
+
+
 def run_server_script(script: dict) -> None:
-    raise Mismatch("server not implemented yet")
+    cfg = make_config(script.get("config", {}), "slave")
+    randoms = [(bytes.fromhex(r["nonce"]), r["initial_seq"]) for r in script["random"]["sessions"]]
+    srv = Server(cfg, randoms)
+    history: list[Sent] = []
+    for i, step in enumerate(script["steps"]):
+        now = step["at"]
+        srv.sink.clear()
+        action = step.get("action")
+        if action == "close":
+            srv.close(ADDRS[step["session"]], now)
+        elif action == "advance":
+            pass
+        elif "open" in step:
+            srv.receive(build_open(step["open"], history), ADDRS[step["from"]], now)
+        elif "datagram" in step:
+            srv.receive(substitute(step["datagram"], history), ADDRS[step["from"]], now)
+        else:
+            raise ValueError(f"unknown step {step}")
+        srv.tick(now)
+        history.extend(srv.sink.sent)
+        want = step["expect"]
+
+        def name(conn: object) -> str:
+            peer = getattr(conn, "peer", None)
+            return NAMES.get(peer, str(peer)) if peer is not None else "?"
+
+        got: dict[str, Any] = {
+            "drops": [r for _, r in srv.sink.drops],
+            "sessions": {NAMES.get(a, str(a)): c.state for a, c in srv.sessions.items()},
+            "sent": [f"{s.label} -> {NAMES.get(s.addr, str(s.addr)) if s.addr else '?'}" for s in srv.sink.sent],
+        }
+        if step.get("exact"):
+            got["sent_hex"] = [s.data.hex() for s in srv.sink.sent]
+        for key, items in (("delivered", srv.sink.delivered), ("control_delivered", srv.sink.control_delivered)):
+            if items:
+                by: dict[str, list[str]] = {}
+                for conn, payload in items:
+                    by.setdefault(name(conn), []).append(payload.hex())
+                got[key] = by
+        if srv.sink.closed:
+            got["closed"] = {name(c): {"cause": cause, "reason": reason} for c, cause, reason in srv.sink.closed}
+        compare(f"step {i} at {now}", got, want)

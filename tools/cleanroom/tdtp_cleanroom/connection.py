@@ -23,7 +23,7 @@ INF = float("inf")
 @dataclass
 class Sent:
     data: bytes
-    addr: Addr
+    addr: Optional[Addr]  # None: the session's peer at the moment it leaves (it may move, 5.8)
     label: str  # "DATA", "ACK" or the control code, with a REJECT's or unkeyed CLOSE's reason
 
 
@@ -90,6 +90,7 @@ class Connection:
         self.moved_from: Optional[Addr] = None
         self.moved_at = 0.0
         self.moved_by_response = False
+        self.path_first_seq = 0
         self.challenges = TokenBucket(cfg.challenges_per_second, cfg.challenge_burst, now)
 
     # -- helpers --------------------------------------------------------------------------------
@@ -111,13 +112,14 @@ class Connection:
             self.state = CLOSED
             self.sink.closed.append((self, cause, reason))
 
-    def _queue(self, data: bytes, label: str, traffic: bool, now: float, echo: bool = False) -> None:
-        assert self.peer is not None
-        self.queue.append(Sent(data, self.peer, label))
+    def _queue(self, data: bytes, label: str, traffic: bool, now: float) -> None:
+        self.queue.append(Sent(data, None, label))
         if traffic:
             self.last_traffic = now
 
     def _emit(self, s: Sent, now: float) -> None:
+        if s.addr is None:
+            s.addr = self.peer
         if not self.validated:
             self.bytes_out += len(s.data)
         self.sink.sent.append(s)
@@ -291,6 +293,9 @@ class Connection:
         if hdr.hold == wire.HOLD_NO_ACK or self.cfg.separate_acks and hdr.type != wire.ACK:
             return True
         res = self.log.on_ack(hdr.ack, hdr.sack, hdr.hold, now)
+        if (not self.validated and self.keyed and self.log.largest_acked is not None
+                and self.log.largest_acked >= self.path_first_seq):
+            self.validated = True  # a DATA packet sent on the new path acknowledged (5.8)
         return not res.optimistic
 
     def _data(self, plain: bytes, hdr: wire.Header, now: float) -> None:
@@ -452,6 +457,36 @@ class Connection:
             self.replacing = data
             self._close("replaced", None)
         return None
+
+    # -- path migration (section 5.8) ------------------------------------------------------------
+    def quiet(self, now: float) -> bool:
+        if self.state != ESTABLISHED:
+            return False
+        if self.keyed:
+            return self.silence(now) >= self.cfg.migration_quiet
+        return self.silence(now) > self.live_silence()
+
+    def trial(self, data: bytes) -> str:
+        """'ahead', 'replayed' or 'failed': may this datagram move this keyed session?"""
+        assert self.opener is not None
+        prefix = 6 if data[0] >> 6 == wire.CONTROL else 5
+        if len(data) < prefix + 18:
+            return "failed"
+        return self.opener.trial(data, prefix)
+
+    def move(self, addr: Addr, now: float, by_response: bool) -> None:
+        self.moved_from = self.peer
+        self.peer = addr
+        self.validated = False
+        self.bytes_in = self.bytes_out = 0
+        self.moved_at = now
+        self.moved_by_response = by_response
+        self.path_first_seq = self.log.next_seq
+
+    def move_back(self) -> None:
+        assert self.moved_from is not None
+        self.peer, self.moved_from = self.moved_from, None
+        self.validated = True
 
     # -- row 5a: RESET (section 5.7) --------------------------------------------------------------
     def _reset(self, data: bytes, now: float) -> None:
