@@ -20,7 +20,6 @@ sys.path.insert(0, str(CLEANROOM))
 
 import run_vectors  # noqa: E402
 
-run_vectors.load_extra_suites()
 FILES = sorted(VECTORS.glob("tdtp-v4-*.json"))
 
 

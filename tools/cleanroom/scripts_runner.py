@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable, Iterable, Optional, Union
+from collections.abc import Callable, Iterable
+from typing import Any
 
 from tdtp_cleanroom import crypto, wire
 from tdtp_cleanroom.config import Addr, Config
@@ -19,11 +20,14 @@ NAMES = {v: k for k, v in ADDRS.items()}
 SLAVE = ADDRS["slave"]
 
 
-class Mismatch(Exception):
-    pass
+Vec = dict[str, Any]  # one vector, script or step as the JSON file has it
 
 
-def make_config(c: dict, role: str) -> Config:
+class MismatchError(Exception):
+    """What an implementation did differs from what a vector says."""
+
+
+def make_config(c: Vec, role: str) -> Config:
     cfg = Config()
     for k in ("max_payload", "min_peer_payload", "control_window", "suite", "encrypt", "takeover",
               "max_peers", "exclusive", "takeover_after", "reclaim_after"):
@@ -41,13 +45,13 @@ def make_config(c: dict, role: str) -> Config:
     return cfg
 
 
-def compare(where: str, got: dict, want: dict) -> None:
+def compare(where: str, got: Vec, want: Vec) -> None:
     for k in sorted(set(got) | set(want)):
         if got.get(k) != want.get(k):
-            raise Mismatch(f"{where}: {k}: got {got.get(k)!r}, want {want.get(k)!r}")
+            raise MismatchError(f"{where}: {k}: got {got.get(k)!r}, want {want.get(k)!r}")
 
 
-def last_token(sent: list[Sent], code: int, offset: int) -> Optional[bytes]:
+def last_token(sent: list[Sent], code: int, offset: int) -> bytes | None:
     """The 16 bytes at `offset` of the last CONTROL datagram of this code sent (cookie, token)."""
     for s in reversed(sent):
         if len(s.data) >= offset + 16 and s.data[0] >> 6 == wire.CONTROL and s.data[5] == code:
@@ -69,16 +73,18 @@ def substitute(text: str, history: list[Sent]) -> bytes:
     return bytes.fromhex(text)
 
 
-def endpoint_suite(d: dict) -> Iterable[tuple[str, Callable[[], None]]]:
+def endpoint_suite(d: Vec) -> Iterable[tuple[str, Callable[[], None]]]:
     for script in d["scripts"]:
-        yield script["name"], (lambda s=script: run_endpoint_script(s))
+        def run(s: Vec = script) -> None:
+            run_endpoint_script(s)
+        yield script["name"], run
 
 
-def run_endpoint_script(script: dict) -> None:
+def run_endpoint_script(script: Vec) -> None:
     role = script["role"]
     cfg = make_config(script.get("config", {}), role)
     rnd = script["random"]
-    ep: Union[Master, StandaloneSlave]
+    ep: Master | StandaloneSlave
     if role == "master":
         ep = Master(cfg, bytes.fromhex(rnd["nonce"]), rnd["initial_seq"])
     else:
@@ -111,7 +117,7 @@ def run_endpoint_script(script: dict) -> None:
         want = step["expect"]
         drops = [r for _, r in ep.sink.drops]
         if len(drops) > 1:
-            raise Mismatch(f"step {i} at {now}: more than one drop {drops}")
+            raise MismatchError(f"step {i} at {now}: more than one drop {drops}")
         sent = [s for s in ep.sink.sent if s.label not in ("DATA", "ACK")]
         got: dict[str, Any] = {
             "drop": drops[0] if drops else None,
@@ -129,12 +135,14 @@ def run_endpoint_script(script: dict) -> None:
         compare(f"step {i} at {now}", got, want)
 
 
-def server_suite(d: dict) -> Iterable[tuple[str, Callable[[], None]]]:
+def server_suite(d: Vec) -> Iterable[tuple[str, Callable[[], None]]]:
     for script in d["scripts"]:
-        yield script["name"], (lambda s=script: run_server_script(s))
+        def run(s: Vec = script) -> None:
+            run_server_script(s)
+        yield script["name"], run
 
 
-def build_open(o: dict, history: list[Sent]) -> bytes:
+def build_open(o: Vec, history: list[Sent]) -> bytes:
     """An OPEN the runner builds (README, "Server scripts"; section 4.3), tagged with a psk."""
     psk = bytes.fromhex(o["psk"]) if "psk" in o else None
     flags = o.get("flags", 6 if psk else 0)
@@ -150,7 +158,7 @@ def build_open(o: dict, history: list[Sent]) -> bytes:
     return dg
 
 
-def run_server_script(script: dict) -> None:
+def run_server_script(script: Vec) -> None:
     cfg = make_config(script.get("config", {}), "slave")
     randoms = [(bytes.fromhex(r["nonce"]), r["initial_seq"]) for r in script["random"]["sessions"]]
     srv = Server(cfg, randoms)

@@ -5,4 +5,6 @@ conformance vector file in tests/vectors/ against it. It does not import (or rea
 implementation `tdtp`.
 """
 
-PROTOCOL_VERSION = 4
+from .wire import PROTOCOL_VERSION
+
+__all__ = ["PROTOCOL_VERSION"]

@@ -8,7 +8,6 @@ import hmac
 import os
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Optional
 
 from . import crypto, wire
 from .bucket import TokenBucket
@@ -24,7 +23,7 @@ def _addr_bytes(addr: Addr) -> bytes:
 class Tokens:
     """Cookies and path-challenge tokens: timestamp (ms, 4 bytes) | HMAC(secret, ...)[:12]."""
 
-    def __init__(self, lifetime: float, secret: Optional[bytes] = None) -> None:
+    def __init__(self, lifetime: float, secret: bytes | None = None) -> None:
         self.secret = secret or os.urandom(32)
         self.lifetime = lifetime
 
@@ -58,11 +57,11 @@ class Tokens:
 @dataclass
 class Verdict:
     """What admission decided about one OPEN."""
-    drop: Optional[str] = None  # None: admitted
-    reply: Optional[bytes] = None
+    drop: str | None = None  # None: admitted
+    reply: bytes | None = None
     reply_label: str = ""
-    open: Optional[wire.Open] = None
-    psk: Optional[bytes] = None
+    open: wire.Open | None = None
+    psk: bytes | None = None
 
 
 class Admission:
@@ -105,7 +104,7 @@ class Admission:
         # 2. Body.
         try:
             op = wire.decode_control(body)
-        except wire.BadControl:
+        except wire.BadControlError:
             return Verdict("bad_control")
         assert isinstance(op, wire.Open)
         keyed = bool(op.flags & wire.FLAG_KEYED)
@@ -121,7 +120,7 @@ class Admission:
             cookie = wire.Cookie(wire.PROTOCOL_VERSION, op.nonce, self.tokens.cookie(now, addr, op.nonce))
             return Verdict("unvalidated", wire.control_datagram(cookie, wire.plain_header()), "COOKIE")
         # 5. Keys.
-        psk: Optional[bytes] = None
+        psk: bytes | None = None
         if self.ring and not keyed:
             return Verdict("refused", *self._reject(op.nonce, wire.KEY_REQUIRED))
         if keyed:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 Addr = tuple[str, int]
 
@@ -17,14 +16,14 @@ class Config:
     ack_size: int = 5
     ack_delay: float = 0.020
     silence_timeout: float = 0.100
-    keepalive_interval: Optional[float] = None  # a third of silence_timeout unless given (5.2)
+    keepalive_interval: float | None = None  # a third of silence_timeout unless given (5.2)
     idle_timeout: float = 30.0
     initial_rtt: float = 0.100
     reorder_threshold: int = 3
     open_retry_interval: float = 0.25
     open_timeout: float = 5.0
     # keyed
-    psk: Optional[bytes] = None  # a master's key
+    psk: bytes | None = None  # a master's key
     psks: list[bytes] = field(default_factory=list)  # a slave's ring, in ring order
     suite: int = 1
     encrypt: bool = True

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Callable, Optional
 
 from . import crypto, wire
 from .admission import Admission, Verdict
@@ -23,7 +22,7 @@ INF = float("inf")
 @dataclass
 class Sent:
     data: bytes
-    addr: Optional[Addr]  # None: the session's peer at the moment it leaves (it may move, 5.8)
+    addr: Addr | None  # None: the session's peer at the moment it leaves (it may move, 5.8)
     label: str  # "DATA", "ACK" or the control code, with a REJECT's or unkeyed CLOSE's reason
 
 
@@ -34,7 +33,7 @@ class Sink:
     drops: list[tuple[object, str]] = field(default_factory=list)
     delivered: list[tuple[object, bytes]] = field(default_factory=list)
     control_delivered: list[tuple[object, bytes]] = field(default_factory=list)
-    closed: list[tuple[object, str, Optional[int]]] = field(default_factory=list)
+    closed: list[tuple[object, str, int | None]] = field(default_factory=list)
 
     def clear(self) -> None:
         self.sent.clear()
@@ -49,7 +48,7 @@ CLOSE_CAUSE = {wire.RESTARTING: "peer_restarting", wire.EVICTED: "evicted"}  # e
 
 class Connection:
     def __init__(self, role: str, cfg: Config, sink: Sink, nonce: bytes, initial_seq: int, now: float,
-                 peer: Optional[Addr] = None, admission: Optional[Admission] = None) -> None:
+                 peer: Addr | None = None, admission: Admission | None = None) -> None:
         self.role = role
         self.cfg = cfg
         self.sink = sink
@@ -62,15 +61,15 @@ class Connection:
         self.keyed = False
         self.flags = 0
         self.suite = 0
-        self.psk: Optional[bytes] = None
-        self.sealer: Optional[crypto.Sealer] = None
-        self.opener: Optional[crypto.Opener] = None
+        self.psk: bytes | None = None
+        self.sealer: crypto.Sealer | None = None
+        self.opener: crypto.Opener | None = None
         self.log = SentLog(initial_seq, cfg.initial_rtt, cfg.ack_delay, cfg.reorder_threshold)
-        self.window: Optional[ReceiveWindow] = None
-        self.channel: Optional[ControlChannel] = None
+        self.window: ReceiveWindow | None = None
+        self.channel: ControlChannel | None = None
         self.peer_max_payload = cfg.max_payload
         self.last_life = now  # the last sign of life from the peer (section 5.2)
-        self.last_traffic: Optional[float] = None  # the last session traffic we sent
+        self.last_traffic: float | None = None  # the last session traffic we sent
         self.queue: list[Sent] = []  # control datagrams queued for this instant's flush
         self.owed_acks: list[OwedAck] = []  # jump-rule, late-rule and full-rule ACKs
         # master
@@ -82,12 +81,12 @@ class Connection:
         self.echoes: deque[bytes] = deque(maxlen=RESET_ECHOES)
         self.last_path_response = -INF
         # slave
-        self.replacing: Optional[bytes] = None  # the OPEN that replaced this session (rule 5)
+        self.replacing: bytes | None = None  # the OPEN that replaced this session (rule 5)
         # path migration (section 5.8; a server's sessions only)
         self.validated = True
         self.bytes_in = 0
         self.bytes_out = 0
-        self.moved_from: Optional[Addr] = None
+        self.moved_from: Addr | None = None
         self.moved_at = 0.0
         self.moved_by_response = False
         self.path_first_seq = 0
@@ -107,7 +106,7 @@ class Connection:
         """Longer than a live master is ever silent: keepalive_interval + 2 srtt (rule 5)."""
         return self.cfg.keepalive + 2 * self.log.srtt
 
-    def _close(self, cause: str, reason: Optional[int]) -> None:
+    def _close(self, cause: str, reason: int | None) -> None:
         if self.state != CLOSED:
             self.state = CLOSED
             self.sink.closed.append((self, cause, reason))
@@ -290,7 +289,7 @@ class Connection:
 
     def _read_ack(self, hdr: wire.Header, now: float) -> bool:
         """The acknowledgement in an accepted DATA, ACK or KEEPALIVE; False if optimistic."""
-        if hdr.hold == wire.HOLD_NO_ACK or self.cfg.separate_acks and hdr.type != wire.ACK:
+        if hdr.hold == wire.HOLD_NO_ACK or (self.cfg.separate_acks and hdr.type != wire.ACK):
             return True
         res = self.log.on_ack(hdr.ack, hdr.sack, hdr.hold, now)
         if (not self.validated and self.keyed and self.log.largest_acked is not None
@@ -332,7 +331,7 @@ class Connection:
             return self._message(plain, now)
         try:
             msg = wire.decode_control(plain[5:])
-        except wire.BadControl:
+        except wire.BadControlError:
             return self.drop("bad_control")
         if not isinstance(msg, (wire.Close, wire.Keepalive)):
             return self.drop("bad_control")
@@ -352,7 +351,7 @@ class Connection:
             return self.drop("not_established")
         try:
             msg = wire.decode_control(plain[5:])
-        except wire.BadControl:
+        except wire.BadControlError:
             return self.drop("bad_control")
         assert isinstance(msg, (wire.Message, wire.MessageAck)) and self.channel is not None
         if isinstance(msg, wire.Message) and len(msg.data) > self.cfg.control_max_message:
@@ -378,10 +377,10 @@ class Connection:
             return self._slave_open(data, addr, now)
         try:
             msg = wire.decode_control(data[5:])
-        except wire.BadControl:
+        except wire.BadControlError:
             return self.drop("bad_control")
-        if isinstance(msg, wire.Open):
-            return self.drop("unexpected_control")
+        if not isinstance(msg, (wire.OpenAck, wire.Cookie, wire.Reject)):
+            return self.drop("unexpected_control")  # an OPEN sent to a master
         if msg.nonce != self.nonce:
             return self.drop("nonce_mismatch")
         if isinstance(msg, wire.Cookie):
@@ -494,7 +493,7 @@ class Connection:
             return self.drop("unexpected_control")
         try:
             msg = wire.decode_control(data[5:])
-        except wire.BadControl:
+        except wire.BadControlError:
             return self.drop("bad_control")
         assert isinstance(msg, wire.Reset)
         matched = msg.echo in self.echoes
@@ -512,7 +511,7 @@ class Connection:
     def _path(self, data: bytes, now: float) -> None:
         try:
             msg = wire.decode_control(data[5:])
-        except wire.BadControl:
+        except wire.BadControlError:
             return self.drop("bad_control")
         if (isinstance(msg, wire.PathResponse) or self.role == "slave" or self.keyed
                 or self.state != ESTABLISHED):

@@ -4,7 +4,6 @@ retransmission with back-off, the receive bound, giving up."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 from .bucket import TokenBucket
 from .config import Config
@@ -20,7 +19,7 @@ class Outgoing:
     number: int
     data: bytes
     offered_at: float
-    last_tx: Optional[float] = None
+    last_tx: float | None = None
 
 
 def first_number(isn: int) -> int:
@@ -70,7 +69,7 @@ class ControlChannel:
 
     def interval(self, loss_delay: float) -> float:
         """The loss delay in force, doubled per timeout in a row, up to 1 s (or the loss delay)."""
-        return min(loss_delay * (2 ** self.backoff), max(1.0, loss_delay))
+        return min(loss_delay * float(2 ** self.backoff), max(1.0, loss_delay))
 
     def expire(self, now: float) -> None:
         """Sender rule 5: a message unacknowledged control_timeout after it was offered is given
@@ -108,7 +107,7 @@ class ControlChannel:
         self.sent_end = max(self.sent_end, m.number + 1)
 
     # -- receiver --
-    def on_message(self, seq16: int, data: bytes) -> tuple[Optional[str], list[bytes]]:
+    def on_message(self, seq16: int, data: bytes) -> tuple[str | None, list[bytes]]:
         """Receiver rule 4: (drop reason or None, messages delivered in order). An ACK is owed
         whatever becomes of it (rule 3)."""
         self.owe_ack = True

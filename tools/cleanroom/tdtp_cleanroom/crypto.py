@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import hmac
 from dataclasses import dataclass
-from typing import Optional, Union
 
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives import hashes
@@ -19,10 +18,10 @@ from .wire import expand
 SUITE_KEY_SIZE = {1: 16, 2: 32}  # 1 AES-128-GCM, 2 ChaCha20-Poly1305 (section 4.3)
 IV_SIZE = 12
 TAG_SIZE = 16
-AEAD = Union[AESGCM, ChaCha20Poly1305]
+AEAD = AESGCM | ChaCha20Poly1305
 
 
-def hkdf(ikm: bytes, salt: Optional[bytes], info: str, length: int) -> bytes:
+def hkdf(ikm: bytes, salt: bytes | None, info: str, length: int) -> bytes:
     return HKDF(algorithm=hashes.SHA256(), length=length, salt=salt, info=info.encode("ascii")).derive(ikm)
 
 
@@ -66,7 +65,7 @@ def make_aead(suite: int, key: bytes) -> AEAD:
 def aead_nonce(iv: bytes, counter: int) -> bytes:
     """IV XOR the counter as a 96-bit big-endian number (section 5.6)."""
     c = counter.to_bytes(IV_SIZE, "big")
-    return bytes(a ^ b for a, b in zip(iv, c))
+    return bytes(a ^ b for a, b in zip(iv, c, strict=True))
 
 
 def handshake_tag(aead: AEAD, iv: bytes, counter: int, datagram_without_tag: bytes) -> bytes:
@@ -92,7 +91,7 @@ def seal(aead: AEAD, iv: bytes, packet_number: int, prefix: bytes, body: bytes, 
 
 
 def unseal(aead: AEAD, iv: bytes, packet_number: int, datagram: bytes, prefix_size: int,
-           encrypt: bool) -> Optional[bytes]:
+           encrypt: bool) -> bytes | None:
     """The body if the tag verifies under this full packet number, else None."""
     prefix_pn = datagram[:prefix_size + 2]
     rest = datagram[prefix_size + 2:]
@@ -136,12 +135,12 @@ class Opener:
         self.aead = make_aead(suite, key)
         self.iv = iv
         self.encrypt = encrypt
-        self.highest: Optional[int] = None
+        self.highest: int | None = None
         self.mask = 0  # bit i: highest - i accepted
         self.search_budget = TokenBucket(50, 50, now)  # at most 50 searches a second
-        self.last_auth: Optional[float] = None
+        self.last_auth: float | None = None
         # the fastest rate seen over a whole second: datagrams authenticated per 1-s window
-        self._win_start: Optional[float] = None
+        self._win_start: float | None = None
         self._win_count = 0
         self.fastest_rate = 0.0
         self.failures = 0
@@ -173,7 +172,7 @@ class Opener:
     def nearest(self, pn16: int) -> int:
         return expand(pn16, (self.highest + 1) if self.highest is not None else 0, 16)
 
-    def try_at(self, pn: int, datagram: bytes, prefix_size: int) -> Optional[bytes]:
+    def try_at(self, pn: int, datagram: bytes, prefix_size: int) -> bytes | None:
         if pn < 0:
             return None
         return unseal(self.aead, self.iv, pn, datagram, prefix_size, self.encrypt)
@@ -185,7 +184,7 @@ class Opener:
         r = max(2.0 * self.fastest_rate, 2000.0)
         return min(3 + int(s * r // 65536), SEARCH_MAX)
 
-    def open(self, datagram: bytes, prefix_size: int, now: float) -> tuple[str, Optional[bytes], int]:
+    def open(self, datagram: bytes, prefix_size: int, now: float) -> tuple[str, bytes | None, int]:
         """('accepted', body, pn), ('replayed', None, pn) or ('unauthenticated', None, pn)."""
         pn16 = int.from_bytes(datagram[prefix_size:prefix_size + 2], "big")
         pn = self.nearest(pn16)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Optional
-
 from . import crypto, wire
 from .admission import Admission
 from .bucket import TokenBucket
@@ -19,7 +17,7 @@ def is_session_datagram(data: bytes) -> bool:
     return t in (wire.DATA, wire.ACK) or (t == wire.CONTROL and len(data) >= 6 and data[5] == wire.KEEPALIVE)
 
 
-def make_reset(data: bytes, ring: list[bytes]) -> Optional[bytes]:
+def make_reset(data: bytes, ring: list[bytes]) -> bytes | None:
     """The stateless RESET for a datagram no session can claim (section 5.7), or None when it
     would be larger than the datagram (unkeyed: under 22 bytes; keyed: no room for a tag)."""
     if len(data) < RESET_MIN or not is_session_datagram(data):
@@ -67,7 +65,7 @@ class StandaloneSlave:
         self.resets = TokenBucket(cfg.resets_per_second, cfg.resets_per_second, now)
         self.nonce = nonce
         self.isn = initial_seq
-        self.conn: Optional[Connection] = None
+        self.conn: Connection | None = None
 
     @property
     def state(self) -> str:
@@ -101,7 +99,7 @@ class StandaloneSlave:
             if code in wire.PATH_CODES:
                 try:
                     wire.decode_control(data[5:])
-                except wire.BadControl:
+                except wire.BadControlError:
                     return self._drop("bad_control")
                 return self._drop("unexpected_control")
         if t == wire.RESERVED:

@@ -4,7 +4,6 @@ the stand-alone ACKs a receiver owes in bidirectional mode."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 from .wire import expand
 
@@ -36,19 +35,19 @@ class ReceiveWindow:
         self.initial_seq = initial_seq
         self.silence_timeout = silence_timeout
         self.far_ahead_check = far_ahead_check  # unkeyed sessions only (section 5.5)
-        self.highest: Optional[int] = None
+        self.highest: int | None = None
         self.arrivals: dict[int, float] = {}  # full number -> arrival time, within the window
         # Section 3.2's bookkeeping. L starts one below the initial sequence number: nothing before
         # it exists, so P = max(L + 1, H - 6) never reaches below the first packet.
         self.last_acked = initial_seq - 1  # L
         self.pending = False
         self.oldest_unreported = 0  # P (meaningful while pending)
-        self.pending_since: Optional[float] = None  # for ack_delay (section 5.3 (a))
+        self.pending_since: float | None = None  # for ack_delay (section 5.3 (a))
         # The re-anchoring run (section 3.1).
         self.run = 0
         self.run_last = 0
         # The far-ahead rate (section 5.5): 1-s windows of H's advance.
-        self.rate_window: Optional[tuple[float, int]] = None  # (opened at, the number that opened it)
+        self.rate_window: tuple[float, int] | None = None  # (opened at, the number that opened it)
         self.closed_rates: list[float] = []
 
     # -- helpers --
@@ -58,7 +57,7 @@ class ReceiveWindow:
     def sack_of(self, n: int) -> int:
         return sum(1 << (i - 1) for i in range(1, SACK_BITS + 1) if self.received(n - i))
 
-    def ack_of_highest(self) -> Optional[OwedAck]:
+    def ack_of_highest(self) -> OwedAck | None:
         if self.highest is None:
             return None
         return OwedAck(self.highest, self.sack_of(self.highest), self.arrivals[self.highest])
@@ -81,7 +80,7 @@ class ReceiveWindow:
             self.oldest_unreported = p
 
     # -- the two ways an acknowledgement of H leaves besides the rules --
-    def piggyback(self) -> Optional[OwedAck]:
+    def piggyback(self) -> OwedAck | None:
         """A DATA or KEEPALIVE leaves now carrying the acknowledgement of H (None: no data yet)."""
         if self.highest is None:
             return None
@@ -90,7 +89,7 @@ class ReceiveWindow:
     def ack_delay_due(self, now: float, ack_delay: float) -> bool:
         return self.pending and self.pending_since is not None and now >= self.pending_since + ack_delay
 
-    def ack_delay_ack(self) -> Optional[OwedAck]:
+    def ack_delay_ack(self) -> OwedAck | None:
         """ack_delay passed with nothing sent: the ACK owed, if any."""
         return self._report_highest() if self.pending else None
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Optional
 
 from .wire import HOLD_NO_ACK, HOLD_SATURATED, expand, hold_decode_ns
 
@@ -17,16 +16,16 @@ MIN_SAMPLE = 1e-6
 @dataclass
 class Record:
     send_time: float
-    verdict: Optional[str] = None  # acked, lost, unknown
+    verdict: str | None = None  # acked, lost, unknown
     reported_absent: bool = False
 
 
 @dataclass
 class AckResult:
     optimistic: bool
-    ack_full: Optional[int] = None
+    ack_full: int | None = None
     newly_acked: int = 0
-    rtt_sample: Optional[float] = None
+    rtt_sample: float | None = None
     lost: list[int] = field(default_factory=list)
     spurious: int = 0
 
@@ -41,10 +40,10 @@ class SentLog:
         self.reorder_threshold = reorder_threshold
         self.records: dict[int, Record] = {}
         self.oldest = first_seq  # the oldest record without a verdict
-        self.largest_acked: Optional[int] = None  # LA, once an acknowledgement named one
+        self.largest_acked: int | None = None  # LA, once an acknowledgement named one
         self.srtt = initial_rtt
         self.rttvar = initial_rtt / 2
-        self.min_rtt: Optional[float] = None
+        self.min_rtt: float | None = None
         self.has_sample = False
         self.k = 1
         self.seen_reordering = False
@@ -78,7 +77,7 @@ class SentLog:
         return self.next_seq - 1
 
     # -- section 3.1: reading a 12-bit ACK --
-    def expand_ack(self, ack12: int, hold_code: int, now: float) -> Optional[int]:
+    def expand_ack(self, ack12: int, hold_code: int, now: float) -> int | None:
         """The full number the ACK names, or None for an optimistic ACK (a packet never sent)."""
         la = self.largest_acked if self.largest_acked is not None else self.first_seq - 1
         c0 = expand(ack12, la + 1024)  # the value in [LA - 1024, LA + 3071]
@@ -88,7 +87,7 @@ class SentLog:
             return None
         hold_ns = hold_decode_ns(hold_code) if hold_code < HOLD_SATURATED else 0
         hold = (hold_ns or 0) / 1e9
-        best: Optional[int] = None
+        best: int | None = None
         best_err = 0.0
         cand = c0
         while cand <= self.highest_sent:
@@ -193,7 +192,7 @@ class SentLog:
             break
         return lost
 
-    def loss_timer(self) -> Optional[float]:
+    def loss_timer(self) -> float | None:
         """When the timer for the oldest reported-absent record below LA is due (None: not armed)."""
         la = self.largest_acked
         if la is None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import ipaddress
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Optional
 
 from . import wire
 from .admission import Admission
@@ -28,7 +27,7 @@ class Notice:
     repeats: int = 0
 
 
-def source_of(addr: Addr) -> Optional[str]:
+def source_of(addr: Addr) -> str | None:
     """The source a share counts (rule 2.7.1): an IPv4 address, the /64 of a global IPv6
     address, any other IPv6 address whole; None for loopback (not counted)."""
     ip = ipaddress.ip_address(addr[0])
@@ -108,7 +107,7 @@ class Server:
                    f"REJECT {wire.reason_name(reason)}")
         self._drop("refused")
 
-    def _room(self, psk: Optional[bytes], addr: Addr, now: float) -> bool:
+    def _room(self, psk: bytes | None, addr: Addr, now: float) -> bool:
         """Rule 2.7: share, free, reclaim (only from a master that is gone)."""
         cfg = self.cfg
         src = source_of(addr)
@@ -160,13 +159,13 @@ class Server:
             if reset is not None and self.resets.take(now):
                 self._send(reset, addr, "RESET")
 
-    def _migration_step(self, data: bytes, addr: Addr, now: float) -> Optional[str]:
+    def _migration_step(self, data: bytes, addr: Addr, now: float) -> str | None:
         """Steps 1 to 6 of section 5.8; the drop reason, or None (moved, or a challenge drawn)."""
         # 1. a PATH_RESPONSE goes to path validation
         if len(data) >= 6 and data[0] >> 6 == wire.CONTROL and data[5] == wire.PATH_RESPONSE:
             try:
                 msg = wire.decode_control(data[5:])
-            except wire.BadControl:
+            except wire.BadControlError:
                 return "bad_control"
             assert isinstance(msg, wire.PathResponse)
             if not self.admission.tokens.challenge_ok(msg.token, now, addr):

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional, Union
 
-from . import PROTOCOL_VERSION
+PROTOCOL_VERSION = 4  # section 2.2: this document specifies version 4
 
 # -- TYPE (section 2.1) ------------------------------------------------------------------------
 DATA, ACK, CONTROL, RESERVED = 0, 1, 2, 3
@@ -41,11 +40,11 @@ def reason_name(reason: int) -> str:
     return REASON_NAMES[reason] if reason < len(REASON_NAMES) else str(reason)
 
 
-class Truncated(ValueError):
+class TruncatedError(ValueError):
     """A datagram shorter than the 5-byte base header."""
 
 
-class BadControl(ValueError):
+class BadControlError(ValueError):
     """A CONTROL body of the wrong length or with an unknown code (`bad_control`, section 4.3)."""
 
 
@@ -63,9 +62,9 @@ class Header:
         return w.to_bytes(5, "big")
 
     @staticmethod
-    def decode(data: bytes) -> "Header":
+    def decode(data: bytes) -> Header:
         if len(data) < HEADER_SIZE:
-            raise Truncated(len(data))
+            raise TruncatedError(len(data))
         w = int.from_bytes(data[:5], "big")
         return Header((w >> 38) & 3, (w >> 26) & 0xFFF, (w >> 14) & 0xFFF, (w >> 8) & 0x3F, w & 0xFF)
 
@@ -81,7 +80,7 @@ HOLD_SATURATED, HOLD_NO_ACK = 254, 255
 HOLD_SATURATION_NS = ((32 + 30) << 6) * HOLD_UNIT_NS  # 31.744 ms, where code 254 would decode
 
 
-def hold_decode_ns(code: int) -> Optional[int]:
+def hold_decode_ns(code: int) -> int | None:
     """The hold a code stands for, in ns; None for 254 (saturated) and 255 (no acknowledgement)."""
     if code >= HOLD_SATURATED:
         return None
@@ -128,7 +127,7 @@ class Open:
     nonce: bytes
     key_id: bytes
     cookie: bytes
-    tag: Optional[bytes] = None
+    tag: bytes | None = None
     code: int = field(default=OPEN, init=False)
 
 
@@ -141,7 +140,7 @@ class OpenAck:
     packet_number: int
     nonce: bytes
     slave_nonce: bytes
-    tag: Optional[bytes] = None
+    tag: bytes | None = None
     code: int = field(default=OPEN_ACK, init=False)
 
 
@@ -209,8 +208,8 @@ class MessageAck:
     code: int = field(default=MESSAGE_ACK, init=False)
 
 
-ControlBody = Union[Open, OpenAck, Keepalive, Close, Reject, Cookie, Reset, PathChallenge,
-                    PathResponse, Message, MessageAck]
+ControlBody = (Open | OpenAck | Keepalive | Close | Reject | Cookie | Reset | PathChallenge
+               | PathResponse | Message | MessageAck)
 
 OPEN_SIZE, OPEN_ACK_SIZE, TAG_SIZE = 48, 40, 16  # body sizes including the code byte
 
@@ -220,59 +219,59 @@ def _u16(b: bytes, off: int) -> int:
 
 
 def decode_control(body: bytes) -> ControlBody:
-    """Decode the bytes after the base header (code byte first); raise BadControl if malformed."""
+    """Decode the bytes after the base header (code byte first); raise BadControlError if malformed."""
     if not body:
-        raise BadControl("no code byte")
+        raise BadControlError("no code byte")
     code, n = body[0], len(body)
     if code == OPEN:
         if n < 3:
-            raise BadControl("OPEN too short to hold its flags")
+            raise BadControlError("OPEN too short to hold its flags")
         keyed = bool(body[2] & FLAG_KEYED)
         if n != OPEN_SIZE + (TAG_SIZE if keyed else 0):
-            raise BadControl("OPEN length")
+            raise BadControlError("OPEN length")
         return Open(body[1], body[2], body[3], _u16(body, 4), _u16(body, 6), body[8:24], body[24:32],
                     body[32:48], body[48:64] if keyed else None)
     if code == OPEN_ACK:
         if n < 3:
-            raise BadControl("OPEN_ACK too short to hold its flags")
+            raise BadControlError("OPEN_ACK too short to hold its flags")
         keyed = bool(body[2] & FLAG_KEYED)
         if n != OPEN_ACK_SIZE + (TAG_SIZE if keyed else 0):
-            raise BadControl("OPEN_ACK length")
+            raise BadControlError("OPEN_ACK length")
         return OpenAck(body[1], body[2], body[3], _u16(body, 4), _u16(body, 6), body[8:24],
                        body[24:40], body[40:56] if keyed else None)
     if code == KEEPALIVE:
         if n != 17:
-            raise BadControl("KEEPALIVE length")
+            raise BadControlError("KEEPALIVE length")
         return Keepalive(body[1:17])
     if code in (CLOSE, REJECT):
         if n != 18:
-            raise BadControl("CLOSE/REJECT length")
+            raise BadControlError("CLOSE/REJECT length")
         return (Close if code == CLOSE else Reject)(body[1:17], body[17])
     if code == COOKIE:
         if n != 34:
-            raise BadControl("COOKIE length")
+            raise BadControlError("COOKIE length")
         return Cookie(body[1], body[2:18], body[18:34])
     if code == RESET:
         if n < 17 or (n - 17) % 16:
-            raise BadControl("RESET length")
+            raise BadControlError("RESET length")
         return Reset(body[1:17], [body[i:i + 16] for i in range(17, n, 16)])
     if code == PATH_CHALLENGE:
         if n != 17:
-            raise BadControl("PATH_CHALLENGE length")
+            raise BadControlError("PATH_CHALLENGE length")
         return PathChallenge(body[1:17])
     if code == PATH_RESPONSE:
         if n != 33:
-            raise BadControl("PATH_RESPONSE length")
+            raise BadControlError("PATH_RESPONSE length")
         return PathResponse(body[1:17], body[17:33])
     if code == MESSAGE:
         if n < 22:  # nonce 16, seq 2, ack 2 and at least one message byte
-            raise BadControl("MESSAGE length")
+            raise BadControlError("MESSAGE length")
         return Message(body[1:17], _u16(body, 17), _u16(body, 19), body[21:])
     if code == MESSAGE_ACK:
         if n != 19:
-            raise BadControl("MESSAGE_ACK length")
+            raise BadControlError("MESSAGE_ACK length")
         return MessageAck(body[1:17], _u16(body, 17))
-    raise BadControl(f"unknown code {code}")
+    raise BadControlError(f"unknown code {code}")
 
 
 def encode_control(msg: ControlBody) -> bytes:
@@ -306,5 +305,3 @@ def encode_control(msg: ControlBody) -> bytes:
 def control_datagram(msg: ControlBody, header: Header) -> bytes:
     return header.encode() + encode_control(msg)
 
-
-assert PROTOCOL_VERSION == 4
