@@ -124,13 +124,18 @@ class Connection:
         self.sink.sent.append(s)
 
     @property
+    def separate_acks(self) -> bool:
+        """The session's ack mode: the master's choice, adopted by the slave from its OPEN."""
+        return bool(self.flags & wire.FLAG_SEPARATE_ACKS)
+
+    @property
     def max_send_payload(self) -> int:
         return min(self.cfg.max_payload, self.peer_max_payload)
 
     def _header_ack(self, now: float) -> wire.Header:
         """A DATA/KEEPALIVE header's acknowledgement (section 5.3): H, its SACK, its hold."""
         seq = self.log.next_seq & 0xFFF
-        owed = self.window.piggyback() if (self.window and not self.cfg.separate_acks) else None
+        owed = self.window.piggyback() if (self.window and not self.separate_acks) else None
         if owed is None:
             return wire.Header(wire.CONTROL, seq, 0, 0, wire.HOLD_NO_ACK)
         return wire.Header(wire.CONTROL, seq, owed.ack & 0xFFF, owed.sack,
@@ -289,7 +294,7 @@ class Connection:
 
     def _read_ack(self, hdr: wire.Header, now: float) -> bool:
         """The acknowledgement in an accepted DATA, ACK or KEEPALIVE; False if optimistic."""
-        if hdr.hold == wire.HOLD_NO_ACK or (self.cfg.separate_acks and hdr.type != wire.ACK):
+        if hdr.hold == wire.HOLD_NO_ACK or (self.separate_acks and hdr.type != wire.ACK):
             return True
         res = self.log.on_ack(hdr.ack, hdr.sack, hdr.hold, now)
         if (not self.validated and self.keyed and self.log.largest_acked is not None
