@@ -41,4 +41,6 @@ def test_vector_file(path: Path) -> None:
 def test_the_package_does_not_import_tdtp() -> None:
     for src in (CLEANROOM / "tdtp_cleanroom").glob("*.py"):
         text = src.read_text()
-        assert "import tdtp\n" not in text and "from tdtp " not in text and "from tdtp." not in text, src
+        assert (
+            "import tdtp\n" not in text and "from tdtp " not in text and "from tdtp." not in text
+        ), src

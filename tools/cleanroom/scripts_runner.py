@@ -12,8 +12,11 @@ from tdtp_cleanroom.endpoint import Master, StandaloneSlave
 from tdtp_cleanroom.server import Server
 
 ADDRS: dict[str, Addr] = {
-    "master": ("192.0.2.1", 40001), "slave": ("192.0.2.2", 40002), "stranger": ("198.51.100.7", 666),
-    "master_moved": ("192.0.2.1", 50001), "master2": ("203.0.113.9", 40009),
+    "master": ("192.0.2.1", 40001),
+    "slave": ("192.0.2.2", 40002),
+    "stranger": ("198.51.100.7", 666),
+    "master_moved": ("192.0.2.1", 50001),
+    "master2": ("203.0.113.9", 40009),
     "master3": ("203.0.113.10", 40010),
 }
 NAMES = {v: k for k, v in ADDRS.items()}
@@ -29,8 +32,18 @@ class MismatchError(Exception):
 
 def make_config(c: Vec, role: str) -> Config:
     cfg = Config()
-    for k in ("max_payload", "min_peer_payload", "control_window", "suite", "encrypt", "takeover",
-              "max_peers", "exclusive", "takeover_after", "reclaim_after"):
+    for k in (
+        "max_payload",
+        "min_peer_payload",
+        "control_window",
+        "suite",
+        "encrypt",
+        "takeover",
+        "max_peers",
+        "exclusive",
+        "takeover_after",
+        "reclaim_after",
+    ):
         if k in c:
             setattr(cfg, k, c[k])
     if "psk" in c:
@@ -55,7 +68,7 @@ def last_token(sent: list[Sent], code: int, offset: int) -> bytes | None:
     """The 16 bytes at `offset` of the last CONTROL datagram of this code sent (cookie, token)."""
     for s in reversed(sent):
         if len(s.data) >= offset + 16 and s.data[0] >> 6 == wire.CONTROL and s.data[5] == code:
-            return s.data[offset:offset + 16]
+            return s.data[offset : offset + 16]
     return None
 
 
@@ -75,8 +88,10 @@ def substitute(text: str, history: list[Sent]) -> bytes:
 
 def endpoint_suite(d: Vec) -> Iterable[tuple[str, Callable[[], None]]]:
     for script in d["scripts"]:
+
         def run(s: Vec = script) -> None:
             run_endpoint_script(s)
+
         yield script["name"], run
 
 
@@ -137,8 +152,10 @@ def run_endpoint_script(script: Vec) -> None:
 
 def server_suite(d: Vec) -> Iterable[tuple[str, Callable[[], None]]]:
     for script in d["scripts"]:
+
         def run(s: Vec = script) -> None:
             run_server_script(s)
+
         yield script["name"], run
 
 
@@ -147,10 +164,20 @@ def build_open(o: Vec, history: list[Sent]) -> bytes:
     psk = bytes.fromhex(o["psk"]) if "psk" in o else None
     flags = o.get("flags", 6 if psk else 0)
     suite = o.get("suite", 1 if psk else 0)
-    cookie = (last_token(history, wire.COOKIE, COOKIE_OFFSET) if o.get("cookie") else None) or bytes(16)
+    cookie = (
+        last_token(history, wire.COOKIE, COOKIE_OFFSET) if o.get("cookie") else None
+    ) or bytes(16)
     nonce = bytes.fromhex(o["nonce"])
-    op = wire.Open(wire.PROTOCOL_VERSION, flags, suite, o.get("max_payload", 1200), o["attempt"], nonce,
-                   crypto.key_id(psk) if psk else bytes(8), cookie)
+    op = wire.Open(
+        wire.PROTOCOL_VERSION,
+        flags,
+        suite,
+        o.get("max_payload", 1200),
+        o["attempt"],
+        nonce,
+        crypto.key_id(psk) if psk else bytes(8),
+        cookie,
+    )
     dg = wire.control_datagram(op, wire.plain_header(wire.CONTROL, o["seq"]))
     if psk:
         key, iv = crypto.open_key_iv(psk, suite, nonce)
@@ -188,16 +215,24 @@ def run_server_script(script: Vec) -> None:
         got: dict[str, Any] = {
             "drops": [r for _, r in srv.sink.drops],
             "sessions": {NAMES.get(a, str(a)): c.state for a, c in srv.sessions.items()},
-            "sent": [f"{s.label} -> {NAMES.get(s.addr, str(s.addr)) if s.addr else '?'}" for s in srv.sink.sent],
+            "sent": [
+                f"{s.label} -> {NAMES.get(s.addr, str(s.addr)) if s.addr else '?'}"
+                for s in srv.sink.sent
+            ],
         }
         if step.get("exact"):
             got["sent_hex"] = [s.data.hex() for s in srv.sink.sent]
-        for key, items in (("delivered", srv.sink.delivered), ("control_delivered", srv.sink.control_delivered)):
+        for key, items in (
+            ("delivered", srv.sink.delivered),
+            ("control_delivered", srv.sink.control_delivered),
+        ):
             if items:
                 by: dict[str, list[str]] = {}
                 for conn, payload in items:
                     by.setdefault(name(conn), []).append(payload.hex())
                 got[key] = by
         if srv.sink.closed:
-            got["closed"] = {name(c): {"cause": cause, "reason": reason} for c, cause, reason in srv.sink.closed}
+            got["closed"] = {
+                name(c): {"cause": cause, "reason": reason} for c, cause, reason in srv.sink.closed
+            }
         compare(f"step {i} at {now}", got, want)

@@ -57,6 +57,7 @@ class Tokens:
 @dataclass
 class Verdict:
     """What admission decided about one OPEN."""
+
     drop: str | None = None  # None: admitted
     reply: bytes | None = None
     reply_label: str = ""
@@ -84,8 +85,10 @@ class Admission:
 
     @staticmethod
     def _reject(nonce: bytes, reason: int) -> tuple[bytes, str]:
-        return (wire.control_datagram(wire.Reject(nonce, reason), wire.plain_header()),
-                f"REJECT {wire.reason_name(reason)}")
+        return (
+            wire.control_datagram(wire.Reject(nonce, reason), wire.plain_header()),
+            f"REJECT {wire.reason_name(reason)}",
+        )
 
     def judge(self, data: bytes, addr: Addr, now: float) -> Verdict:
         """Judge an OPEN (TYPE 2, at least 6 bytes, code 1) before keeping any state."""
@@ -108,17 +111,25 @@ class Admission:
             return Verdict("bad_control")
         assert isinstance(op, wire.Open)
         keyed = bool(op.flags & wire.FLAG_KEYED)
-        if (op.max_payload == 0 or (op.flags & wire.FLAG_ENCRYPTED and not keyed)
-                or (keyed and op.suite == 0) or (not keyed and op.suite != 0)
-                or (not keyed and op.key_id != bytes(8))):
+        if (
+            op.max_payload == 0
+            or (op.flags & wire.FLAG_ENCRYPTED and not keyed)
+            or (keyed and op.suite == 0)
+            or (not keyed and op.suite != 0)
+            or (not keyed and op.key_id != bytes(8))
+        ):
             return Verdict("bad_control")
         # 3. Cookie: a valid one skips the rate limit.
         if not self.tokens.cookie_ok(op.cookie, now, addr, op.nonce):
             # 4. Rate, then COOKIE.
             if not self._source_token(addr, now) or not self.replies.take(now):
                 return Verdict("rate_limited")
-            cookie = wire.Cookie(wire.PROTOCOL_VERSION, op.nonce, self.tokens.cookie(now, addr, op.nonce))
-            return Verdict("unvalidated", wire.control_datagram(cookie, wire.plain_header()), "COOKIE")
+            cookie = wire.Cookie(
+                wire.PROTOCOL_VERSION, op.nonce, self.tokens.cookie(now, addr, op.nonce)
+            )
+            return Verdict(
+                "unvalidated", wire.control_datagram(cookie, wire.plain_header()), "COOKIE"
+            )
         # 5. Keys.
         psk: bytes | None = None
         if self.ring and not keyed:
@@ -131,7 +142,9 @@ class Admission:
                 return Verdict("refused", *self._reject(op.nonce, wire.SUITE_UNSUPPORTED))
             key, iv = crypto.open_key_iv(psk, op.suite, op.nonce)
             assert op.tag is not None
-            if not crypto.handshake_tag_ok(crypto.make_aead(op.suite, key), iv, op.attempt, data[:-16], op.tag):
+            if not crypto.handshake_tag_ok(
+                crypto.make_aead(op.suite, key), iv, op.attempt, data[:-16], op.tag
+            ):
                 return Verdict("unauthenticated")
         # 6. Payload.
         if op.max_payload < self.cfg.min_peer_payload:

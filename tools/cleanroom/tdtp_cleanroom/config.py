@@ -55,7 +55,11 @@ class Config:
 
     @property
     def keepalive(self) -> float:
-        return self.keepalive_interval if self.keepalive_interval is not None else self.silence_timeout / 3
+        return (
+            self.keepalive_interval
+            if self.keepalive_interval is not None
+            else self.silence_timeout / 3
+        )
 
     @property
     def max_opens(self) -> int:

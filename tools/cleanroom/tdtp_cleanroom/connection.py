@@ -14,7 +14,13 @@ from .control_channel import ControlChannel
 from .receiver import OwedAck, ReceiveWindow
 from .sender import SentLog
 
-IDLE, LISTENING, OPENING, ESTABLISHED, CLOSED = "idle", "listening", "opening", "established", "closed"
+IDLE, LISTENING, OPENING, ESTABLISHED, CLOSED = (
+    "idle",
+    "listening",
+    "opening",
+    "established",
+    "closed",
+)
 RESET_ECHOES = 256
 INF = float("inf")
 
@@ -29,6 +35,7 @@ class Sent:
 @dataclass
 class Sink:
     """Where connections report what they send and what their application hears."""
+
     sent: list[Sent] = field(default_factory=list)
     drops: list[tuple[object, str]] = field(default_factory=list)
     delivered: list[tuple[object, bytes]] = field(default_factory=list)
@@ -47,8 +54,17 @@ CLOSE_CAUSE = {wire.RESTARTING: "peer_restarting", wire.EVICTED: "evicted"}  # e
 
 
 class Connection:
-    def __init__(self, role: str, cfg: Config, sink: Sink, nonce: bytes, initial_seq: int, now: float,
-                 peer: Addr | None = None, admission: Admission | None = None) -> None:
+    def __init__(
+        self,
+        role: str,
+        cfg: Config,
+        sink: Sink,
+        nonce: bytes,
+        initial_seq: int,
+        now: float,
+        peer: Addr | None = None,
+        admission: Admission | None = None,
+    ) -> None:
         self.role = role
         self.cfg = cfg
         self.sink = sink
@@ -138,8 +154,13 @@ class Connection:
         owed = self.window.piggyback() if (self.window and not self.separate_acks) else None
         if owed is None:
             return wire.Header(wire.CONTROL, seq, 0, 0, wire.HOLD_NO_ACK)
-        return wire.Header(wire.CONTROL, seq, owed.ack & 0xFFF, owed.sack,
-                           wire.hold_encode_seconds(now - owed.since))
+        return wire.Header(
+            wire.CONTROL,
+            seq,
+            owed.ack & 0xFFF,
+            owed.sack,
+            wire.hold_encode_seconds(now - owed.since),
+        )
 
     def _session_control(self, msg: wire.ControlBody, header: wire.Header) -> bytes:
         """A session CONTROL datagram, sealed in a keyed session (section 4.4)."""
@@ -155,8 +176,16 @@ class Connection:
     def _send_open(self, now: float) -> None:
         assert self.peer is not None
         key_id = crypto.key_id(self.psk) if self.psk else bytes(8)
-        op = wire.Open(wire.PROTOCOL_VERSION, self.flags, self.suite, self.cfg.max_payload,
-                       self.attempts, self.nonce, key_id, self.cookie)
+        op = wire.Open(
+            wire.PROTOCOL_VERSION,
+            self.flags,
+            self.suite,
+            self.cfg.max_payload,
+            self.attempts,
+            self.nonce,
+            key_id,
+            self.cookie,
+        )
         dg = wire.control_datagram(op, wire.plain_header(wire.CONTROL, self.isn))
         if self.psk:
             key, iv = crypto.open_key_iv(self.psk, self.suite, self.nonce)
@@ -167,8 +196,15 @@ class Connection:
 
     def _send_open_ack(self, now: float) -> None:
         pn = self.sealer.take_pn() if self.sealer else 0
-        oa = wire.OpenAck(wire.PROTOCOL_VERSION, self.flags & wire.MODE_FLAGS, self.suite,
-                          self.cfg.max_payload, pn & 0xFFFF, self.nonce, self.own_nonce)
+        oa = wire.OpenAck(
+            wire.PROTOCOL_VERSION,
+            self.flags & wire.MODE_FLAGS,
+            self.suite,
+            self.cfg.max_payload,
+            pn & 0xFFFF,
+            self.nonce,
+            self.own_nonce,
+        )
         dg = wire.control_datagram(oa, wire.plain_header(wire.CONTROL, self.isn))
         if self.sealer:
             dg += crypto.handshake_tag(self.sealer.aead, self.sealer.iv, pn, dg)
@@ -190,7 +226,7 @@ class Connection:
         self.psk = self.cfg.psk
         self.keyed = self.psk is not None
         self.suite = self.cfg.suite if self.keyed else 0
-        self.flags = (wire.FLAG_SEPARATE_ACKS if self.cfg.separate_acks else 0)
+        self.flags = wire.FLAG_SEPARATE_ACKS if self.cfg.separate_acks else 0
         if self.keyed:
             self.flags |= wire.FLAG_KEYED | (wire.FLAG_ENCRYPTED if self.cfg.encrypt else 0)
             self.flags |= wire.FLAG_TAKEOVER if self.cfg.takeover else 0
@@ -243,7 +279,9 @@ class Connection:
         self._send_open_ack(now)
 
     def _start_session(self, peer_isn: int, now: float) -> None:
-        self.window = ReceiveWindow(peer_isn, self.cfg.silence_timeout, far_ahead_check=not self.keyed)
+        self.window = ReceiveWindow(
+            peer_isn, self.cfg.silence_timeout, far_ahead_check=not self.keyed
+        )
         self.channel = ControlChannel(self.cfg, self.isn, peer_isn, now)
 
     # -- receiving: the table of section 5.5 ----------------------------------------------------
@@ -297,8 +335,12 @@ class Connection:
         if hdr.hold == wire.HOLD_NO_ACK or (self.separate_acks and hdr.type != wire.ACK):
             return True
         res = self.log.on_ack(hdr.ack, hdr.sack, hdr.hold, now)
-        if (not self.validated and self.keyed and self.log.largest_acked is not None
-                and self.log.largest_acked >= self.path_first_seq):
+        if (
+            not self.validated
+            and self.keyed
+            and self.log.largest_acked is not None
+            and self.log.largest_acked >= self.path_first_seq
+        ):
             self.validated = True  # a DATA packet sent on the new path acknowledged (5.8)
         return not res.optimistic
 
@@ -396,7 +438,10 @@ class Connection:
             self.life(now)
             self.cookie = msg.cookie
             # Rule 6: the next OPEN at once, at most once per retry interval, within the total.
-            if now - self.last_cookie_open_at >= self.cfg.open_retry_interval and self.attempts < self.cfg.max_opens:
+            if (
+                now - self.last_cookie_open_at >= self.cfg.open_retry_interval
+                and self.attempts < self.cfg.max_opens
+            ):
                 self.last_cookie_open_at = now
                 self._send_open(now)
             return None
@@ -413,7 +458,11 @@ class Connection:
             return self.drop("unexpected_control")
         if msg.version != wire.PROTOCOL_VERSION:
             return self.drop("unknown_version")
-        if (msg.max_payload < 1 or msg.flags != self.flags & wire.MODE_FLAGS or msg.suite != self.suite):
+        if (
+            msg.max_payload < 1
+            or msg.flags != self.flags & wire.MODE_FLAGS
+            or msg.suite != self.suite
+        ):
             return self.drop("bad_control")
         if self.keyed:
             assert self.psk is not None and msg.tag is not None
@@ -518,8 +567,12 @@ class Connection:
             msg = wire.decode_control(data[5:])
         except wire.BadControlError:
             return self.drop("bad_control")
-        if (isinstance(msg, wire.PathResponse) or self.role == "slave" or self.keyed
-                or self.state != ESTABLISHED):
+        if (
+            isinstance(msg, wire.PathResponse)
+            or self.role == "slave"
+            or self.keyed
+            or self.state != ESTABLISHED
+        ):
             return self.drop("unexpected_control")
         assert isinstance(msg, wire.PathChallenge)
         if now - self.last_path_response < self.cfg.path_response_interval:
@@ -540,8 +593,10 @@ class Connection:
             if self.role == "master":
                 if now >= self.opened_at + self.cfg.open_timeout:
                     self._close("open_timeout", None)
-                elif (self.attempts < self.cfg.max_opens
-                      and now >= self.last_open_at + self.cfg.open_retry_interval):
+                elif (
+                    self.attempts < self.cfg.max_opens
+                    and now >= self.last_open_at + self.cfg.open_retry_interval
+                ):
                     self._send_open(now)
             elif now >= self.opened_at + self.cfg.open_timeout:
                 self._close("open_timeout", None)
@@ -555,8 +610,12 @@ class Connection:
                 self.log.on_timer(now)
             if self.channel is not None:
                 self.channel.expire(now)
-            if (self.role == "slave" and not self.validated and self.moved_by_response
-                    and now >= self.moved_at + self.cfg.silence_timeout):
+            if (
+                self.role == "slave"
+                and not self.validated
+                and self.moved_by_response
+                and now >= self.moved_at + self.cfg.silence_timeout
+            ):
                 self.validated = True  # the old address stayed silent (section 5.8)
 
     def _flush_need(self) -> int:
@@ -597,8 +656,13 @@ class Connection:
             self._send_keepalive(now)
 
     def _send_ack(self, owed: OwedAck, now: float) -> None:
-        hdr = wire.Header(wire.ACK, self.log.next_seq & 0xFFF, owed.ack & 0xFFF, owed.sack,
-                          wire.hold_encode_seconds(now - owed.since))
+        hdr = wire.Header(
+            wire.ACK,
+            self.log.next_seq & 0xFFF,
+            owed.ack & 0xFFF,
+            owed.sack,
+            wire.hold_encode_seconds(now - owed.since),
+        )
         pad = bytes(self.cfg.ack_size - 5)
         dg = self.sealer.seal(hdr.encode(), pad) if self.sealer else hdr.encode() + pad
         self._send_traffic(dg, "ACK", now)
@@ -627,4 +691,6 @@ class Connection:
             ch.owe_ack = False
             if not sent_message:  # a MESSAGE of our own carries the acknowledgement
                 msg_ack = wire.MessageAck(self.nonce, ch.ack_field)
-                self._send_traffic(self._session_control(msg_ack, self._plain_header()), "MESSAGE_ACK", now)
+                self._send_traffic(
+                    self._session_control(msg_ack, self._plain_header()), "MESSAGE_ACK", now
+                )

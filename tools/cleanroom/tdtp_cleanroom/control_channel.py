@@ -69,7 +69,7 @@ class ControlChannel:
 
     def interval(self, loss_delay: float) -> float:
         """The loss delay in force, doubled per timeout in a row, up to 1 s (or the loss delay)."""
-        return min(loss_delay * float(2 ** self.backoff), max(1.0, loss_delay))
+        return min(loss_delay * float(2**self.backoff), max(1.0, loss_delay))
 
     def expire(self, now: float) -> None:
         """Sender rule 5: a message unacknowledged control_timeout after it was offered is given

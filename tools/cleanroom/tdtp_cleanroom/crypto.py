@@ -22,7 +22,9 @@ AEAD = AESGCM | ChaCha20Poly1305
 
 
 def hkdf(ikm: bytes, salt: bytes | None, info: str, length: int) -> bytes:
-    return HKDF(algorithm=hashes.SHA256(), length=length, salt=salt, info=info.encode("ascii")).derive(ikm)
+    return HKDF(
+        algorithm=hashes.SHA256(), length=length, salt=salt, info=info.encode("ascii")
+    ).derive(ikm)
 
 
 def key_id(psk: bytes) -> bytes:
@@ -55,7 +57,9 @@ class SessionKeys:
 def session_keys(psk: bytes, suite: int, master_nonce: bytes, slave_nonce: bytes) -> SessionKeys:
     k = SUITE_KEY_SIZE[suite]
     out = hkdf(psk, master_nonce + slave_nonce, f"tdtp2 session {suite}", 2 * (k + IV_SIZE))
-    return SessionKeys(out[:k], out[k:k + IV_SIZE], out[k + IV_SIZE:2 * k + IV_SIZE], out[2 * k + IV_SIZE:])
+    return SessionKeys(
+        out[:k], out[k : k + IV_SIZE], out[k + IV_SIZE : 2 * k + IV_SIZE], out[2 * k + IV_SIZE :]
+    )
 
 
 def make_aead(suite: int, key: bytes) -> AEAD:
@@ -73,7 +77,9 @@ def handshake_tag(aead: AEAD, iv: bytes, counter: int, datagram_without_tag: byt
     return aead.encrypt(aead_nonce(iv, counter), b"", datagram_without_tag)
 
 
-def handshake_tag_ok(aead: AEAD, iv: bytes, counter: int, datagram_without_tag: bytes, tag: bytes) -> bool:
+def handshake_tag_ok(
+    aead: AEAD, iv: bytes, counter: int, datagram_without_tag: bytes, tag: bytes
+) -> bool:
     try:
         aead.decrypt(aead_nonce(iv, counter), tag, datagram_without_tag)
         return True
@@ -81,7 +87,9 @@ def handshake_tag_ok(aead: AEAD, iv: bytes, counter: int, datagram_without_tag: 
         return False
 
 
-def seal(aead: AEAD, iv: bytes, packet_number: int, prefix: bytes, body: bytes, encrypt: bool) -> bytes:
+def seal(
+    aead: AEAD, iv: bytes, packet_number: int, prefix: bytes, body: bytes, encrypt: bool
+) -> bytes:
     """prefix | PN | body sealed | tag (section 4.4)."""
     pn = (packet_number & 0xFFFF).to_bytes(2, "big")
     nonce = aead_nonce(iv, packet_number)
@@ -90,11 +98,12 @@ def seal(aead: AEAD, iv: bytes, packet_number: int, prefix: bytes, body: bytes, 
     return prefix + pn + body + aead.encrypt(nonce, b"", prefix + pn + body)
 
 
-def unseal(aead: AEAD, iv: bytes, packet_number: int, datagram: bytes, prefix_size: int,
-           encrypt: bool) -> bytes | None:
+def unseal(
+    aead: AEAD, iv: bytes, packet_number: int, datagram: bytes, prefix_size: int, encrypt: bool
+) -> bytes | None:
     """The body if the tag verifies under this full packet number, else None."""
-    prefix_pn = datagram[:prefix_size + 2]
-    rest = datagram[prefix_size + 2:]
+    prefix_pn = datagram[: prefix_size + 2]
+    rest = datagram[prefix_size + 2 :]
     nonce = aead_nonce(iv, packet_number)
     try:
         if encrypt:
@@ -165,7 +174,9 @@ class Opener:
         self.last_auth = now
         if self._win_start is None or now - self._win_start >= 1.0:
             if self._win_start is not None and now - self._win_start >= 1.0:
-                self.fastest_rate = max(self.fastest_rate, self._win_count / (now - self._win_start))
+                self.fastest_rate = max(
+                    self.fastest_rate, self._win_count / (now - self._win_start)
+                )
             self._win_start, self._win_count = now, 0
         self._win_count += 1
 
@@ -186,7 +197,7 @@ class Opener:
 
     def open(self, datagram: bytes, prefix_size: int, now: float) -> tuple[str, bytes | None, int]:
         """('accepted', body, pn), ('replayed', None, pn) or ('unauthenticated', None, pn)."""
-        pn16 = int.from_bytes(datagram[prefix_size:prefix_size + 2], "big")
+        pn16 = int.from_bytes(datagram[prefix_size : prefix_size + 2], "big")
         pn = self.nearest(pn16)
         if self.seen(pn):
             verdict = "replayed"
@@ -216,7 +227,7 @@ class Opener:
         """Path migration's trial (section 5.8): 'ahead' (authenticates above every accepted
         number), 'replayed' (authenticates at a number accepted already, or too old) or 'failed'.
         Never searches, never counts a forgery, changes nothing."""
-        pn16 = int.from_bytes(datagram[prefix_size:prefix_size + 2], "big")
+        pn16 = int.from_bytes(datagram[prefix_size : prefix_size + 2], "big")
         pn = self.nearest(pn16)
         if self.try_at(pn, datagram, prefix_size) is None:
             return "failed"

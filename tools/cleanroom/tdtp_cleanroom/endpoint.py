@@ -14,7 +14,9 @@ RESET_MIN = 22
 def is_session_datagram(data: bytes) -> bool:
     """What a RESET answers (section 5.7): DATA, ACK, or a CONTROL whose code byte is KEEPALIVE."""
     t = data[0] >> 6
-    return t in (wire.DATA, wire.ACK) or (t == wire.CONTROL and len(data) >= 6 and data[5] == wire.KEEPALIVE)
+    return t in (wire.DATA, wire.ACK) or (
+        t == wire.CONTROL and len(data) >= 6 and data[5] == wire.KEEPALIVE
+    )
 
 
 def make_reset(data: bytes, ring: list[bytes]) -> bytes | None:
@@ -90,8 +92,15 @@ class StandaloneSlave:
                     self.sink.sent.append(Sent(v.reply, addr, v.reply_label))
                 if v.drop is not None:
                     return self._drop(v.drop)
-                self.conn = Connection("slave", self.cfg, self.sink, self.nonce, self.isn, now,
-                                       admission=self.admission)
+                self.conn = Connection(
+                    "slave",
+                    self.cfg,
+                    self.sink,
+                    self.nonce,
+                    self.isn,
+                    now,
+                    admission=self.admission,
+                )
                 self.conn.accept_open(v, addr, wire.Header.decode(data).seq, now)
                 return None
             if code in wire.HANDSHAKE_CODES or code == wire.RESET:
@@ -113,4 +122,3 @@ class StandaloneSlave:
     def tick(self, now: float) -> None:
         if self.conn is not None:
             self.conn.tick(now)
-

@@ -17,6 +17,7 @@ MIN_PEER_RATE = 1000.0  # R is at least 1000/s (section 5.5)
 @dataclass(frozen=True)
 class OwedAck:
     """A stand-alone ACK the receiver owes: ACK = `ack` (full), its SACK bits, HOLD from `since`."""
+
     ack: int
     sack: int
     since: float
@@ -87,7 +88,11 @@ class ReceiveWindow:
         return self._report_highest()
 
     def ack_delay_due(self, now: float, ack_delay: float) -> bool:
-        return self.pending and self.pending_since is not None and now >= self.pending_since + ack_delay
+        return (
+            self.pending
+            and self.pending_since is not None
+            and now >= self.pending_since + ack_delay
+        )
 
     def ack_delay_ack(self) -> OwedAck | None:
         """ack_delay passed with nothing sent: the ACK owed, if any."""
@@ -137,7 +142,7 @@ class ReceiveWindow:
 
     def _new(self, n: int, now: float, reanchored: bool) -> Arrival:
         h = self.highest
-        if (self.far_ahead_check and h is not None and not reanchored and n - h > FAR_AHEAD_SLACK):
+        if self.far_ahead_check and h is not None and not reanchored and n - h > FAR_AHEAD_SLACK:
             since = now - self.arrivals[h]
             rate = max(2.0 * self.peer_rate(), MIN_PEER_RATE)
             if since < self.silence_timeout and n - h - FAR_AHEAD_SLACK > since * rate:

@@ -31,8 +31,13 @@ class AckResult:
 
 
 class SentLog:
-    def __init__(self, first_seq: int, initial_rtt: float = 0.1, ack_delay: float = 0.02,
-                 reorder_threshold: int = 3) -> None:
+    def __init__(
+        self,
+        first_seq: int,
+        initial_rtt: float = 0.1,
+        ack_delay: float = 0.02,
+        reorder_threshold: int = 3,
+    ) -> None:
         self.first_seq = first_seq
         self.next_seq = first_seq
         self.initial_rtt = initial_rtt
@@ -176,8 +181,9 @@ class SentLog:
             if la is None:
                 break
             if rec.reported_absent:
-                if ((p < la and now >= rec.send_time + self.loss_delay)
-                        or (not self.seen_reordering and p <= la - self.reorder_threshold)):
+                if (p < la and now >= rec.send_time + self.loss_delay) or (
+                    not self.seen_reordering and p <= la - self.reorder_threshold
+                ):
                     rec.verdict = "lost"
                     self.recent_losses.append(p)
                     lost.append(p)

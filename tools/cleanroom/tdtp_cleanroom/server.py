@@ -20,6 +20,7 @@ MAX_REPEATS = 8
 @dataclass
 class Notice:
     """An evicted or displaced master's CLOSE, repeated to its later datagrams (rule 2.7 step 4)."""
+
     close: bytes
     label: str
     at: float
@@ -69,8 +70,11 @@ class Server:
             return self._open(data, addr, now)
         notice = self.notices.get(addr)  # step 3.1
         if notice is not None and now - notice.at < self.cfg.idle_timeout:
-            if (len(data) >= len(notice.close) and notice.repeats < MAX_REPEATS
-                    and now - notice.last >= self.cfg.silence_timeout):
+            if (
+                len(data) >= len(notice.close)
+                and notice.repeats < MAX_REPEATS
+                and now - notice.last >= self.cfg.silence_timeout
+            ):
                 notice.repeats += 1
                 notice.last = now
                 self._send(notice.close, addr, notice.label)
@@ -103,8 +107,11 @@ class Server:
         return None
 
     def _refuse(self, nonce: bytes, reason: int, addr: Addr) -> None:
-        self._send(wire.control_datagram(wire.Reject(nonce, reason), wire.plain_header()), addr,
-                   f"REJECT {wire.reason_name(reason)}")
+        self._send(
+            wire.control_datagram(wire.Reject(nonce, reason), wire.plain_header()),
+            addr,
+            f"REJECT {wire.reason_name(reason)}",
+        )
         self._drop("refused")
 
     def _room(self, psk: bytes | None, addr: Addr, now: float) -> bool:
@@ -112,15 +119,22 @@ class Server:
         cfg = self.cfg
         src = source_of(addr)
         share = max(1, int(cfg.source_share * cfg.max_peers))
-        own = [s for s in self.sessions.values() if src is not None and s.peer and source_of(s.peer) == src]
+        own = [
+            s
+            for s in self.sessions.values()
+            if src is not None and s.peer and source_of(s.peer) == src
+        ]
         if src is not None and len(own) >= share:
             pool = own
         elif len(self.sessions) < cfg.max_peers:
             return True
         else:
             pool = list(self.sessions.values())
-        same_key = [s for s in pool if psk is not None and s.psk == psk
-                    and s.silence(now) >= cfg.silence_timeout]
+        same_key = [
+            s
+            for s in pool
+            if psk is not None and s.psk == psk and s.silence(now) >= cfg.silence_timeout
+        ]
         gone = [s for s in pool if s.silence(now) >= cfg.reclaim_after]
         candidates = same_key or gone
         if not candidates:
@@ -214,7 +228,11 @@ class Server:
         if not self.admission.replies.take(now):
             return "rate_limited"
         token = self.admission.tokens.challenge(now, addr)
-        self._send(wire.control_datagram(wire.PathChallenge(token), wire.plain_header()), addr, "PATH_CHALLENGE")
+        self._send(
+            wire.control_datagram(wire.PathChallenge(token), wire.plain_header()),
+            addr,
+            "PATH_CHALLENGE",
+        )
         return None
 
     def _rekey(self, conn: Connection, addr: Addr) -> None:

@@ -14,9 +14,17 @@ HEADER_SIZE = 5
 OPEN, OPEN_ACK, KEEPALIVE, CLOSE, REJECT, COOKIE, RESET = 1, 2, 3, 4, 5, 6, 7
 PATH_CHALLENGE, PATH_RESPONSE, MESSAGE, MESSAGE_ACK = 8, 9, 10, 11
 CODE_NAMES = {
-    OPEN: "OPEN", OPEN_ACK: "OPEN_ACK", KEEPALIVE: "KEEPALIVE", CLOSE: "CLOSE", REJECT: "REJECT",
-    COOKIE: "COOKIE", RESET: "RESET", PATH_CHALLENGE: "PATH_CHALLENGE", PATH_RESPONSE: "PATH_RESPONSE",
-    MESSAGE: "MESSAGE", MESSAGE_ACK: "MESSAGE_ACK",
+    OPEN: "OPEN",
+    OPEN_ACK: "OPEN_ACK",
+    KEEPALIVE: "KEEPALIVE",
+    CLOSE: "CLOSE",
+    REJECT: "REJECT",
+    COOKIE: "COOKIE",
+    RESET: "RESET",
+    PATH_CHALLENGE: "PATH_CHALLENGE",
+    PATH_RESPONSE: "PATH_RESPONSE",
+    MESSAGE: "MESSAGE",
+    MESSAGE_ACK: "MESSAGE_ACK",
 }
 HANDSHAKE_CODES = (OPEN, OPEN_ACK, COOKIE, REJECT)  # row 5 of section 5.5
 PATH_CODES = (PATH_CHALLENGE, PATH_RESPONSE)  # row 5b
@@ -27,13 +35,41 @@ MODE_FLAGS = 0x07  # bits 0..2: what an OPEN_ACK echoes
 
 # -- CLOSE / REJECT reasons (section 4.3) ------------------------------------------------------
 REASON_NAMES = [
-    "NORMAL", "IDLE_TIMEOUT", "PROTOCOL_ERROR", "VERSION_UNSUPPORTED", "REFUSED", "BUSY",
-    "KEY_REQUIRED", "KEY_UNKNOWN", "PAYLOAD_TOO_SMALL", "SUITE_UNSUPPORTED", "REPLACED",
-    "KEY_EXHAUSTED", "IN_USE", "TAKEN_OVER", "EVICTED", "RESTARTING",
+    "NORMAL",
+    "IDLE_TIMEOUT",
+    "PROTOCOL_ERROR",
+    "VERSION_UNSUPPORTED",
+    "REFUSED",
+    "BUSY",
+    "KEY_REQUIRED",
+    "KEY_UNKNOWN",
+    "PAYLOAD_TOO_SMALL",
+    "SUITE_UNSUPPORTED",
+    "REPLACED",
+    "KEY_EXHAUSTED",
+    "IN_USE",
+    "TAKEN_OVER",
+    "EVICTED",
+    "RESTARTING",
 ]
-(NORMAL, IDLE_TIMEOUT, PROTOCOL_ERROR, VERSION_UNSUPPORTED, REFUSED, BUSY, KEY_REQUIRED, KEY_UNKNOWN,
- PAYLOAD_TOO_SMALL, SUITE_UNSUPPORTED, REPLACED, KEY_EXHAUSTED, IN_USE, TAKEN_OVER, EVICTED,
- RESTARTING) = range(16)
+(
+    NORMAL,
+    IDLE_TIMEOUT,
+    PROTOCOL_ERROR,
+    VERSION_UNSUPPORTED,
+    REFUSED,
+    BUSY,
+    KEY_REQUIRED,
+    KEY_UNKNOWN,
+    PAYLOAD_TOO_SMALL,
+    SUITE_UNSUPPORTED,
+    REPLACED,
+    KEY_EXHAUSTED,
+    IN_USE,
+    TAKEN_OVER,
+    EVICTED,
+    RESTARTING,
+) = range(16)
 
 
 def reason_name(reason: int) -> str:
@@ -66,7 +102,9 @@ class Header:
         if len(data) < HEADER_SIZE:
             raise TruncatedError(len(data))
         w = int.from_bytes(data[:5], "big")
-        return Header((w >> 38) & 3, (w >> 26) & 0xFFF, (w >> 14) & 0xFFF, (w >> 8) & 0x3F, w & 0xFF)
+        return Header(
+            (w >> 38) & 3, (w >> 26) & 0xFFF, (w >> 14) & 0xFFF, (w >> 8) & 0x3F, w & 0xFF
+        )
 
 
 def plain_header(type_: int = CONTROL, seq: int = 0) -> Header:
@@ -208,14 +246,25 @@ class MessageAck:
     code: int = field(default=MESSAGE_ACK, init=False)
 
 
-ControlBody = (Open | OpenAck | Keepalive | Close | Reject | Cookie | Reset | PathChallenge
-               | PathResponse | Message | MessageAck)
+ControlBody = (
+    Open
+    | OpenAck
+    | Keepalive
+    | Close
+    | Reject
+    | Cookie
+    | Reset
+    | PathChallenge
+    | PathResponse
+    | Message
+    | MessageAck
+)
 
 OPEN_SIZE, OPEN_ACK_SIZE, TAG_SIZE = 48, 40, 16  # body sizes including the code byte
 
 
 def _u16(b: bytes, off: int) -> int:
-    return int.from_bytes(b[off:off + 2], "big")
+    return int.from_bytes(b[off : off + 2], "big")
 
 
 def decode_control(body: bytes) -> ControlBody:
@@ -229,16 +278,33 @@ def decode_control(body: bytes) -> ControlBody:
         keyed = bool(body[2] & FLAG_KEYED)
         if n != OPEN_SIZE + (TAG_SIZE if keyed else 0):
             raise BadControlError("OPEN length")
-        return Open(body[1], body[2], body[3], _u16(body, 4), _u16(body, 6), body[8:24], body[24:32],
-                    body[32:48], body[48:64] if keyed else None)
+        return Open(
+            body[1],
+            body[2],
+            body[3],
+            _u16(body, 4),
+            _u16(body, 6),
+            body[8:24],
+            body[24:32],
+            body[32:48],
+            body[48:64] if keyed else None,
+        )
     if code == OPEN_ACK:
         if n < 3:
             raise BadControlError("OPEN_ACK too short to hold its flags")
         keyed = bool(body[2] & FLAG_KEYED)
         if n != OPEN_ACK_SIZE + (TAG_SIZE if keyed else 0):
             raise BadControlError("OPEN_ACK length")
-        return OpenAck(body[1], body[2], body[3], _u16(body, 4), _u16(body, 6), body[8:24],
-                       body[24:40], body[40:56] if keyed else None)
+        return OpenAck(
+            body[1],
+            body[2],
+            body[3],
+            _u16(body, 4),
+            _u16(body, 6),
+            body[8:24],
+            body[24:40],
+            body[40:56] if keyed else None,
+        )
     if code == KEEPALIVE:
         if n != 17:
             raise BadControlError("KEEPALIVE length")
@@ -254,7 +320,7 @@ def decode_control(body: bytes) -> ControlBody:
     if code == RESET:
         if n < 17 or (n - 17) % 16:
             raise BadControlError("RESET length")
-        return Reset(body[1:17], [body[i:i + 16] for i in range(17, n, 16)])
+        return Reset(body[1:17], [body[i : i + 16] for i in range(17, n, 16)])
     if code == PATH_CHALLENGE:
         if n != 17:
             raise BadControlError("PATH_CHALLENGE length")
@@ -278,11 +344,26 @@ def encode_control(msg: ControlBody) -> bytes:
     """The body (code byte first) of a CONTROL packet; a keyed OPEN/OPEN_ACK's tag is appended later."""
     c = bytes([msg.code])
     if isinstance(msg, Open):
-        return (c + bytes([msg.version, msg.flags, msg.suite]) + msg.max_payload.to_bytes(2, "big")
-                + msg.attempt.to_bytes(2, "big") + msg.nonce + msg.key_id + msg.cookie + (msg.tag or b""))
+        return (
+            c
+            + bytes([msg.version, msg.flags, msg.suite])
+            + msg.max_payload.to_bytes(2, "big")
+            + msg.attempt.to_bytes(2, "big")
+            + msg.nonce
+            + msg.key_id
+            + msg.cookie
+            + (msg.tag or b"")
+        )
     if isinstance(msg, OpenAck):
-        return (c + bytes([msg.version, msg.flags, msg.suite]) + msg.max_payload.to_bytes(2, "big")
-                + msg.packet_number.to_bytes(2, "big") + msg.nonce + msg.slave_nonce + (msg.tag or b""))
+        return (
+            c
+            + bytes([msg.version, msg.flags, msg.suite])
+            + msg.max_payload.to_bytes(2, "big")
+            + msg.packet_number.to_bytes(2, "big")
+            + msg.nonce
+            + msg.slave_nonce
+            + (msg.tag or b"")
+        )
     if isinstance(msg, Keepalive):
         return c + msg.nonce
     if isinstance(msg, (Close, Reject)):
@@ -296,7 +377,13 @@ def encode_control(msg: ControlBody) -> bytes:
     if isinstance(msg, PathResponse):
         return c + msg.token + msg.nonce
     if isinstance(msg, Message):
-        return c + msg.nonce + (msg.seq & 0xFFFF).to_bytes(2, "big") + (msg.ack & 0xFFFF).to_bytes(2, "big") + msg.data
+        return (
+            c
+            + msg.nonce
+            + (msg.seq & 0xFFFF).to_bytes(2, "big")
+            + (msg.ack & 0xFFFF).to_bytes(2, "big")
+            + msg.data
+        )
     if isinstance(msg, MessageAck):
         return c + msg.nonce + (msg.ack & 0xFFFF).to_bytes(2, "big")
     raise TypeError(msg)
@@ -304,4 +391,3 @@ def encode_control(msg: ControlBody) -> bytes:
 
 def control_datagram(msg: ControlBody, header: Header) -> bytes:
     return header.encode() + encode_control(msg)
-
