@@ -39,6 +39,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any, Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
+from tdtp.aio.multipath import PathSet
 from tdtp.aio.outbox import SocketOutbox
 from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
@@ -53,6 +54,7 @@ from tdtp.session.events import (
     ControlReceived,
     DataReceived,
     Event,
+    PathChanged,
     PeerResumed,
     PeerSilent,
 )
@@ -170,6 +172,7 @@ class Endpoint:
         self._remote: Address | None = None
         self._demux_batch = 0
         """The server's receive batch that last handed us a datagram (its Demultiplexer's count)."""
+        self._path_set: PathSet | None = None  # a multipath session's paths, once asked for
         size = getattr(transport, "get_write_buffer_size", None)
         if size is not None and size() > 0:
             conn.pause_sending()  # a shared socket that is backed up already
@@ -194,6 +197,13 @@ class Endpoint:
     @property
     def peer(self) -> Address | None:
         return self._conn.peer
+
+    @property
+    def paths(self) -> PathSet:
+        """A multipath session's paths: their figures, events, and ``add`` / ``remove``."""
+        if self._path_set is None:
+            self._path_set = PathSet(self)
+        return self._path_set
 
     @property
     def stats(self) -> ConnectionStats:
@@ -627,6 +637,8 @@ class Endpoint:
                 except OSError:
                     # No buffer space or an ICMP error reported on this send: lost like any other.
                     self._send_errors += 1
+        if self._path_set is not None:
+            self._path_set.flush()  # what leaves through a multipath master's other sockets
         if event is None:
             event = conn.next_event()
         if event is not None:
@@ -677,6 +689,8 @@ class Endpoint:
                         self._wake(self._data_waiters)
             elif isinstance(event, ControlReceived | ControlExpired):
                 self._on_control_event(event)
+            elif isinstance(event, PathChanged):
+                self.paths.on_event(event)
             else:
                 self._on_other_event(event)
             event = conn.next_event()

@@ -76,6 +76,10 @@ UNKEYED_SIZES = {
     ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
     ControlCode.MESSAGE: 6,  # the smallest: code, seq, ack and a one-byte message
     ControlCode.MESSAGE_ACK: 3,
+    ControlCode.MP_CHALLENGE: 26,
+    ControlCode.MP_RESPONSE: 34,
+    ControlCode.MP_REPORT: 15,
+    ControlCode.MP_ABANDON: 19,
 }
 
 # Whole CONTROL datagrams, derived by hand field by field (docs/PROTOCOL.md section 7 shows the same).
@@ -83,46 +87,46 @@ UNKEYED_SIZES = {
 # one after the other, nonces and cookies as raw bytes.
 GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
     # OPEN, first attempt, no cookie yet: SEQ 0x5A5 (the master's initial data sequence number), no ACK
-    # -> 96 94 00 00 ff; code 01, version 03, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
+    # -> 96 94 00 00 ff; code 01, version 04, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
     # 00 00, nonce, key id 0 (unkeyed), cookie 0 (none).
     (
-        "96 94 00 00 ff" + "01 03 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
+        "96 94 00 00 ff" + "01 04 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
+        OpenBody(4, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
         b"",
     ),
-    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 03, the master's nonce, the cookie.
+    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 04, the master's nonce, the cookie.
     (
-        "80 00 00 00 ff" + "06 03" + NONCE.hex() + COOKIE.hex(),
+        "80 00 00 00 ff" + "06 04" + NONCE.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0, 0, 0, 255),
-        CookieBody(3, NONCE, COOKIE),
+        CookieBody(4, NONCE, COOKIE),
         b"",
     ),
     # OPEN, second attempt, echoing the cookie: attempt 00 01.
     (
-        "96 94 00 00 ff" + "01 03 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
+        "96 94 00 00 ff" + "01 04 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
+        OpenBody(4, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
         b"",
     ),
     # A keyed OPEN: flags 06 (KEYED | ENCRYPTED), suite 01 (AES-128-GCM), the key id, then the tag.
     (
         "96 94 00 00 ff"
-        + "01 03 06 01 04b0 0001"
+        + "01 04 06 01 04b0 0001"
         + NONCE.hex()
         + KEY_ID.hex()
         + COOKIE.hex()
         + TAG.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
+        OpenBody(4, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
         TAG,
     ),
-    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 03, flags 01 (SEPARATE_ACKS), suite
+    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 04, flags 01 (SEPARATE_ACKS), suite
     # 00, max_payload 100 = 00 64, packet number 00 00, both nonces.
     (
-        "83 0c 00 00 ff" + "02 03 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
+        "83 0c 00 00 ff" + "02 04 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
         Header(PacketType.CONTROL, 0x0C3, 0, 0, 255),
-        OpenAckBody(3, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
+        OpenAckBody(4, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
         b"",
     ),
     # KEEPALIVE carrying an acknowledgement: SEQ 0xABD, ACK 0x124, SACK 000001, HOLD 0 ->
@@ -195,7 +199,7 @@ def encode_body(body: ControlBody) -> bytes:
 
 
 def test_codes_and_constants_are_pinned() -> None:
-    assert PROTOCOL_VERSION == 3
+    assert PROTOCOL_VERSION == 4
     assert {c.name: int(c) for c in ControlCode} == {
         "OPEN": 1,
         "OPEN_ACK": 2,
@@ -208,6 +212,10 @@ def test_codes_and_constants_are_pinned() -> None:
         "PATH_RESPONSE": 9,
         "MESSAGE": 10,
         "MESSAGE_ACK": 11,
+        "MP_CHALLENGE": 17,
+        "MP_RESPONSE": 18,
+        "MP_REPORT": 19,
+        "MP_ABANDON": 20,
     }
     assert {r.name: int(r) for r in CloseReason} == {
         "NORMAL": 0,
@@ -224,6 +232,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEY_EXHAUSTED": 11,
         "IN_USE": 12,
         "TAKEN_OVER": 13,
+        "PATH_CLOSED": 19,
+        "PATH_LIMIT": 20,
     }
     assert int(OpenFlags.NONE) == 0
     assert {f.name: int(f) for f in OpenFlags if f.name} == {
@@ -231,6 +241,7 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEYED": 2,
         "ENCRYPTED": 4,
         "TAKEOVER": 8,
+        "MULTIPATH": 0x40,
     }
     assert {s.name: int(s) for s in CipherSuite} == {
         "NONE": 0,

@@ -1,0 +1,146 @@
+"""Which paths a sample goes on (docs/PROTOCOL.md 5.11, docs/CONTROL.md 11).
+
+* ``redundant``: every usable path (validated, not failed), best first. The first copy to arrive wins
+  at the receiver, so a sample is as late as the fastest path made it and lost only if every path lost
+  it.
+* ``adaptive``: the best path alone while it behaves, every usable path while it does not (the 5G
+  study's partial duplication). The best path is the one with the lowest one-way delay estimate. It
+  *behaves* while its recent loss is at most ``loss_bound``, its recent one-way delay is within
+  ``delay_bound`` of the lowest it has shown, and the samples it carried are acknowledged in time: the
+  oldest of ours not yet acknowledged left no more than ``srtt + 4 rttvar + 2 ms`` ago, plus what the
+  peer may hold the acknowledgement (two gaps of its own samples, at most 8 ms). That last test reacts within one round
+  trip to a path that stalls (a radio's capacity outage), long before any report could say so. Once a
+  bound is broken every path carries the samples for at least ``adaptive_hold``.
+
+Everything else (stand-alone ACKs, keep-alives, control messages) goes on the best path, and a control
+message sent again goes on the second best, so that one path's outage costs a retransmission, not the
+message.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+from tdtp.config import MultipathConfig
+from tdtp.session.multipath.copies import SentRing
+from tdtp.session.multipath.path import Path
+from tdtp.session.recovery import LossRecovery
+from tdtp.session.stats import ConnectionStats
+
+STALL_SLACK: Final = 0.008
+"""Seconds the peer may hold its acknowledgement beyond the round trip while it sends no samples of
+its own (a stand-alone ACK per seven packets at 1 kHz); with a reverse stream, two of its gaps."""
+STALL_MARGIN: Final = 0.002
+"""The least margin beyond ``srtt + 4 rttvar`` before an unacknowledged sample counts as stalled."""
+RATE_WINDOW: Final = 0.05
+"""Seconds over which the peer's sample rate (which bounds its acknowledgement hold) is measured."""
+
+
+def rank(paths: list[Path], now: float) -> list[Path]:
+    """The usable paths, best (lowest one-way delay estimate, then lowest id) first."""
+    usable = [path for path in paths if path.usable]
+    usable.sort(key=lambda path: (path.one_way_delay(now), path.path_id))
+    return usable
+
+
+class Scheduler:
+    """The scheduling policy, and (adaptive) whether the best path carries the samples alone now."""
+
+    __slots__ = (
+        "_config",
+        "_hold_until",
+        "_received",
+        "_received_at",
+        "_recovery",
+        "_reverse_rate",
+        "_ring",
+        "_stats",
+        "adaptive",
+        "breaches",
+        "reason",
+        "single_samples",
+        "spread_samples",
+    )
+
+    def __init__(
+        self,
+        config: MultipathConfig,
+        recovery: LossRecovery,
+        ring: SentRing,
+        stats: ConnectionStats,
+    ) -> None:
+        self._config = config
+        self._stats = stats
+        self._received = 0
+        self._received_at = -math.inf
+        self._reverse_rate = 0.0
+        self.adaptive = config.scheduler == "adaptive"
+        self._recovery = recovery
+        self._ring = ring
+        self._hold_until = -math.inf
+        self.breaches = 0
+        """Adaptive: times the best path broke a bound and every path took the samples."""
+        self.reason = ""
+        """Adaptive: the last bound broken (``loss``, ``delay``, ``stall``, ``unmeasured``)."""
+        self.single_samples = 0
+        """Samples sent on one path only."""
+        self.spread_samples = 0
+        """Samples sent on several paths."""
+
+    def candidates(self, ranked: list[Path], now: float) -> list[Path]:
+        """The paths a sample should go on now (``ranked``: the usable paths, best first)."""
+        if not self.adaptive or len(ranked) < 2:
+            return ranked
+        if self._alone(ranked[0], now):
+            return ranked[:1]
+        return ranked
+
+    def _alone(self, best: Path, now: float) -> bool:
+        config = self._config
+        reason = ""
+        if not best.rtt.has_sample:
+            reason = "unmeasured"
+        elif best.loss > config.loss_bound:
+            reason = "loss"
+        elif best.queue_delay / 2.0 > config.delay_bound:
+            reason = "delay"
+        elif self._stalled(now):
+            reason = "stall"
+        if reason:
+            if now >= self._hold_until:
+                self.breaches += 1
+            self._hold_until = now + config.adaptive_hold
+            self.reason = reason
+            return False
+        return now >= self._hold_until
+
+    def _stalled(self, now: float) -> bool:
+        """The oldest sample not yet acknowledged has waited longer than a round trip can explain."""
+        sent = self._recovery.sent
+        oldest = sent.largest_acked + 1
+        if oldest >= sent.next_seq:
+            return False
+        sent_at = self._ring.send_time(oldest)
+        if sent_at is None:
+            return False
+        rtt = self._recovery.rtt
+        limit = rtt.srtt + 4.0 * rtt.rttvar + STALL_MARGIN + self._hold_allowance(now)
+        return now - sent_at > limit
+
+    def _hold_allowance(self, now: float) -> float:
+        """How long the peer may hold our acknowledgement: two gaps of its own samples (they carry
+        it), at most :data:`STALL_SLACK` (a stand-alone ACK per seven of ours)."""
+        received = self._stats.received.data_packets
+        elapsed = now - self._received_at
+        if elapsed >= RATE_WINDOW:
+            if elapsed < 2.0 * RATE_WINDOW:
+                self._reverse_rate = (received - self._received) / elapsed
+            self._received = received
+            self._received_at = now
+        rate = self._reverse_rate
+        return STALL_SLACK if rate <= 2.0 / STALL_SLACK else 2.0 / rate
+
+    def deadline(self) -> float | None:
+        """Adaptive: when the hold ends (the best path may carry the samples alone again)."""
+        return self._hold_until if self.adaptive and self._hold_until > -math.inf else None
