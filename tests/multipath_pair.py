@@ -77,6 +77,8 @@ class MultipathPair:
         self._in_flight: list[tuple[float, int, bytes, bool, int, Addr, Addr]] = []
         self._order = 0
         self.injected: list[tuple[float, bytes, bool, int, Addr]] = []
+        self.alias: dict[Addr, int] = {}
+        """Further addresses of the master's sockets (a NAT rebinding): address -> socket."""
 
     # ----------------------------------------------------------------- driving
 
@@ -198,7 +200,7 @@ class MultipathPair:
             if to_slave:
                 self._send(data, True, 0, master_addr(0), addr)
             else:
-                local = int(addr[1]) - 40001
+                local = self.alias.get((addr[0], addr[1]), int(addr[1]) - 40001)
                 self._send(data, False, local, SLAVE_ADDR, addr)
         paths = conn.multipath
         if paths is not None and paths.routed:

@@ -719,11 +719,13 @@ class Multipath:
         return deadline if deadline < math.inf else None
 
     def on_timer(self, now: float) -> None:
+        """Probes, reports and failures that are due (each compared with the very sum
+        :meth:`deadline` gave, so that a deadline reached is always served)."""
         self._confirm()
         config = self.config
         for path in list(self.paths.values()):
             if path.validated:
-                if path.state is not FAILED and now - path.last_heard >= self._timeout(path):
+                if path.state is not FAILED and now >= path.last_heard + self._timeout(path):
                     self.stats.paths_failed += 1
                     silent = now - path.last_heard
                     self._set_state(path, FAILED, f"nothing heard on it for {silent:.3f} s", now)
