@@ -217,11 +217,14 @@ def test_adaptive_uses_the_best_path_alone_while_it_behaves() -> None:
     paths = pair.master.conn.multipath
     assert paths is not None
     single, spread = paths.stats.single_samples, paths.stats.spread_samples
+    carried = [link.carried_ms for link in links]
     pair.run_for(1.5)
-    assert paths.stats.single_samples - single > 1450
-    assert paths.stats.spread_samples - spread < 15
-    # Path 0 (the better) carried them; path 1 only its probes and reports.
-    assert links[1].carried_ms < 0.2 * links[0].carried_ms
+    # One sample in eight goes on every path (each path's lag stays measured), the rest on the
+    # better path alone; path 1 carries those and its probes and reports.
+    assert paths.stats.single_samples - single > 1250
+    assert paths.stats.spread_samples - spread < 1500 / 8 + 15
+    extra = [link.carried_ms - c for link, c in zip(links, carried, strict=True)]
+    assert extra[1] < 0.3 * extra[0]
 
 
 def test_adaptive_spreads_while_the_best_path_stalls() -> None:

@@ -209,7 +209,7 @@ class Multipath:
         self._coupling = Coupling()
         self._copies = CopyFilter()
         self._ring = SentRing()
-        self.scheduler = Scheduler(mp, recovery, self._ring, stats)
+        self.scheduler = Scheduler(mp, recovery, self._ring)
         self.stats = MultipathStats()
         self.paths: dict[int, Path] = {}
         self._by_address: dict[tuple[int, object, object], Path] = {}

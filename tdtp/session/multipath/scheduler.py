@@ -7,8 +7,9 @@
   study's partial duplication). The best path is the one with the lowest one-way delay estimate. It
   *behaves* while its recent loss is at most ``loss_bound``, its recent one-way delay is within
   ``delay_bound`` of the lowest it has shown, and the samples it carried are acknowledged in time: the
-  oldest of ours not yet acknowledged left no more than ``srtt + 4 rttvar + 2 ms`` ago, plus what the
-  peer may hold the acknowledgement (two gaps of its own samples, at most 8 ms). That last test reacts within one round
+  oldest of ours not yet acknowledged left no more than ``srtt + 4 rttvar`` ago, plus the usual gap
+  between acknowledgements (their mean and four deviations: the peer's cadence, a bursty path's
+  batches) and 2 ms. That last test reacts within one round
   trip to a path that stalls (a radio's capacity outage), long before any report could say so. Once a
   bound is broken every path carries the samples for at least ``adaptive_hold``.
 
@@ -26,15 +27,16 @@ from tdtp.config import MultipathConfig
 from tdtp.session.multipath.copies import SentRing
 from tdtp.session.multipath.path import Path
 from tdtp.session.recovery import LossRecovery
-from tdtp.session.stats import ConnectionStats
 
-STALL_SLACK: Final = 0.008
-"""Seconds the peer may hold its acknowledgement beyond the round trip while it sends no samples of
-its own (a stand-alone ACK per seven packets at 1 kHz); with a reverse stream, two of its gaps."""
 STALL_MARGIN: Final = 0.002
-"""The least margin beyond ``srtt + 4 rttvar`` before an unacknowledged sample counts as stalled."""
-RATE_WINDOW: Final = 0.05
-"""Seconds over which the peer's sample rate (which bounds its acknowledgement hold) is measured."""
+"""The least margin beyond ``srtt + 4 rttvar`` and the feedback's usual gaps before an
+unacknowledged sample counts as stalled."""
+PROBE_EVERY: Final = 8
+"""Adaptive, while the best path carries the samples alone: every this many samples one goes on every
+path anyway, so that each path's lag behind the first copy (its one-way delay, compared) stays
+measured and the best path is chosen by what the receiver saw, not by a stale figure."""
+GAP_GAIN: Final = 0.125
+"""Gain of the averages of the gaps between acknowledgements that advance (RFC 6298's alpha)."""
 
 
 def rank(paths: list[Path], now: float) -> list[Path]:
@@ -48,14 +50,15 @@ class Scheduler:
     """The scheduling policy, and (adaptive) whether the best path carries the samples alone now."""
 
     __slots__ = (
+        "_acked",
+        "_acked_at",
         "_config",
+        "_gap",
+        "_gap_dev",
         "_hold_until",
-        "_received",
-        "_received_at",
         "_recovery",
-        "_reverse_rate",
         "_ring",
-        "_stats",
+        "_since_probe",
         "adaptive",
         "breaches",
         "reason",
@@ -68,13 +71,13 @@ class Scheduler:
         config: MultipathConfig,
         recovery: LossRecovery,
         ring: SentRing,
-        stats: ConnectionStats,
     ) -> None:
         self._config = config
-        self._stats = stats
-        self._received = 0
-        self._received_at = -math.inf
-        self._reverse_rate = 0.0
+        self._acked = recovery.sent.largest_acked
+        self._acked_at = -math.inf
+        self._gap = 0.0
+        self._gap_dev = 0.0
+        self._since_probe = 0
         self.adaptive = config.scheduler == "adaptive"
         self._recovery = recovery
         self._ring = ring
@@ -90,10 +93,15 @@ class Scheduler:
 
     def candidates(self, ranked: list[Path], now: float) -> list[Path]:
         """The paths a sample should go on now (``ranked``: the usable paths, best first)."""
+        if self.adaptive:
+            self._feedback(now)
         if not self.adaptive or len(ranked) < 2:
             return ranked
         if self._alone(ranked[0], now):
-            return ranked[:1]
+            self._since_probe += 1
+            if self._since_probe < PROBE_EVERY:
+                return ranked[:1]
+        self._since_probe = 0
         return ranked
 
     def _alone(self, best: Path, now: float) -> bool:
@@ -125,21 +133,21 @@ class Scheduler:
         if sent_at is None:
             return False
         rtt = self._recovery.rtt
-        limit = rtt.srtt + 4.0 * rtt.rttvar + STALL_MARGIN + self._hold_allowance(now)
+        limit = rtt.srtt + 4.0 * rtt.rttvar + self._gap + 4.0 * self._gap_dev + STALL_MARGIN
         return now - sent_at > limit
 
-    def _hold_allowance(self, now: float) -> float:
-        """How long the peer may hold our acknowledgement: two gaps of its own samples (they carry
-        it), at most :data:`STALL_SLACK` (a stand-alone ACK per seven of ours)."""
-        received = self._stats.received.data_packets
-        elapsed = now - self._received_at
-        if elapsed >= RATE_WINDOW:
-            if elapsed < 2.0 * RATE_WINDOW:
-                self._reverse_rate = (received - self._received) / elapsed
-            self._received = received
-            self._received_at = now
-        rate = self._reverse_rate
-        return STALL_SLACK if rate <= 2.0 / STALL_SLACK else 2.0 / rate
+    def _feedback(self, now: float) -> None:
+        """The gaps between acknowledgements that advance, averaged (with their deviation) as RFC
+        6298 averages round trips: the peer's own cadence, and a bursty path's, in one figure."""
+        largest = self._recovery.sent.largest_acked
+        if largest == self._acked:
+            return
+        self._acked = largest
+        if self._acked_at > -math.inf:
+            gap = now - self._acked_at
+            self._gap_dev += GAP_GAIN * 2.0 * (abs(gap - self._gap) - self._gap_dev)
+            self._gap += GAP_GAIN * (gap - self._gap)
+        self._acked_at = now
 
     def deadline(self) -> float | None:
         """Adaptive: when the hold ends (the best path may carry the samples alone again)."""
