@@ -33,6 +33,7 @@ import argparse
 import json
 import math
 import multiprocessing
+import random
 import struct
 import sys
 import time
@@ -119,8 +120,8 @@ def run(job: Json) -> Json:
         config = ConnectionConfig(
             min_peer_payload=SIZE, multipath=MultipathConfig(scheduler=job["scheduler"])
         )
-    master = Connection(config, role=Role.MASTER, rng=__import__("random").Random(seed))
-    slave = Connection(config, role=Role.SLAVE, rng=__import__("random").Random(seed + 1))
+    master = Connection(config, role=Role.MASTER, rng=random.Random(seed))
+    slave = Connection(config, role=Role.SLAVE, rng=random.Random(seed + 1))
     ms = Way([NetemLink(parse_netem(a), seed=seed + 10 + i) for i, (a, _) in enumerate(specs)])
     sm = Way([NetemLink(parse_netem(b), seed=seed + 20 + i) for i, (_, b) in enumerate(specs)])
     master_addrs = [("192.0.2.1", 40001 + i) for i in range(len(specs))]
@@ -175,7 +176,7 @@ def run(job: Json) -> Json:
         now = max(now, min(times))
         if now > end + DRAIN:
             break
-        for i, link in enumerate(ms.links):
+        for link in ms.links:
             for data, src in link.deliver(now):
                 slave.receive_datagram(data, src, now=now)  # type: ignore[arg-type]
         paths = master.multipath
