@@ -1,4 +1,4 @@
-"""tdtp against its own conformance vectors (tests/vectors/tdtp-v3-*.json, tests/vectors/README.md).
+"""tdtp against its own conformance vectors (tests/vectors/tdtp-v4-*.json, tests/vectors/README.md).
 
 The files are data for any implementation; this is tdtp's runner. It reads the committed files (it
 never regenerates them) and checks every vector, so a change of behaviour that the vectors pin fails
@@ -49,7 +49,7 @@ SUITES = ("header", "hold", "seqnum", "control", "receiver", "sender", "keyed", 
 
 def _load(suite: str) -> dict[str, Any]:
     data: dict[str, Any] = json.loads(
-        (VECTORS / f"tdtp-v3-{suite}.json").read_text(encoding="utf-8")
+        (VECTORS / f"tdtp-v4-{suite}.json").read_text(encoding="utf-8")
     )
     return data
 
@@ -59,13 +59,13 @@ def _approx(value: float | None) -> object:
 
 
 def test_every_file_is_a_known_format_version_and_suite() -> None:
-    files = sorted(path.name for path in VECTORS.glob("tdtp-v3-*.json"))
-    assert files == sorted(f"tdtp-v3-{suite}.json" for suite in SUITES)
+    files = sorted(path.name for path in VECTORS.glob("tdtp-v4-*.json"))
+    assert files == sorted(f"tdtp-v4-{suite}.json" for suite in SUITES)
     for suite in SUITES:
         data = _load(suite)
         assert data["format"] == "tdtp-conformance-vectors"
         assert data["format_version"] == FORMAT_VERSION
-        assert data["protocol_version"] == 3
+        assert data["protocol_version"] == 4
         assert data["suite"] == suite
         assert data["description"]
 

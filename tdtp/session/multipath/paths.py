@@ -225,7 +225,9 @@ class Multipath:
         self._pending: list[tuple[bytes, Path, int]] = []  # path control for the next flush
         self._new_paths = TokenBucket(mp.new_paths_per_second, float(mp.max_paths), now)
         self._retransmits_seen = stats.control_retransmits
-        self._add(self._make(0, 0, self._peer, learned=False, validated=True, now=now))
+        first = self._make(0, 0, self._peer, learned=False, validated=True, now=now)
+        first.last_sent = now  # the opening just crossed it
+        self._add(first)
 
     @classmethod
     def attach(cls, session: Session, now: float) -> Multipath:
@@ -702,7 +704,7 @@ class Multipath:
                     due = path.last_challenge + config.failed_probe_interval
                 else:
                     due = min(
-                        path.last_sent + config.probe_interval,
+                        max(path.last_sent, path.last_challenge) + config.probe_interval,
                         path.last_heard + self._timeout(path),
                     )
             elif path.learned:
@@ -732,7 +734,7 @@ class Multipath:
                 if path.state is FAILED:
                     if now >= path.last_challenge + config.failed_probe_interval:
                         self._challenge(path, now)
-                elif now >= path.last_sent + config.probe_interval:
+                elif now >= max(path.last_sent, path.last_challenge) + config.probe_interval:
                     self._challenge(path, now)
             elif path.learned:
                 if now >= path.created_at + config.validation_timeout:
