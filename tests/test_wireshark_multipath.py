@@ -6,8 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from multipath_pair import SLAVE_ADDR, MultipathPair, PathLink, master_addr
-from pair import Direction
 
 from tdtp import ConnectionConfig, MultipathConfig
 from tdtp.capture.pcap import PcapWriter
@@ -20,6 +18,8 @@ from tdtp.wire import (
 )
 
 from capture_files import needs_tshark, read_pcap, tshark_fields, udp_payload
+from multipath_pair import SLAVE_ADDR, MultipathPair, PathLink, master_addr
+from pair import Direction
 
 pytestmark = needs_tshark
 
