@@ -116,6 +116,17 @@ class PathPacer:
     def on_sent(self, now: float) -> None:
         self._schedule.on_departure(now, self.rate)
 
+    def reset(self) -> None:
+        """The path came back from an outage: unpaced, a fresh interval (its losses in the outage
+        were no congestion)."""
+        self.rate = math.inf
+        self.congested_until = -math.inf
+        self._schedule.reset()
+        self._interval_start = None
+        self._interval_min = math.inf
+        self._delivered = 0
+        self._lost = 0
+
     def detach(self) -> None:
         """The path is gone: it no longer counts in the coupled sum."""
         pacers = self._coupling.pacers

@@ -150,6 +150,7 @@ class Path:
         self._reported_seq = -1
         self._reported_hold: float | None = -1.0
         self.deficit = 0
+        self._resync = False  # after an outage: the next report sets the baselines, counts nothing
         self.pacer = pacer
         # Receiver side: the peer's data that arrived on it.
         self.received = 0
@@ -189,6 +190,13 @@ class Path:
                 del self.tokens[index]
                 return sent_at
         return None
+
+    def recovered(self) -> None:
+        """Heard again after a failure: what was lost in the outage says nothing about congestion
+        (the session's outage rule, PROTOCOL.md 5.4), so the next report only resets the counts."""
+        self._resync = True
+        self.loss = 0.0
+        self.pacer.reset()
 
     # ------------------------------------------------------------------ sender side
 
@@ -260,7 +268,13 @@ class Path:
         first = unwrap32(first, self.peer_first)
         got = received - self.peer_received
         lost = 0
-        if full_seq is not None and sent_here:
+        if self._resync and full_seq is not None and sent_here:
+            self._resync = False
+            expected = self._counts[full_seq & (RING - 1)]
+            self._reported_expected = expected
+            self.deficit = max(0, expected - received)
+            self._reported_seq = full_seq
+        elif full_seq is not None and sent_here:
             expected = self._counts[full_seq & (RING - 1)]
             if full_seq != self._reported_seq and expected > self._reported_expected:
                 wanted = expected - self._reported_expected

@@ -106,6 +106,8 @@ MASTER_IDS: Final = range(1, 128)
 """Path ids a master gives the paths it opens (0 is the path the session opened on)."""
 SLAVE_IDS: Final = range(128, 256)
 """Path ids a slave gives the paths it opens."""
+STALE_BEHIND: Final = 64
+"""A sample this far behind the newest is older than the receive window (PROTOCOL.md 3.1)."""
 DEGRADED_DWELL: Final = 0.5
 """A path stays degraded (or not) at least this long before it changes back: no flapping events."""
 
@@ -356,6 +358,18 @@ class Multipath:
         seq = expand_seq(low, window.highest + 1)
         first_at = self._copies.first_arrival(seq) if window.has_data else None
         if first_at is None:
+            if (
+                window.has_data
+                and window.highest - seq >= STALE_BEHIND
+                and now - window.highest_arrival < window.silence_guard
+            ):
+                # Far behind while newer samples flow on another path: an old datagram a queue
+                # held (a link coming back up), never a wrapped live flow. Dropped here, so that
+                # the receive window's re-anchoring (PROTOCOL.md 3.1) never takes it for one.
+                path.on_data_received(seq, False, 0.0, now)
+                self._stats.count_drop(DropReason.STALE)
+                self._heard(now)
+                return True
             self._candidate = (seq, path, now)
             return False
         path.on_data_received(seq, False, now - first_at, now)
@@ -781,6 +795,7 @@ class Multipath:
     def _path_heard(self, path: Path, now: float) -> None:
         path.last_heard = now
         if path.state is FAILED:
+            path.recovered()
             self._set_state(path, ACTIVE, "heard again", now)
 
     def _judge(self, path: Path, now: float) -> None:

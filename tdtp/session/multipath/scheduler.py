@@ -7,11 +7,12 @@
   study's partial duplication). The best path is the one with the lowest one-way delay estimate. It
   *behaves* while its recent loss is at most ``loss_bound``, its recent one-way delay is within
   ``delay_bound`` of the lowest it has shown, and the samples it carried are acknowledged in time: the
-  oldest of ours not yet acknowledged left no more than ``srtt + 4 rttvar`` ago, plus the usual gap
-  between acknowledgements (their mean and four deviations: the peer's cadence, a bursty path's
-  batches) and 2 ms. That last test reacts within one round
+  newest of the samples it carried alone that was acknowledged left no more than ``srtt + 4 rttvar``
+  ago, plus the usual gap between acknowledgements (their mean and four deviations: the peer's
+  cadence, a bursty path's batches) and 2 ms. That last test reacts within one round
   trip to a path that stalls (a radio's capacity outage), long before any report could say so. Once a
-  bound is broken every path carries the samples for at least ``adaptive_hold``.
+  bound is broken every path carries the samples for at least ``adaptive_hold``, and so they do
+  while the best path has been usable for less than that (just validated, or back from a failure).
 
 Everything else (stand-alone ACKs, keep-alives, control messages) goes on the best path, and a control
 message sent again goes on the second best, so that one path's outage costs a retransmission, not the
@@ -28,7 +29,7 @@ from tdtp.session.multipath.copies import SentRing
 from tdtp.session.multipath.path import Path
 from tdtp.session.recovery import LossRecovery
 
-STALL_MARGIN: Final = 0.002
+STALL_MARGIN: Final = 0.001
 """The least margin beyond ``srtt + 4 rttvar`` and the feedback's usual gaps before an
 unacknowledged sample counts as stalled."""
 PROBE_EVERY: Final = 8
@@ -52,6 +53,9 @@ class Scheduler:
     __slots__ = (
         "_acked",
         "_acked_at",
+        "_alone_path",
+        "_alone_since",
+        "_delivered",
         "_config",
         "_gap",
         "_gap_dev",
@@ -78,6 +82,9 @@ class Scheduler:
         self._gap = 0.0
         self._gap_dev = 0.0
         self._since_probe = 0
+        self._delivered: dict[int, float] = {}  # path id -> newest of its lone samples acknowledged
+        self._alone_path = -1  # the path carrying the samples alone now (-1: none)
+        self._alone_since = -math.inf
         self.adaptive = config.scheduler == "adaptive"
         self._recovery = recovery
         self._ring = ring
@@ -97,23 +104,29 @@ class Scheduler:
             self._feedback(now)
         if not self.adaptive or len(ranked) < 2:
             return ranked
-        if self._alone(ranked[0], now):
+        best = ranked[0]
+        if self._alone(best, now):
+            if self._alone_path != best.path_id:
+                self._alone_path = best.path_id
+                self._alone_since = now
             self._since_probe += 1
             if self._since_probe < PROBE_EVERY:
                 return ranked[:1]
+        else:
+            self._alone_path = -1
         self._since_probe = 0
         return ranked
 
     def _alone(self, best: Path, now: float) -> bool:
         config = self._config
         reason = ""
-        if not best.rtt.has_sample:
-            reason = "unmeasured"
+        if not best.rtt.has_sample or now - best.state_since < config.adaptive_hold:
+            reason = "unmeasured"  # (or just validated, or just back: not yet trusted alone)
         elif best.loss > config.loss_bound:
             reason = "loss"
         elif best.queue_delay / 2.0 > config.delay_bound:
             reason = "delay"
-        elif self._stalled(now):
+        elif self._stalled(best, now):
             reason = "stall"
         if reason:
             if now >= self._hold_until:
@@ -123,18 +136,16 @@ class Scheduler:
             return False
         return now >= self._hold_until
 
-    def _stalled(self, now: float) -> bool:
-        """The oldest sample not yet acknowledged has waited longer than a round trip can explain."""
-        sent = self._recovery.sent
-        oldest = sent.largest_acked + 1
-        if oldest >= sent.next_seq:
-            return False
-        sent_at = self._ring.send_time(oldest)
-        if sent_at is None:
-            return False
+    def _stalled(self, best: Path, now: float) -> bool:
+        """No sample the best path carried alone has been acknowledged for longer than a round
+        trip and the usual feedback gap can explain (the samples every path carried prove nothing
+        about it: their acknowledgements may have come the other way)."""
+        if self._alone_path != best.path_id:
+            return False  # not alone on it yet
+        evidence = max(self._delivered.get(best.path_id, -math.inf), self._alone_since)
         rtt = self._recovery.rtt
-        limit = rtt.srtt + 4.0 * rtt.rttvar + self._gap + 4.0 * self._gap_dev + STALL_MARGIN
-        return now - sent_at > limit
+        limit = rtt.srtt + 4.0 * rtt.rttvar + self._gap + 2.0 * self._gap_dev + STALL_MARGIN
+        return now - evidence > limit
 
     def _feedback(self, now: float) -> None:
         """The gaps between acknowledgements that advance, averaged (with their deviation) as RFC
@@ -143,6 +154,11 @@ class Scheduler:
         if largest == self._acked:
             return
         self._acked = largest
+        mask = self._ring.paths(largest)
+        if mask and not mask & (mask - 1):  # carried by one path alone: it delivers
+            sent_at = self._ring.send_time(largest)
+            if sent_at is not None:
+                self._delivered[mask.bit_length() - 1] = sent_at
         if self._acked_at > -math.inf:
             gap = now - self._acked_at
             self._gap_dev += GAP_GAIN * 2.0 * (abs(gap - self._gap) - self._gap_dev)
