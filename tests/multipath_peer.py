@@ -12,6 +12,7 @@ path's copies over time. Times are on the host's monotonic clock, which both nam
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import struct
 import sys
@@ -67,9 +68,9 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
         ],
         drops=dict(ep.stats.drops),
         departed=ep.stats.sent.data_packets,
-        longest_gaps=sorted(
-            ((b - a, a) for a, b in zip(arrivals, arrivals[1:], strict=False)), reverse=True
-        )[:3],
+        longest_gaps=sorted(((b - a, a) for a, b in itertools.pairwise(arrivals)), reverse=True)[
+            :3
+        ],
         superseded=ep.stats.samples_superseded,
         send_errors=ep.send_errors + ep.paths.send_errors,
     )
