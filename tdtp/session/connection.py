@@ -308,13 +308,11 @@ class Connection(ConnectionView):
             stats.count_drop(DropReason.CLOSED)
             return
         peer = self._peer
-        paths = self.multipath
-        if paths is not None:
-            if not paths.admits(data, addr):  # from none of its paths (counted)
+        if peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
+            paths = self.multipath  # another of a multipath session's paths, or a new one?
+            if paths is None or not paths.admits(data, addr):
+                stats.count_drop(DropReason.WRONG_ADDRESS)
                 return
-        elif peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
-            stats.count_drop(DropReason.WRONG_ADDRESS)
-            return
         if rx_time is not None:
             self.last_rx_time = rx_time
         if ecn == 3:
@@ -350,7 +348,8 @@ class Connection(ConnectionView):
         if ptype > _CONTROL:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
             return
-        if paths is not None and paths.intercept(data, ptype, now):
+        paths = self.multipath
+        if paths is not None and paths.intercept(data, addr, ptype, now):
             return  # multipath control, or a copy of a sample taken in already
         if peer is None:
             # A listening slave answers with a RESET (its master's session died with a restart).
@@ -759,8 +758,6 @@ class Connection(ConnectionView):
         hint.controller_seen = controller_deadline
         if controller_deadline is not None and controller_deadline < deadline:
             deadline = controller_deadline
-        if self.multipath is not None and (due := self.multipath.deadline()) is not None:
-            deadline = min(deadline, due)
         return deadline
 
     def handle_timer(self, *, now: float) -> None:
@@ -797,8 +794,6 @@ class Connection(ConnectionView):
         self._recovery.detect_losses(now)
         self._channel.expire(now)
         self._delivery.release(now)
-        if self.multipath is not None:
-            self.multipath.on_timer(now)
         controller_deadline = self._controller.get_timer()
         if controller_deadline is not None and now >= controller_deadline:
             self._controller.on_timer(now=now)

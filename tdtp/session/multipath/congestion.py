@@ -183,12 +183,20 @@ class PathPacer:
 class MultipathController(RateController):
     """The session's rate controller in a multipath session: a sample may leave once some usable
     path's pacer allows a copy (``pacers`` names theirs, best first); the acknowledgements of the
-    first copies, which mix the paths, move nothing (each path's pacer hears its own reports)."""
+    first copies, which mix the paths, move nothing (each path's pacer hears its own reports). Its
+    timer is the paths' (``deadline``, ``on_timer``)."""
 
     name = "multipath"
 
-    def __init__(self, pacers: Callable[[], list[PathPacer]]) -> None:
+    def __init__(
+        self,
+        pacers: Callable[[], list[PathPacer]],
+        deadline: Callable[[], float | None],
+        on_timer: Callable[[float], None],
+    ) -> None:
         self._pacers = pacers
+        self._deadline = deadline
+        self._on_timer = on_timer
 
     @property
     def rate(self) -> float:
@@ -232,7 +240,9 @@ class MultipathController(RateController):
         pass
 
     def get_timer(self) -> float | None:
-        return None
+        """The paths' own deadline (probes, reports, failures): the connection folds a
+        controller's timer into its own, so multipath needs no timer hook of its own."""
+        return self._deadline()
 
     def on_timer(self, *, now: float) -> None:
-        pass
+        self._on_timer(now)

@@ -4,17 +4,20 @@ each datagram leaves (docs/PROTOCOL.md 5.11).
 :class:`Multipath` is the one object a :class:`~tdtp.session.connection.Connection` talks to once a
 session opened with the MULTIPATH flag is established. The seam is narrow:
 
-* ``admits(data, addr)``: which path a datagram came on (``rx_local`` names the local socket, set by
-  a driver with several); a datagram from no path of the session is dropped (``wrong_address``)
-  unless it is the challenge that opens a new one;
-* ``intercept(data, ptype, now)``: takes the multipath control packets (MP_CHALLENGE, MP_RESPONSE,
-  MP_REPORT, MP_ABANDON) and drops a copy of a sample already taken in, as ``duplicate``, before the
+* ``admits(data, addr)``: whether a datagram from another address than the first path's came on one
+  of the other paths (``rx_local`` names the local socket, set by a driver with several), or is the
+  challenge that opens a new one; otherwise the connection drops it (``wrong_address``);
+* ``intercept(data, addr, ptype, now)``: which path it came on; takes the multipath control packets
+  (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON) and drops a copy of a sample already taken
+  in, as ``duplicate``, before the
   packet protection sees it (a sample counts as taken in once the connection's receive window holds
   it, which the next datagram or flush checks: a forged datagram never shadows a real sample);
 * ``route(out, now)``: the connection's datagrams for the peer spread over the paths (a sample on
   the paths the scheduler names, the rest on the best path), with the paths' own control packets;
   what leaves through another local socket than the session's own goes to :attr:`routed`;
-* ``deadline()`` and ``on_timer(now)``: probes, reports, path failures.
+* ``deadline()`` and ``on_timer(now)``: probes, reports, path failures, reached through the session's
+  controller (:class:`~tdtp.session.multipath.congestion.MultipathController`, which replaces the
+  single-path one), so that the connection's timer needs no hook of its own.
 
 Everything a peer can grow is bounded: ``max_paths`` paths (the session's first included), new paths
 at ``new_paths_per_second``, four outstanding tokens per path, fixed rings for copies; a learned path
@@ -256,7 +259,7 @@ class Multipath:
         # The single-path controller's round trips would mix the paths (CONTROL.md 11): the
         # session's pieces that drive a controller get one that asks the paths' pacers.
         old = session._controller
-        controller = MultipathController(paths.usable_pacers)
+        controller = MultipathController(paths.usable_pacers, paths.deadline, paths.on_timer)
         controller.feedback_delay = old.feedback_delay
         controller.sample_waiting = old.sample_waiting
         session._controller = controller
@@ -320,34 +323,33 @@ class Multipath:
     # ------------------------------------------------------------------ receiving
 
     def admits(self, data: bytes, addr: Address) -> bool:
-        """Which path ``data`` came on (remembered for the rest of its handling); False, counted
-        as ``wrong_address``, when it is none of ours and not a new path's challenge."""
+        """A datagram from another address than the session's first path's: whether it came on
+        one of the other paths, or is the challenge that opens a new one (False: the connection
+        drops it as ``wrong_address``)."""
+        if (self.rx_local, addr[0], addr[1]) in self._by_address:
+            return True
+        return (
+            len(data) >= HEADER_SIZE + MP_PROBE_PREFIX_SIZE
+            and data[0] >> 6 == _CONTROL
+            and data[HEADER_SIZE] == _CHALLENGE
+            and data[HEADER_SIZE + 1 : HEADER_SIZE + MP_PROBE_PREFIX_SIZE] == self._nonce
+        )
+
+    def intercept(self, data: bytes, addr: Address, ptype: int, now: float) -> bool:
+        """True when the datagram was taken here (a multipath control packet, taken or dropped, or
+        a copy of a sample already taken in, dropped as ``duplicate``). Notes which path it came
+        on for the rest of its handling."""
         self._hint.value = -math.inf
         path = self._by_address.get((self.rx_local, addr[0], addr[1]))
         self._rx = path
         self._rx_address = addr
         if path is not None:
             path.bytes_in += len(data)
-            return True
-        if (
-            len(data) >= HEADER_SIZE + MP_PROBE_PREFIX_SIZE
-            and data[0] >> 6 == _CONTROL
-            and data[HEADER_SIZE] == _CHALLENGE
-            and data[HEADER_SIZE + 1 : HEADER_SIZE + MP_PROBE_PREFIX_SIZE] == self._nonce
-        ):
-            return True
-        self._stats.count_drop(DropReason.WRONG_ADDRESS)
-        return False
-
-    def intercept(self, data: bytes, ptype: int, now: float) -> bool:
-        """True when the datagram was taken here (a multipath control packet, taken or dropped, or
-        a copy of a sample already taken in, dropped as ``duplicate``)."""
         if ptype == _CONTROL:
             if len(data) > HEADER_SIZE and data[HEADER_SIZE] in MULTIPATH_CODES:
                 self._on_control(data, now)
                 return True
             return False
-        path = self._rx
         if ptype != _DATA or path is None:
             return False
         window = self._acks.window
