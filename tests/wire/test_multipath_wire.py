@@ -3,6 +3,8 @@ record agreeing with the struct codecs, and malformed bodies refused."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -211,3 +213,19 @@ def test_protected_probe_layout_agrees(number: int, sealed: bytes, tag: bytes) -
         tag,
     )
     assert schema.ProtectedProbe.build(parsed) == fast
+
+
+PROTOCOL_MD = Path(__file__).resolve().parents[2] / "docs" / "PROTOCOL.md"
+
+
+def test_the_worked_examples_of_protocol_md_7_8() -> None:
+    header = encode_header(PacketType.CONTROL, 0xABD, 0, 0, 255)
+    built = [
+        header + encode_mp_challenge(NONCE, 1, TOKEN),
+        header + encode_mp_response(NONCE, 1, TOKEN, ECHO),
+        header + encode_mp_report(MpReportBody(1, 0x123, 0x40, 1000, 600, 150)),
+        header + encode_mp_abandon(NONCE, 1, 19),
+    ]
+    text = " ".join(PROTOCOL_MD.read_text(encoding="utf-8").split())
+    for datagram in built:
+        assert "`" + " ".join(f"{byte:02x}" for byte in datagram) + "`" in text
