@@ -22,7 +22,6 @@ from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpo
 from tdtp.aio.endpoint import (
     DataCallback,
     Endpoint,
-    EndpointClosedError,
     WatchdogCallback,
     format_address,
 )
@@ -37,6 +36,7 @@ from tdtp.aio.opening import (
     _limit_write_buffer,
     _released,
     address_error,
+    established,
 )
 from tdtp.aio.reconnect import ReconnectPolicy, as_policy
 from tdtp.aio.server import Server, ServerStats, listen
@@ -298,17 +298,9 @@ async def _connect(
         batched.batch_receiver = endpoint.receive_batch
     conn.connect(remote, now=monotonic())
     endpoint._flush()
-    try:
-        await endpoint.wait_established()
-    except EndpointClosedError as exc:
-        await endpoint.close()
-        raise ConnectError(f"could not open a TDTP connection to {protocol.where}: {exc}") from exc
-    except PortUnreachableError:
-        endpoint._release()  # nobody to send a CLOSE to
+
+    def unreachable() -> None:
         transport.close()
         logger.info("tdtp master: nothing listens at %s", protocol.where)
-        raise
-    except BaseException:
-        await endpoint.close()
-        raise
-    return endpoint
+
+    return await established(endpoint, protocol.where, unreachable)

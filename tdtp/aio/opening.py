@@ -13,11 +13,18 @@ from collections.abc import Callable, Coroutine, Generator
 from typing import Any, Generic, Protocol, TypeVar
 
 from tdtp.aio.capture import CapturingTransport
-from tdtp.aio.endpoint import format_address
+from tdtp.aio.endpoint import Endpoint, format_address
 from tdtp.aio.impairment import as_spec
 from tdtp.aio.timer import check_timer_preference
 from tdtp.config import ConnectionConfig
-from tdtp.errors import AddressError, ArgumentTypeError, InvalidArgumentError
+from tdtp.errors import (
+    AddressError,
+    ArgumentTypeError,
+    ConnectError,
+    EndpointClosedError,
+    InvalidArgumentError,
+    PortUnreachableError,
+)
 from tdtp.netem import NetemSpec
 from tdtp.session.events import Address
 
@@ -139,3 +146,22 @@ async def _released(closed: asyncio.Future[None], transport: asyncio.DatagramTra
     except TimeoutError:
         transport.abort()
         await asyncio.shield(closed)
+
+
+async def established(endpoint: Endpoint, where: str, unreachable: Callable[[], None]) -> Endpoint:
+    """Wait until a master's session is established: :class:`~tdtp.ConnectError` if the slave
+    refused or never answered, :class:`~tdtp.PortUnreachableError` as soon as its host said nothing
+    listens (``unreachable`` releases the socket then: nobody to send a CLOSE to)."""
+    try:
+        await endpoint.wait_established()
+    except EndpointClosedError as exc:
+        await endpoint.close()
+        raise ConnectError(f"could not open a TDTP connection to {where}: {exc}") from exc
+    except PortUnreachableError:
+        endpoint._release()
+        unreachable()
+        raise
+    except BaseException:
+        await endpoint.close()
+        raise
+    return endpoint

@@ -14,6 +14,7 @@ from tdtp import (
     InvalidArgumentError,
     MultipathConfig,
     PathChanged,
+    PortUnreachableError,
     Ticker,
     connect,
     listen,
@@ -157,3 +158,14 @@ async def test_a_slave_with_max_paths_one_refuses_the_second_path() -> None:
         assert [p.path_id for p in slave.paths] == [0]
         assert slave.stats.drops.get("path_limit", 0) >= 1
         assert [(e.path_id, e.state) for e in master.paths.events] == []
+
+
+@pytest.mark.asyncio
+async def test_nothing_listening_is_port_unreachable_at_once() -> None:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with pytest.raises(PortUnreachableError, match="nothing listens"):
+        await asyncio.wait_for(connect("127.0.0.1", port, local_addresses=TWO), 3.0)
