@@ -158,12 +158,9 @@ class MultipathConfig:
     within this of the lowest it has shown (seconds)."""
     loss_bound: float = 0.01
     """Adaptive: ... and its recent loss stays at or below this fraction."""
-    adaptive_hold: float = 0.5
+    adaptive_hold: float = 0.1
     """Adaptive: once the best path broke a bound, every live path carries the samples until it
     has kept within them this long (seconds)."""
-    target_delay: float = 0.025
-    """Per-path congestion control: the queueing delay (one round trip's rise over the path's
-    lowest) above which a path's copies slow down (seconds)."""
 
     def __post_init__(self) -> None:
         _require(
@@ -185,7 +182,6 @@ class MultipathConfig:
             "report_interval",
             "delay_bound",
             "adaptive_hold",
-            "target_delay",
         ):
             _positive_finite(name, getattr(self, name))
         _require(

@@ -35,6 +35,7 @@ from typing import Final, Protocol
 from tdtp.admission.rate_limit import TokenBucket
 from tdtp.config import ConnectionConfig, MultipathConfig, Role
 from tdtp.control.base import RateController
+from tdtp.control.registry import create_controller
 from tdtp.errors import InvalidArgumentError
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.protection.replay_window import WideReplayWindow
@@ -42,7 +43,7 @@ from tdtp.session.ack_scheduler import AckScheduler
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import Address, PathChanged
 from tdtp.session.handshake import Handshake
-from tdtp.session.multipath.congestion import Coupling, MultipathController, PathPacer
+from tdtp.session.multipath.congestion import Bottlenecks, MultipathController, PathPacer
 from tdtp.session.multipath.copies import CopyFilter, SentRing
 from tdtp.session.multipath.path import (
     ACTIVE,
@@ -162,6 +163,8 @@ class MultipathStats:
     """Samples sent on several paths."""
     breaches: int = 0
     """Adaptive: times the best path broke a bound and every path took the samples."""
+    bottleneck_skips: int = 0
+    """Copies not sent because another congested path of the sample shares its bottleneck."""
 
 
 class Multipath:
@@ -211,7 +214,8 @@ class Multipath:
             wide.highest = old.highest
             opener.window = wide
         self._peer: Address = (peer[0], peer[1])
-        self._coupling = Coupling()
+        self._bottlenecks = Bottlenecks()
+        self._controller = (config.controller, config.controller_config)
         self._copies = CopyFilter()
         self._ring = SentRing()
         self.scheduler = Scheduler(mp, recovery, self._ring)
@@ -494,7 +498,9 @@ class Multipath:
             full, sent_here, hold, send_time, body.received, body.first, lag, now
         )
         rtt = path.rtt
-        path.pacer.on_feedback(now, got, lost, sample, rtt.srtt, path.min_rtt)
+        path.pacer.on_feedback(
+            now, got, lost, sample, rtt.srtt, rtt.rttvar, path.min_rtt, path.reported_copies
+        )
         self._judge(path, now)
 
     def _on_abandon(self, body: MpAbandonBody, size: int, now: float) -> None:
@@ -617,15 +623,17 @@ class Multipath:
                 ranked = sorted(self.paths.values(), key=_by_id)[:1]
         candidates = self.scheduler.candidates(ranked, now)
         chosen: list[Path] = []
-        congested = False
+        congested: list[PathPacer] = []
         for path in candidates:
             pacer = path.pacer
             if not pacer.allows(now):
                 continue
-            if pacer.congested(now):
-                if congested:
-                    continue  # at most one copy into congestion (CONTROL.md 11)
-                congested = True
+            if pacer.congested():
+                # At most one copy into each congested bottleneck (CONTROL.md 11).
+                if any(pacer.shares_bottleneck(other, now) for other in congested):
+                    self.stats.bottleneck_skips += 1
+                    continue
+                congested.append(pacer)
             chosen.append(path)
         if not chosen:
             # None of the scheduler's paths allows a copy now: a path that does, else the best.
@@ -638,7 +646,7 @@ class Multipath:
         mask = 0
         for path in chosen:
             mask |= 1 << path.path_id
-            path.pacer.on_sent(now)
+            path.pacer.on_sent(size, now)
             path.on_data_sent(seq)
             self._put(datagram, path, now, result)
         self._ring.record(seq, now, mask)
@@ -732,6 +740,9 @@ class Multipath:
                 due = path.last_challenge + config.failed_probe_interval
             if path.unreported:
                 due = min(due, path.last_report + config.report_interval)
+            pacing = path.pacer.get_timer()
+            if pacing is not None and pacing < due:
+                due = pacing
             if due < deadline:
                 deadline = due
         return deadline if deadline < math.inf else None
@@ -762,6 +773,9 @@ class Multipath:
                 self._challenge(path, now)  # ours, not answered yet: keep asking
             if path.unreported and now >= path.last_report + config.report_interval:
                 self._report(path, now)
+            pacing = path.pacer.get_timer()
+            if pacing is not None and now >= pacing:
+                path.pacer.on_timer(now)
 
     # ------------------------------------------------------------------ path states
 
@@ -775,7 +789,12 @@ class Multipath:
         validated: bool,
         now: float,
     ) -> Path:
-        pacer = PathPacer(self.config, self._coupling)
+        name, settings = self._controller
+        pacer = PathPacer(
+            lambda: create_controller(name, settings),
+            self.config.report_interval,
+            self._bottlenecks,
+        )
         return Path(
             path_id,
             local,
