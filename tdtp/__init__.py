@@ -38,6 +38,7 @@ from tdtp.errors import (
     PayloadTooLargeError,
     PayloadTypeError,
     PortUnreachableError,
+    ReconnectingError,
     ServerClosedError,
     TdtpError,
 )
@@ -116,6 +117,7 @@ __all__ = [
     "PresharedKey",
     "ReconnectPolicy",
     "ReconnectRecord",
+    "ReconnectingError",
     "Role",
     "Server",
     "ServerClosedError",

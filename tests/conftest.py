@@ -7,6 +7,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 
+# A bound on every asyncio test that works on uvloop too (tests/suite_bounds.py).
+from suite_bounds import pytest_addoption, pytest_runtest_setup
+
+__all__ = ["pytest_addoption", "pytest_report_header", "pytest_runtest_setup"]
+
 
 def pytest_report_header() -> str:
     """Which build of the core the suite runs against (``make test`` runs it on both)."""

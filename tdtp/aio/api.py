@@ -297,7 +297,7 @@ async def _connect(
     if batched is not None and recorder is None:
         batched.batch_receiver = endpoint.receive_batch
     conn.connect(remote, now=monotonic())
-    endpoint._flush()
+    endpoint.flush()
 
     def unreachable() -> None:
         transport.close()

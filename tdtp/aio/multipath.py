@@ -239,7 +239,7 @@ class PathSet:
         number = max(self._sockets, default=0) + 1
         await self.bind(number, spec, remote, netem)
         self._open(self._sockets[number], monotonic())
-        endpoint._flush()
+        endpoint.flush()
         return number
 
     def remove(self, local: int) -> None:
@@ -253,7 +253,7 @@ class PathSet:
         paths = self._endpoint.connection.multipath
         if paths is not None and entry.path_id is not None and entry.path_id in paths.paths:
             paths.close_path(entry.path_id, monotonic())
-            self._endpoint._flush()
+            self._endpoint.flush()
             self.flush()
         entry.sender.close()
 
@@ -306,7 +306,7 @@ class PathSet:
             for entry in self._sockets.values():
                 if entry.local:
                     self._open(entry, now)
-            self._endpoint._flush(now)
+            self._endpoint.flush(now)
         routed = paths.routed
         if not routed:
             return
@@ -329,8 +329,14 @@ class PathSet:
         if callback is not None:
             try:
                 callback(event)
-            except Exception as exc:  # the application's error: reported, then on
-                self._endpoint._callback_failed("on_path", exc)
+            except Exception as exc:  # the application's error: reported as asyncio does, then on
+                asyncio.get_running_loop().call_exception_handler(
+                    {
+                        "message": f"{self._endpoint!r}: the on_path callback raised",
+                        "exception": exc,
+                        "endpoint": self._endpoint,
+                    }
+                )
 
     def _received(self, local: int, data: bytes, addr: Address) -> None:
         endpoint = self._endpoint
@@ -344,7 +350,7 @@ class PathSet:
             conn.receive_datagram(data, addr, now=now)
         finally:
             paths.rx_local = 0
-        endpoint._flush(now)
+        endpoint.flush(now)
 
     def close(self) -> None:
         for entry in self._sockets.values():

@@ -120,8 +120,8 @@ async def connect_multipath(
             netem = path_netem[number] if number < len(path_netem) else None
             await path_set.bind(number, spec, remotes[number], netem)
     except OSError as exc:
-        endpoint._release()
+        endpoint.fail_open(exc)  # lets go of the timer and every socket bound so far
         raise address_error(exc, f"bind {locals_[number]} and connect to", host, port) from exc
     conn.connect(remotes[0], now=monotonic())
-    endpoint._flush()
+    endpoint.flush()
     return await established(endpoint, f"{host}:{port}", transport.close)

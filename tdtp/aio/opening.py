@@ -158,7 +158,7 @@ async def established(endpoint: Endpoint, where: str, unreachable: Callable[[], 
         await endpoint.close()
         raise ConnectError(f"could not open a TDTP connection to {where}: {exc}") from exc
     except PortUnreachableError:
-        endpoint._release()
+        # fail_open() released the endpoint already
         unreachable()
         raise
     except BaseException:

@@ -25,6 +25,7 @@ from tdtp.control.registry import create_controller
 from tdtp.errors import ArgumentTypeError, ConnectionStateError
 from tdtp.protection.keys import KeyInput, KeysInput
 from tdtp.protection.packet_protection import PacketOpener
+from tdtp.session import ending
 from tdtp.session.ack_scheduler import AckScheduler
 from tdtp.session.control_channel import ALIVE, TAKEN, ControlChannel, largest_message_body
 from tdtp.session.delivery import SampleDelivery
@@ -38,7 +39,7 @@ from tdtp.session.events import (
     PeerResumed,
     PeerSilent,
 )
-from tdtp.session.handshake import Handshake, Reaction, close_reason_text
+from tdtp.session.handshake import Handshake, Reaction
 from tdtp.session.liveness import Liveness
 from tdtp.session.multipath.paths import Multipath
 from tdtp.session.outbox import Outbox
@@ -230,14 +231,8 @@ class Connection(ConnectionView):
             return False
         sealer = self._outbox.sealer
         if sealer is not None and sealer.exhausted:
-            self._exhausted()
+            self._terminate(CloseCause.KEY_EXHAUSTED, ending.KEY_EXHAUSTED_TEXT, now)
         return True
-
-    def _exhausted(self) -> None:
-        self._terminate(
-            CloseCause.KEY_EXHAUSTED,
-            "the session protected as many packets as its keys may; open a new connection",
-        )
 
     def send_control(self, message: bytes | bytearray | memoryview, *, now: float) -> None:
         """Queue a message on the reliable control channel (:mod:`tdtp.session.control_channel`)."""
@@ -255,17 +250,15 @@ class Connection(ConnectionView):
         """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
         self._sender.resume()
 
-    def close(self, *, now: float, taken_over: bool = False) -> None:
+    def close(self, *, now: float, taken_over: bool = False, restarting: bool = False) -> None:
         """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`.
-        ``taken_over``: an exclusive slave hands control to another master (PROTOCOL.md 5.9)."""
+        ``taken_over``: an exclusive slave hands control to another master (PROTOCOL.md 5.9);
+        ``restarting``: this side stops but expects to be back soon (CLOSE RESTARTING, 5.2)."""
         if self._state is State.CLOSED:
             return
-        reason = CloseReason.TAKEN_OVER if taken_over else CloseReason.NORMAL
-        if self._state in (State.OPENING, State.ESTABLISHED) and self._peer is not None:
-            self._queue_close(reason, self._peer)
-        cause = CloseCause.TAKEN_OVER if taken_over else CloseCause.LOCAL_CLOSE
-        detail = "another master took control" if taken_over else "closed by the application"
-        self._terminate(cause, detail)
+        reason, cause, detail = ending.local_ending(taken_over=taken_over, restarting=restarting)
+        opened = self._state is State.OPENING or self._state is State.ESTABLISHED
+        self._terminate(cause, detail, now, reason, send=opened)
 
     def accept_open(self, admitted: AdmittedOpen, addr: Address, *, now: float) -> None:
         """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already
@@ -414,26 +407,17 @@ class Connection(ConnectionView):
             self._stats.count_drop(refused)
             return
         self._stats.received.control_packets += 1
-        peer = self._peer_address()
-        self._terminate(
-            CloseCause.PEER_RESTARTED,
-            f"the slave at {peer[0]}:{peer[1]} holds no session for us (it restarted); open a "
-            "new connection",
-        )
+        self._terminate(CloseCause.PEER_RESTARTED, ending.restarted_text(self._peer_address()), now)
 
-    def evict(self, *, now: float) -> None:
-        """Slave side: give this session's slot to a new master (the server is full and ours has
-        been silent longest); the master, if it ever hears again, gets a CLOSE."""
-        if self._state is State.CLOSED:
-            return
-        if self._peer is not None:
-            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer)
-        silent = now - self._liveness.last_receive
-        self._terminate(
-            CloseCause.EVICTED,
-            f"the server was full and this master had been silent for {silent:.1f} s, longer "
-            "than any other; its slot went to a new master",
-        )
+    def evict(self, detail: str, *, now: float) -> bytes | None:
+        """Slave side: give this session's slot to a new master (:mod:`tdtp.admission.slots`
+        chose it; ``detail`` says why). Queues a CLOSE ``EVICTED`` and returns it, so that the
+        server can repeat it to the master's later datagrams (``None``: nothing to send)."""
+        peer = self._peer
+        if self._state is State.CLOSED or peer is None:
+            return None
+        self._terminate(CloseCause.EVICTED, detail, now, CloseReason.EVICTED, send=True)
+        return self._outbox.control[-1][0]
 
     def roam(self, data: bytes, addr: Address, *, now: float) -> bool:
         """Keyed slave: follow the master to ``addr`` if ``data`` from there authenticates with a
@@ -467,11 +451,7 @@ class Connection(ConnectionView):
         key that has seen too many forgeries is retired with its connection (RFC 9001, 6.6)."""
         self._stats.count_drop(DropReason(opener.failure))
         if opener.exhausted:
-            self._terminate(
-                CloseCause.KEY_EXHAUSTED,
-                "too many datagrams failed authentication under this session's key; open a new "
-                "connection",
-            )
+            self._terminate(CloseCause.KEY_EXHAUSTED, ending.FORGERY_LIMIT_TEXT, now)
 
     def _accept(self, size: int, payload_size: int, now: float) -> None:
         """Count a datagram taken in; ``size`` is its length without packet protection."""
@@ -605,7 +585,8 @@ class Connection(ConnectionView):
         if isinstance(body, CloseBody):
             self._accept(size, size - HEADER_SIZE, now)
             stats.received.control_packets += 1
-            self._terminate(CloseCause.PEER_CLOSE, close_reason_text(body.reason))
+            cause, detail = ending.peer_ending(body.reason)
+            self._terminate(cause, detail, now, body.reason)
             return
         if self._state is not State.ESTABLISHED:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
@@ -634,9 +615,7 @@ class Connection(ConnectionView):
                 self._queue_open_ack()
                 self._delivery.opening_sent_at = now
             elif verdict is Reaction.REPLACED:
-                self._terminate(
-                    CloseCause.REPLACED, "the master opened a new connection from the same address"
-                )
+                self._terminate(CloseCause.REPLACED, ending.REPLACED_TEXT, now)
             return
         reaction = handshake.on_reply(
             data,
@@ -650,7 +629,7 @@ class Connection(ConnectionView):
             return
         self._heard(now)
         if reaction is Reaction.REJECTED:
-            self._terminate(CloseCause.REJECTED, handshake.detail)
+            self._terminate(CloseCause.REJECTED, handshake.detail, now, handshake.reject_reason)
         elif reaction is Reaction.OPENED:
             self._on_opened(decode_header(data).seq, now)
 
@@ -686,11 +665,13 @@ class Connection(ConnectionView):
         self._install_protection()
         peer_max_payload = self._handshake.peer_max_payload
         if peer_max_payload < self.config.min_peer_payload:
-            self._queue_close(CloseReason.PAYLOAD_TOO_SMALL, self._peer_address())
             self._terminate(
                 CloseCause.REJECTED,
                 f"the slave accepts payloads of at most {peer_max_payload} bytes, smaller than "
                 f"min_peer_payload ({self.config.min_peer_payload})",
+                now,
+                CloseReason.PAYLOAD_TOO_SMALL,
+                send=True,
             )
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
@@ -768,23 +749,20 @@ class Connection(ConnectionView):
         state = self._state
         if state is OPENING:
             if now >= self._handshake.open_deadline:
-                if self.role is Role.MASTER:
-                    detail = f"no answer to OPEN within {self.config.open_timeout} s"
-                else:
-                    detail = (
-                        "the master never confirmed the session within "
-                        f"{self.config.open_timeout} s after our OPEN_ACK"
-                    )
-                self._terminate(CloseCause.OPEN_TIMEOUT, detail)
+                master, timeout = self.role is Role.MASTER, self.config.open_timeout
+                detail = ending.open_timeout_text(master=master, timeout=timeout)
+                self._terminate(CloseCause.OPEN_TIMEOUT, detail, now)
             return
         if state is not ESTABLISHED:
             return
         liveness = self._liveness
         if liveness.idle_expired(now):
-            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer_address())
             self._terminate(
                 CloseCause.IDLE_TIMEOUT,
                 f"nothing received from the peer for {self.config.idle_timeout:g} s",
+                now,
+                CloseReason.IDLE_TIMEOUT,
+                send=True,
             )
             return
         if liveness.check_silence(now):
@@ -849,13 +827,13 @@ class Connection(ConnectionView):
             nonce = self._handshake.master_nonce
             outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, nonce, peer, now)
         if outbox.sealer is not None and outbox.sealer.exhausted:
-            self._exhausted()
+            self._terminate(CloseCause.KEY_EXHAUSTED, ending.KEY_EXHAUSTED_TEXT, now)
 
     def _emit_open(self, out: list[tuple[bytes, Address]], now: float) -> None:
         handshake = self._handshake
         datagram = handshake.next_open(self._recovery.sent.next_seq, self._acks.mode)
         if datagram is None:
-            self._terminate(CloseCause.OPEN_TIMEOUT, "no answer to 65536 OPENs")
+            self._terminate(CloseCause.OPEN_TIMEOUT, "no answer to 65536 OPENs", now)
             return
         self._outbox.emit_control(
             out, datagram, self._peer_address(), now, handshake.tag_size, True
@@ -876,13 +854,27 @@ class Connection(ConnectionView):
             self._recovery.sent.next_seq, self._handshake.master_nonce, reason, addr
         )
 
-    def _terminate(self, cause: CloseCause, detail: str) -> None:
+    def _terminate(
+        self,
+        cause: CloseCause,
+        detail: str,
+        now: float,
+        reason: int | None = None,
+        *,
+        send: bool = False,
+    ) -> None:
+        """End the session (``send``: with a CLOSE ``reason`` to the peer); control messages the
+        peer never acknowledged are reported (``ControlExpired``) before the ``ConnectionClosed``."""
+        peer = self._peer
+        if send and reason is not None and peer is not None and self._state is not CLOSED:
+            self._queue_close(CloseReason(reason), peer)
         self._state = State.CLOSED
         self._hint.value = -math.inf
         self._handshake.confirming = False
         self._sender.drop()
         self._acks.separate.clear()
-        self._close_event = event = ConnectionClosed(cause, detail)
+        self._channel.abandon(ending.control_abandoned_text(cause, self._channel.unacked), now)
+        self._close_event = event = ConnectionClosed(cause, detail, reason)
         self._push_other_event(event)
 
     def _push_other_event(self, event: Event) -> None:

@@ -397,6 +397,21 @@ class ControlChannel:
                 deadline = expiry
         return deadline
 
+    def abandon(self, detail: str, now: float) -> None:
+        """The session ended: report the messages the peer never acknowledged (one
+        ``ControlExpired``, oldest first) instead of dropping them unsaid (PROTOCOL.md 5.10,
+        sender rule 6). Nothing is reported when every message was acknowledged."""
+        unacked = self._unacked
+        if not unacked:
+            return
+        payloads = tuple(message.payload for message in unacked)
+        self._stats.control_given_up += len(payloads)
+        first = unacked[0].number - self._first
+        unacked.clear()
+        self.failed = detail
+        self._due = math.inf
+        self._events.push(ControlExpired(first, payloads, detail, now))
+
     def expire(self, now: float) -> None:
         """Give up, at ``control_timeout``, on the oldest unacknowledged message and all after it."""
         unacked = self._unacked

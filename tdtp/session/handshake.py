@@ -155,6 +155,8 @@ class Handshake:
         """The largest payload the slave sends, from its OPEN_ACK (a master's)."""
         self.detail = ""
         """Why the slave refused us (:attr:`Reaction.REJECTED`)."""
+        self.reject_reason: int | None = None
+        """The REJECT's reason code (:attr:`Reaction.REJECTED`)."""
         self._open_tagger: Direction | None = None  # a keyed master's OPEN key
         self._cookie = NO_COOKIE
         self._cookie_answered_at = -math.inf
@@ -276,6 +278,7 @@ class Handshake:
         elif isinstance(body, CloseBody):  # REJECT
             stats.count_handshake(len(data), 0)
             self.detail = self.reject_text(body.reason)
+            self.reject_reason = body.reason
             return Reaction.REJECTED
         else:  # pragma: no cover - decode_control returns one of the above for these codes
             stats.count_drop(DropReason.BAD_CONTROL)
@@ -430,14 +433,6 @@ class Handshake:
             PacketSealer(suite, ours, encrypt=self.encrypt),
             PacketOpener(suite, theirs, encrypt=self.encrypt),
         )
-
-
-def close_reason_text(reason: int) -> str:
-    """A peer's CLOSE reason code, as the detail of a :class:`~tdtp.session.events.ConnectionClosed`."""
-    try:
-        return CloseReason(reason).name.lower()
-    except ValueError:
-        return f"reason code {reason}"
 
 
 _REJECT_TEXT = {

@@ -7,6 +7,8 @@ class only reads them, so the state machine in :mod:`tdtp.session.connection` st
 
 from __future__ import annotations
 
+import math
+
 from tdtp.admission.admission import Admission
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.base import RateController
@@ -116,8 +118,10 @@ class ConnectionView:
     @property
     def peer_silent(self) -> bool:
         """True while the watchdog finds the peer silent (between :class:`~tdtp.session.events.PeerSilent`
-        and :class:`~tdtp.session.events.PeerResumed`)."""
-        return self._liveness.silent_since is not None
+        and :class:`~tdtp.session.events.PeerResumed`), and for good once the connection is closed:
+        nothing will be heard from the peer again, so a display or a safety check built on it
+        never shows a closed link as a live one."""
+        return self._liveness.silent_since is not None or self._state is State.CLOSED
 
     @property
     def silent_since(self) -> float | None:
@@ -177,12 +181,21 @@ class ConnectionView:
 
     @property
     def stats(self) -> ConnectionStats:
-        """Live counters; the derived figures (srtt, p, rate) are refreshed on each access."""
+        """Live counters; the derived figures (srtt, p, rate) are refreshed on each access. Once
+        the connection is closed they read as closed: ``closed`` True, ``srtt`` and ``rttvar``
+        NaN (there is no path to measure), ``rate`` 0 and ``rate_limit`` ``"closed"``; the
+        counters and ``min_rtt`` keep the session's history."""
         stats = self._stats
         self._recovery.refresh(stats)
         ages = self._ages
         stats.sample_age_p50 = ages.quantile(0.5)
         stats.sample_age_p99 = ages.quantile(0.99)
-        stats.rate = self._controller.rate
-        stats.rate_limit = self._controller.rate_limit
+        if self._state is State.CLOSED:
+            stats.closed = True
+            stats.srtt = stats.rttvar = math.nan
+            stats.rate = 0.0
+            stats.rate_limit = "closed"
+        else:
+            stats.rate = self._controller.rate
+            stats.rate_limit = self._controller.rate_limit
         return stats

@@ -193,6 +193,14 @@ class CloseReason(enum.IntEnum):
     TAKEN_OVER = 13
     """CLOSE: the slave is exclusive and another master took control (after this one was silent,
     or at once with the TAKEOVER flag)."""
+    EVICTED = 14
+    """CLOSE, slave -> master: the slave was full and gave this session's slot to another master,
+    after this one had been silent for the slave's reclaim time (docs/PROTOCOL.md 5.1, rule 2.7).
+    The master may reopen later; it should wait (back off) first."""
+    RESTARTING = 15
+    """CLOSE: the sender is stopping but expects to be back soon (a service restart: ``tdtp slave``
+    stopped by Ctrl-C or SIGTERM). A master should reopen at once, at its usual OPEN pacing
+    (docs/PROTOCOL.md 5.2). ``NORMAL`` says the opposite: the session is over for good."""
     PATH_CLOSED = 19
     """MP_ABANDON: the sender stopped using this path (the application removed it, its interface
     went away)."""

@@ -11,7 +11,15 @@ import random
 from collections import deque
 from typing import Any
 
-from tdtp import Connection, ConnectionConfig, ControlReceived, DataReceived, MultipathConfig, Role
+from tdtp import (
+    Connection,
+    ConnectionClosed,
+    ConnectionConfig,
+    ControlReceived,
+    DataReceived,
+    MultipathConfig,
+    Role,
+)
 from tdtp.config import AckMode
 from tdtp.protection.keys import PresharedKey
 from tdtp.wire import CipherSuite, CloseReason, ControlCode, PacketType
@@ -122,7 +130,7 @@ class ScriptRunner:
         if action == "connect":
             conn.connect(ADDRESSES["slave"], now=now)
         elif action == "close":
-            conn.close(now=now)
+            conn.close(now=now, restarting=bool(step.get("restarting", False)))
         elif action == "send_control":
             conn.send_control(bytes.fromhex(step["message"]), now=now)
         elif action == "hold_control":
@@ -141,11 +149,14 @@ class ScriptRunner:
         sent = conn.datagrams_to_send(now=now)
         delivered = []
         control_delivered = []
+        closed: dict[str, Any] | None = None
         while (event := conn.next_event()) is not None:
             if isinstance(event, DataReceived):
                 delivered.append(event.payload.hex())
             elif isinstance(event, ControlReceived):
                 control_delivered.append(event.payload.hex())
+            elif isinstance(event, ConnectionClosed):
+                closed = {"cause": event.cause.value, "reason": event.reason}
         control = []
         control_hex = []
         for datagram, _addr in sent:
@@ -173,6 +184,8 @@ class ScriptRunner:
         }
         if control_delivered:
             expect["control_delivered"] = control_delivered
+        if closed is not None:
+            expect["closed"] = closed
         if step.get("exact"):
             expect["control_sent_hex"] = control_hex
         return expect

@@ -232,6 +232,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEY_EXHAUSTED": 11,
         "IN_USE": 12,
         "TAKEN_OVER": 13,
+        "EVICTED": 14,
+        "RESTARTING": 15,
         "PATH_CLOSED": 19,
         "PATH_LIMIT": 20,
     }

@@ -490,6 +490,58 @@ def master_session() -> dict[str, Any]:
     }
 
 
+def master_closed_by(reason: CloseReason) -> dict[str, Any]:
+    """Section 5.2, "What a CLOSE says": a slave's CLOSE RESTARTING ends the master's session as
+    peer_restarting (a reconnecting master reopens at once), a CLOSE EVICTED (section 5.1, rule
+    2.7) as evicted (it backs off first); a CLOSE after the end is dropped."""
+    header = encode_header(2, SLAVE_ISN, 0, 0, 255)
+    what = {
+        CloseReason.RESTARTING: "the slave stops and will be back soon",
+        CloseReason.EVICTED: "a full slave gave this session's slot to another master",
+    }[reason]
+    steps = [
+        _action(0.0, "connect"),
+        _step(0.001, "slave", _open_ack()),
+        _step(0.002, "slave", _data(SLAVE_ISN, b"one")),
+        _step(
+            0.003,
+            "slave",
+            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, reason)),
+            note=f"CLOSE {reason.name}: {what}",
+        ),
+        _step(
+            0.004,
+            "slave",
+            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
+            note="after the close: dropped",
+        ),
+    ]
+    return {
+        "name": f"master: the slave closes with {reason.name}",
+        "role": "master",
+        "config": {},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def slave_restarting() -> dict[str, Any]:
+    """The slave's application stops with restarting=True (Ctrl-C of `tdtp slave`): its CLOSE
+    carries reason 15, byte for byte."""
+    steps = [
+        *_opening(),
+        _step(0.021, "master", _data(MASTER_ISN, b"s1")),
+        _action(0.022, "close", restarting=True, exact=True),
+    ]
+    return {
+        "name": "slave: a restarting slave's CLOSE",
+        "role": "slave",
+        "config": {"max_payload": 1200},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
 def slave_control_channel() -> dict[str, Any]:
     """The reliable control channel (section 5.10) at a slave whose control_window is 4: a lost
     MESSAGE, the next one held, the retransmission delivering both in order, a duplicate, the slave's
@@ -654,5 +706,8 @@ def all_scripts() -> list[dict[str, Any]]:
         master_payload_too_small(),
         keyed_master_session(),
         slave_control_channel(),
+        master_closed_by(CloseReason.RESTARTING),
+        master_closed_by(CloseReason.EVICTED),
+        slave_restarting(),
         slave_multipath(),
     ]

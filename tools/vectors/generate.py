@@ -371,6 +371,14 @@ def control_vectors() -> dict[str, Any]:
         ),
         ("MESSAGE_ACK, next expected 0x0000 (past the wrap)", encode_message_ack(0)),
         ("CLOSE with an unknown reason 200", encode_close(ControlCode.CLOSE, MASTER_NONCE, 200)),
+        (
+            "CLOSE RESTARTING (5.2: the sender will be back soon)",
+            encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.RESTARTING),
+        ),
+        (
+            "CLOSE EVICTED (5.1 rule 2.7: the slot went to another master)",
+            encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.EVICTED),
+        ),
         ("REJECT BUSY", encode_close(ControlCode.REJECT, MASTER_NONCE, CloseReason.BUSY)),
         (
             "RESET, unkeyed: the first 16 bytes of the DATA it answers (7.6)",

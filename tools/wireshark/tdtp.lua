@@ -37,7 +37,8 @@ local REASON_NAMES = {
     [0] = "NORMAL", [1] = "IDLE_TIMEOUT", [2] = "PROTOCOL_ERROR", [3] = "VERSION_UNSUPPORTED",
     [4] = "REFUSED", [5] = "BUSY", [6] = "KEY_REQUIRED", [7] = "KEY_UNKNOWN",
     [8] = "PAYLOAD_TOO_SMALL", [9] = "SUITE_UNSUPPORTED", [10] = "REPLACED", [11] = "KEY_EXHAUSTED",
-    [12] = "IN_USE", [13] = "TAKEN_OVER", [19] = "PATH_CLOSED", [20] = "PATH_LIMIT",
+    [12] = "IN_USE", [13] = "TAKEN_OVER", [14] = "EVICTED", [15] = "RESTARTING",
+    [19] = "PATH_CLOSED", [20] = "PATH_LIMIT",
 }
 local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknowledgement" }
 
