@@ -15,9 +15,10 @@ session opened with the MULTIPATH flag is established. The seam is narrow:
 * ``route(out, now)``: the connection's datagrams for the peer spread over the paths (a sample on
   the paths the scheduler names, the rest on the best path), with the paths' own control packets;
   what leaves through another local socket than the session's own goes to :attr:`routed`;
-* ``deadline()`` and ``on_timer(now)``: probes, reports, path failures, reached through the session's
-  controller (:class:`~tdtp.session.multipath.congestion.MultipathController`, which replaces the
-  single-path one), so that the connection's timer needs no hook of its own.
+* ``deadline()`` and ``on_timer(now)``: probes, reports, path failures, the paths' controllers,
+  reached through the session's controller
+  (:class:`~tdtp.session.multipath.congestion.MultipathController`, which replaces the single-path
+  one), so that the connection's timer needs no hook of its own.
 
 Everything a peer can grow is bounded: ``max_paths`` paths (the session's first included), new paths
 at ``new_paths_per_second``, four outstanding tokens per path, fixed rings for copies; a learned path
