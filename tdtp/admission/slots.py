@@ -216,8 +216,9 @@ class _Notice:
 
 
 class EvictionNotices:
-    """The CLOSE ``EVICTED`` of recently evicted sessions, by their master's address, repeated to
-    the datagrams that still come from there (the master was away when it was sent).
+    """The CLOSE ``EVICTED`` of recently evicted sessions (and an exclusive server's CLOSE
+    ``TAKEN_OVER``, PROTOCOL.md 5.9), by their master's address, repeated to the datagrams that
+    still come from there (the master was away when it was sent, or it was lost or overtaken).
 
     Bounded every way: at most ``capacity`` addresses (the oldest forgotten first), each for
     ``lifetime`` (the master's own idle timeout ends its session by then), at most ``repeats``

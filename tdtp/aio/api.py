@@ -44,7 +44,7 @@ from tdtp.aio.timer import TimerPreference, monotonic
 from tdtp.config import ConnectionConfig, Role
 from tdtp.errors import ConnectError, InvalidArgumentError, PortUnreachableError
 from tdtp.netem import NetemSpec
-from tdtp.protection.keys import KeyInput
+from tdtp.protection.keys import OneKeyInput, PresharedKey, as_key
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
 from tdtp.session.state import State
@@ -83,7 +83,10 @@ class _MasterProtocol(asyncio.DatagramProtocol):
             endpoint.fail_open(
                 PortUnreachableError(
                     f"nothing listens at {self.where} (the host refused the OPEN with ICMP port "
-                    "unreachable); start the slave there, or check the host and port"
+                    "unreachable); start the slave there, or check the host and port. A slave "
+                    "started with tdtp.listen() binds 127.0.0.1 unless given a host: to be "
+                    'reached from other machines it listens on "0.0.0.0" or its own address '
+                    "(tdtp slave binds 0.0.0.0)"
                 )
             )
             return
@@ -116,7 +119,7 @@ def connect(
     rng: random.Random | None = None,
     netem: NetemSpec | str | None = None,
     netem_seed: int | None = None,
-    key: KeyInput | None = None,
+    key: OneKeyInput | None = None,
     pcap: CaptureTarget | None = None,
     reconnect: bool | ReconnectPolicy | None = False,
     local_addresses: Sequence[str | tuple[str, int] | LocalAddress] | None = None,
@@ -136,9 +139,11 @@ def connect(
     sends, in tc-netem's language (``"delay 20ms 5ms loss 1%"``), emulated in-process (see
     :mod:`tdtp.aio.impairment`).
 
-    ``key`` (a :class:`~tdtp.PresharedKey` or its secret bytes) opens a keyed session: every
-    datagram authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must
-    hold the same key.
+    ``key`` (a :class:`~tdtp.PresharedKey`, its secret bytes, or ``tdtp.load_key(path)``: a key
+    file's first key, or ``load_key(path, name=...)``) opens a keyed session: every datagram
+    authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must hold the
+    same key. A collection of exactly one key (``tdtp.load_keys(path)`` of a one-key file) is
+    taken as that key; one of several raises :class:`~tdtp.InvalidKeyError` saying how to choose.
 
     ``pcap`` (a path, or a shared :class:`~tdtp.capture.pcap.PcapWriter`) records every datagram the socket
     sends and receives, with UDP/IP headers, for Wireshark (``tools/wireshark/tdtp.lua``).
@@ -169,6 +174,7 @@ def connect(
             )
         _check_port(local_addr[1], allow_zero=True)
     spec = _check_common(config, timer, on_data, on_watchdog, netem)
+    master_key = as_key(key) if key is not None else None  # checked now, as the rest
     if local_addresses is not None or path_netem is not None:
         if isinstance(local_addresses, str) or not local_addresses:
             raise InvalidArgumentError(
@@ -195,7 +201,7 @@ def connect(
                 rng=rng,
                 path_netem=specs,
                 netem_seed=netem_seed,
-                key=key,
+                key=master_key,
                 reconnect=policy,
             )
         )
@@ -211,7 +217,7 @@ def connect(
             rng=rng,
             netem=spec,
             netem_seed=netem_seed,
-            key=key,
+            key=master_key,
             pcap=pcap,
             reconnect=policy,
         )
@@ -230,7 +236,7 @@ async def _connect(
     rng: random.Random | None,
     netem: NetemSpec | None,
     netem_seed: int | None,
-    key: KeyInput | None,
+    key: PresharedKey | None,
     pcap: CaptureTarget | None,
     reconnect: ReconnectPolicy | None = None,
 ) -> Endpoint:
@@ -303,4 +309,4 @@ async def _connect(
         transport.close()
         logger.info("tdtp master: nothing listens at %s", protocol.where)
 
-    return await established(endpoint, protocol.where, unreachable)
+    return await established(endpoint, protocol.where, port, unreachable)

@@ -50,6 +50,7 @@ from tdtp.errors import (
     EndpointClosedError,
     ReconnectingError,
 )
+from tdtp.netem import NetemLink
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
@@ -203,6 +204,7 @@ class Endpoint:
 
     @property
     def peer(self) -> Address | None:
+        """The peer's address once known (a slave's master, a master's slave), else ``None``."""
         return self._conn.peer
 
     @property
@@ -257,6 +259,13 @@ class Endpoint:
         stats: dict[str, int] = layer.stats
         return stats
 
+    @property
+    def netem_link(self) -> NetemLink | None:
+        """The emulated link this endpoint sends through (``netem=`` on connect or listen), or
+        ``None``: its ``stats``, and with a trace its ``trace_queue``."""
+        link: NetemLink | None = getattr(getattr(self._socket, "line", None), "link", None)
+        return link
+
     def _datagram_layer(self) -> Any:
         """The socket's datagram layer under any wrappers (a pcap capture, in-process impairment:
         each holds the transport it wraps as ``_transport``), or ``None``."""
@@ -275,6 +284,7 @@ class Endpoint:
 
     @property
     def is_closed(self) -> bool:
+        """Whether the session has ended (:attr:`close_event` says why)."""
         return self._conn.state is State.CLOSED
 
     @property
@@ -347,8 +357,7 @@ class Endpoint:
 
         Raises :class:`~tdtp.PayloadTypeError` for anything but bytes, bytearray or memoryview,
         :class:`~tdtp.PayloadTooLargeError` above the connection's maximum, and
-        :class:`~tdtp.EndpointClosedError`, naming the cause, once the association is over.
-        """
+        :class:`~tdtp.EndpointClosedError`, naming the cause, once the association is over."""
         now = monotonic()
         conn = self._conn
         out = self._out
@@ -556,6 +565,7 @@ class Endpoint:
     # ------------------------------------------------------------------ driven by the transport
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
+        """The transport's hand-off: one datagram from ``addr``, taken in and answered at once."""
         now = monotonic()
         self._conn.receive_datagram(data, addr, now=now)
         self.flush(now)
@@ -632,6 +642,7 @@ class Endpoint:
         self.flush(now)
 
     async def wait_established(self) -> None:
+        """Wait until the opening handshake completes; raises what ended it otherwise."""
         await asyncio.shield(self._established)
 
     def flush(self, now: float | None = None) -> None:

@@ -23,7 +23,7 @@ from tdtp.aio.timer import TimerPreference, monotonic
 from tdtp.config import ConnectionConfig, MultipathConfig, Role
 from tdtp.errors import PortUnreachableError
 from tdtp.netem import NetemSpec
-from tdtp.protection.keys import KeyInput
+from tdtp.protection.keys import PresharedKey
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
 from tdtp.session.state import State
@@ -51,7 +51,7 @@ async def connect_multipath(
     rng: random.Random | None,
     path_netem: Sequence[NetemSpec | None],
     netem_seed: int | None,
-    key: KeyInput | None,
+    key: PresharedKey | None,
     reconnect: ReconnectPolicy | None,
 ) -> Endpoint:
     """:func:`tdtp.connect` with local addresses: the session on the first, a path from each."""
@@ -124,4 +124,4 @@ async def connect_multipath(
         raise address_error(exc, f"bind {locals_[number]} and connect to", host, port) from exc
     conn.connect(remotes[0], now=monotonic())
     endpoint.flush()
-    return await established(endpoint, f"{host}:{port}", transport.close)
+    return await established(endpoint, f"{host}:{port}", port, transport.close)

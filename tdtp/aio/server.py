@@ -95,7 +95,7 @@ class ServerStats:
     address (PROTOCOL.md 5.1, rule 2.7)."""
     eviction_notices: int = 0
     """CLOSE ``EVICTED`` repeated to an evicted master's later datagrams (it was away when the
-    first one left)."""
+    first one left), and CLOSE ``TAKEN_OVER`` to a displaced master's (PROTOCOL.md 5.9)."""
     peers_in_use: int = 0
     """Exclusive server: admitted OPENs answered with REJECT ``IN_USE`` (another master commands)."""
     takeovers: int = 0
@@ -228,6 +228,7 @@ class Server:
 
     @property
     def port(self) -> int:
+        """The UDP port the server listens on (the one the system chose for ``port=0``)."""
         return int(self.sockname[1])
 
     @property
@@ -440,8 +441,13 @@ class Server:
                 format_address(endpoint.peer),
                 " (takeover flag)" if takeover else " (silent)",
             )
-            endpoint.connection.close(now=now, taken_over=True)
+            close = endpoint.connection.close(now=now, taken_over=True)
             endpoint.flush(now)
+            peer = endpoint.peer
+            if close is not None and peer is not None:
+                # Its datagrams still on their way get this CLOSE again, never a RESET (which
+                # would say "restarted": PROTOCOL.md 5.9), as an evicted master's do.
+                self._notices.add(_peer_key(peer), close, now)
         return False
 
     def _open(

@@ -20,10 +20,11 @@ from collections.abc import Callable
 from typing import Final
 
 from tdtp.admission.admission import Admission, AdmittedOpen
+from tdtp.admission.path_migration import NOT_OURS, OURS, ROAMED
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.registry import create_controller
 from tdtp.errors import ArgumentTypeError, ConnectionStateError
-from tdtp.protection.keys import KeyInput, KeysInput
+from tdtp.protection.keys import KeysInput, OneKeyInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session import ending
 from tdtp.session.ack_scheduler import AckScheduler
@@ -44,7 +45,7 @@ from tdtp.session.liveness import Liveness
 from tdtp.session.multipath.paths import Multipath
 from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
-from tdtp.session.receive_window import LATE, NEW, STALE
+from tdtp.session.receive_window import FAR_AHEAD, LATE, NEW, STALE
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
@@ -60,11 +61,8 @@ from tdtp.wire.control import (
     CloseBody,
     CloseReason,
     ControlCode,
-    KeepaliveBody,
     OpenFlags,
-    decode_control,
 )
-from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header
 from tdtp.wire.hold import HOLD_NO_ACK
 from tdtp.wire.protected import PROTECTION_OVERHEAD, TAG_SIZE
@@ -100,7 +98,7 @@ class Connection(ConnectionView):
         *,
         role: Role,
         rng: random.Random | None = None,
-        key: KeyInput | None = None,
+        key: OneKeyInput | None = None,
         keys: KeysInput | None = None,
         admission: Admission | None = None,
     ) -> None:
@@ -220,9 +218,10 @@ class Connection(ConnectionView):
         When the sample may leave at once as the only datagram due (established, one path, the
         pacer and the socket allow it, no control packet, held ACK or separate ACK waiting), it is
         passed to ``transmit(datagram, addr)`` (``addr`` ``None`` when ``connected``, else the
-        peer's) *before* any bookkeeping. An :class:`OSError` from it counts in
-        :attr:`transmit_errors` (the datagram is lost like any other). False when it did not send:
-        the sample is offered as by :meth:`send`; :meth:`datagrams_to_send` must run."""
+        peer's: ``transport.sendto`` fits) *before* the bookkeeping. An :class:`OSError` from it
+        counts in :attr:`transmit_errors` (the datagram is lost like any other). It raises what
+        :meth:`send` raises; False: not sent, the sample offered as by :meth:`send` (then
+        :meth:`datagrams_to_send` must run)."""
         peer = self._peer
         if self._state is not ESTABLISHED or peer is None or self._path.limited or self.multipath:
             self.send(payload, now=now)
@@ -241,24 +240,30 @@ class Connection(ConnectionView):
         self._channel.send(message, now)
 
     def pause_sending(self) -> None:
-        """The layer below cannot take datagrams now (a full send buffer). Data is held: the pending
-        sample waits, newer ones supersede it (``samples_superseded``, ``samples_blocked``); ACKs
-        and control still go out. Call :meth:`resume_sending` once drained, then flush."""
+        """The layer below cannot take datagrams now (the socket's send buffer is full). Data is
+        held: the pending sample waits and newer samples supersede it (counted in
+        ``samples_superseded`` and ``samples_blocked``) instead of queueing out of sight; ACKs and
+        control packets still go out. Then :meth:`resume_sending` and :meth:`datagrams_to_send`."""
         self._sender.pause()
 
     def resume_sending(self) -> None:
         """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
         self._sender.resume()
 
-    def close(self, *, now: float, taken_over: bool = False, restarting: bool = False) -> None:
-        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`.
+    def close(
+        self, *, now: float, taken_over: bool = False, restarting: bool = False
+    ) -> bytes | None:
+        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send` (and is
+        returned, so that a server can repeat it: PROTOCOL.md 5.9; ``None``: nothing to send).
         ``taken_over``: an exclusive slave hands control to another master (PROTOCOL.md 5.9);
         ``restarting``: this side stops but expects to be back soon (CLOSE RESTARTING, 5.2)."""
         if self._state is State.CLOSED:
-            return
+            return None
         reason, cause, detail = ending.local_ending(taken_over=taken_over, restarting=restarting)
         opened = self._state is State.OPENING or self._state is State.ESTABLISHED
         self._terminate(cause, detail, now, reason, send=opened)
+        control = self._outbox.control
+        return control[-1][0] if opened and control else None
 
     def accept_open(self, admitted: AdmittedOpen, addr: Address, *, now: float) -> None:
         """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already
@@ -402,7 +407,7 @@ class Connection(ConnectionView):
         if self._state is not State.ESTABLISHED or guard is None:
             self._stats.count_drop(DropReason.UNEXPECTED_CONTROL)
             return
-        refused = guard.judge(data)
+        refused = guard.judge(data, self._liveness.silent_for_watchdog(now))  # 5.7
         if refused is not None:
             self._stats.count_drop(refused)
             return
@@ -419,32 +424,43 @@ class Connection(ConnectionView):
         self._terminate(CloseCause.EVICTED, detail, now, CloseReason.EVICTED, send=True)
         return self._outbox.control[-1][0]
 
-    def roam(self, data: bytes, addr: Address, *, now: float) -> bool:
-        """Keyed slave: follow the master to ``addr`` if ``data`` from there authenticates with a
-        packet number above every one accepted so far (PROTOCOL.md 5.8), and take it in. False,
-        counting nothing, otherwise: the caller (:class:`~tdtp.admission.PathMigration`) counts."""
+    def roam(self, data: bytes, addr: Address, *, now: float) -> int:
+        """Keyed slave: follow the master to ``addr`` if ``data`` from there authenticates above every
+        packet number accepted so far (PROTOCOL.md 5.8), and take it in: ROAMED. OURS if it does at
+        an older one (a copy of our master's), else NOT_OURS; the caller (PathMigration) counts."""
         opener = self._opener
         if opener is None or not self.migratable or len(data) > self._size_limit:
-            return False
+            return NOT_OURS
         opened = self._path.trial(opener, data, now)
         if opened is None:
-            return False
+            return OURS if opener.failure == "replayed" else NOT_OURS
         self._stats.datagrams_in += 1
         self._peer = addr
         self._hint.value = -math.inf
-        self._path.move(False, len(data), self._recovery.sent.next_seq, self._sender.limit)
+        self._path.move(len(data), self._recovery.sent.next_seq, self._sender.limit)
         self._dispatch(opened, data[0] >> 6, now)
-        return True
+        return ROAMED
 
     def migrate(self, addr: Address, *, now: float) -> None:
-        """Unkeyed slave: move to ``addr``, validated (its PATH_RESPONSE carried our nonce)."""
+        """Unkeyed slave: move to ``addr`` (its PATH_RESPONSE carried our nonce), under the 3x limit
+        until the old address has been silent for ``silence_timeout`` (:meth:`move_back`)."""
         if not self.migratable:
             raise ConnectionStateError(f"migrate() is for an established slave, not {self!r}")
         self._stats.datagrams_in += 1
+        previous, self._peer = self._peer, addr
+        self._hint.value = -math.inf
+        self._path.move_unproven(previous, now + self.config.silence_timeout, self._sender.limit)
+        self._heard(now)
+
+    def move_back(self, data: bytes, addr: Address, *, now: float) -> bool:
+        """Unkeyed slave moved by :meth:`migrate` whose old address ``addr`` speaks before the new
+        one is proven: back there (validated before), taking ``data`` in. False otherwise."""
+        if not self._path.returning(addr):
+            return False
         self._peer = addr
         self._hint.value = -math.inf
-        self._path.move(True, 0, 0, 0)
-        self._heard(now)
+        self.receive_datagram(data, addr, now=now)
+        return True
 
     def _on_unopened(self, opener: PacketOpener, now: float) -> None:
         """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
@@ -493,13 +509,16 @@ class Connection(ConnectionView):
         if not payload_size:
             stats.count_drop(DropReason.EMPTY_DATA)  # senders MUST NOT send one (section 4.1)
             return
+        arrival = self._acks.on_arrival(window, seq, now)
+        if arrival is FAR_AHEAD:
+            stats.count_drop(DropReason.FAR_AHEAD)  # no sign of life, its ACK unread (5.5)
+            return
         echo: float | None = None
         if hold != HOLD_NO_ACK:
-            if not self._on_feedback(ack, sack, hold, now):
-                stats.count_drop(DropReason.OPTIMISTIC_ACK)
-                return
-            echo = self._recovery.echo
-        arrival = self._acks.on_arrival(window, seq, now)
+            if self._on_feedback(ack, sack, hold, now):
+                echo = self._recovery.echo
+            else:
+                stats.optimistic_acks += 1  # the ACK is ignored, the sample taken (3.1)
         delivery = self._delivery
         in_order = delivery.reorder is not None  # through the reorder wait, else as it came
         if arrival is not NEW:
@@ -510,16 +529,17 @@ class Connection(ConnectionView):
             if arrival is LATE:
                 stats.reordered += 1
                 # False once its gap was given up: late after all.
-                in_order = in_order and delivery.on_late(window.last_seq, now)
+                in_order = in_order and delivery.on_late(window.last_seq, window.highest, now)
                 if not in_order and not self._deliver_late:
                     self._heard(now)
                     stats.count_drop(DropReason.LATE)
                     return
-            elif not self._deliver_duplicates:
-                self._heard(now)
-                stats.count_drop(DropReason.DUPLICATE)
-                return
             else:
+                delivery.on_duplicate(window.last_seq)  # a forgery's number, arriving for real?
+                if not self._deliver_duplicates:
+                    self._heard(now)
+                    stats.count_drop(DropReason.DUPLICATE)
+                    return
                 in_order = False  # a duplicate the application asked for goes up as it came
         elif in_order and window.last_gap:
             delivery.on_gap(window.last_seq, window.last_gap, now)
@@ -569,19 +589,9 @@ class Connection(ConnectionView):
     ) -> None:
         """KEEPALIVE and CLOSE (already opened in a keyed session)."""
         stats = self._stats
-        try:
-            body = decode_control(data[HEADER_SIZE:])
-        except MalformedPacketError:
-            stats.count_drop(DropReason.BAD_CONTROL)
-            return
-        if not isinstance(body, CloseBody | KeepaliveBody):
-            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
-            return
-        # Another session's, or a blind forgery (the nonce is secret to off-path attackers): a
-        # forged KEEPALIVE must not pass for a sign of life and hide a dead master.
-        if body.nonce != self._handshake.master_nonce:
-            stats.count_drop(DropReason.NONCE_MISMATCH)
-            return
+        body = self._handshake.session_control(data)
+        if body is None:
+            return  # malformed, unexpected, or another nonce's (counted)
         if isinstance(body, CloseBody):
             self._accept(size, size - HEADER_SIZE, now)
             stats.received.control_packets += 1
@@ -592,8 +602,7 @@ class Connection(ConnectionView):
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
-            stats.count_drop(DropReason.OPTIMISTIC_ACK)
-            return
+            stats.optimistic_acks += 1  # the ACK is ignored, the KEEPALIVE taken (3.1)
         self._accept(size, size - HEADER_SIZE, now)
         stats.received.control_packets += 1
 
@@ -645,9 +654,9 @@ class Connection(ConnectionView):
             AckMode.SEPARATE if body.flags & OpenFlags.SEPARATE_ACKS else AckMode.BIDIRECTIONAL
         )
         self._sender.limit = min(self.config.max_payload, body.max_payload)
-        acks.open(admitted.initial_seq)
-        self._channel.open(self._recovery.sent.next_seq, admitted.initial_seq)
-        self._delivery.open(admitted.initial_seq)
+        acks.open(admitted.initial_seq, handshake.keyed)
+        self._channel.open(self._recovery.sent.next_seq, admitted.initial_seq, body.nonce)
+        self._delivery.open(admitted.initial_seq, handshake.keyed)
         self._install_protection()
         self._stats.count_handshake(admitted.size, handshake.tag_size)
         self._heard(now)
@@ -675,9 +684,10 @@ class Connection(ConnectionView):
             )
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
-        self._acks.open(initial_seq)
-        self._channel.open(self._recovery.sent.next_seq, initial_seq)
-        self._delivery.open(initial_seq)
+        handshake = self._handshake
+        self._acks.open(initial_seq, handshake.keyed)
+        self._channel.open(self._recovery.sent.next_seq, initial_seq, handshake.master_nonce)
+        self._delivery.open(initial_seq, handshake.keyed)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
@@ -723,9 +733,9 @@ class Connection(ConnectionView):
             return None
         # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
         # for a waiting sample; the next ACK; the next loss; the controller's own.
-        if self._path.blocked(self._outbox.control):
-            # Nothing may leave before more arrives from the new path: only the watchdog's clock.
-            deadline = self._liveness.watchdog_deadline()
+        if self._path.blocked(self._outbox.control, -math.inf):
+            # Nothing may leave before more arrives from the new path (or, unkeyed, it is proven).
+            deadline = min(self._liveness.watchdog_deadline(), self._path.proven_at)
         else:
             deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
             deadline = self._channel.deadline(deadline)
@@ -789,7 +799,7 @@ class Connection(ConnectionView):
             self._emit_open(out, now)
         path = self._path
         # The 3x limit of an unvalidated new path (PROTOCOL.md 5.8).
-        if path.limited and path.blocked(outbox.control):
+        if path.limited and path.blocked(outbox.control, now):
             if self._sender.pending is not None or self._liveness.keepalive_due(now):
                 self._stats.path_limited += 1
             return out

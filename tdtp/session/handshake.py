@@ -25,7 +25,7 @@ from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.errors import InvalidKeyError
 from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
-from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey, as_key, as_key_ring
+from tdtp.protection.keys import KeysInput, OneKeyInput, PresharedKey, as_key, as_key_ring
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
 from tdtp.session.events import Address
 from tdtp.session.liveness import Liveness
@@ -96,7 +96,7 @@ class Handshake:
         role: Role,
         rng: random.Random,
         *,
-        key: KeyInput | None,
+        key: OneKeyInput | None,
         keys: KeysInput | None,
         admission: Admission | None,
         stats: ConnectionStats,
@@ -373,6 +373,25 @@ class Handshake:
             # A live session is never replaced, so a replayed OPEN cannot end it.
             return Reaction.REPLACED
         return Reaction.IGNORED
+
+    def session_control(self, data: bytes) -> CloseBody | KeepaliveBody | None:
+        """A KEEPALIVE or CLOSE of our session (protection removed), or ``None`` with the drop
+        counted: malformed, another code, or another session's nonce. The nonce is what an
+        off-path attacker does not know: a forged KEEPALIVE must not pass for a sign of life and
+        hide a dead master, nor a forged CLOSE end the session."""
+        stats = self._stats
+        try:
+            body = decode_control(data[HEADER_SIZE:])
+        except MalformedPacketError:
+            stats.count_drop(DropReason.BAD_CONTROL)
+            return None
+        if not isinstance(body, CloseBody | KeepaliveBody):
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            return None
+        if body.nonce != self.master_nonce:
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+            return None
+        return body
 
     def on_stranger(self, data: bytes, addr: Address, now: float) -> None:
         """A session datagram while we hold no session: a listening slave answers it with a RESET

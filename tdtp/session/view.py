@@ -20,6 +20,7 @@ from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import Address, ConnectionClosed, DataReceived
 from tdtp.session.handshake import Handshake
 from tdtp.session.liveness import Liveness
+from tdtp.session.path import PeerPath
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.sample_age import SampleAgeHistogram
 from tdtp.session.sender import SampleSender
@@ -48,11 +49,13 @@ class ConnectionView:
     _close_event: ConnectionClosed | None
     _ages: SampleAgeHistogram
     _delivery: SampleDelivery
+    _path: PeerPath
 
     # ------------------------------------------------------------------ introspection
 
     @property
     def state(self) -> State:
+        """Where the session is in its life (:class:`~tdtp.State`)."""
         return self._state
 
     @property
@@ -80,6 +83,12 @@ class ConnectionView:
         return now - self._liveness.last_receive
 
     @property
+    def live_gap(self) -> float:
+        """The longest a live peer is silent: it sends at least once per keep-alive interval, which
+        takes up to an RTT (with margin) to arrive (PROTOCOL.md 5.1 rule 5, 5.8)."""
+        return self._liveness.keepalive + 2.0 * self._recovery.rtt.srtt
+
+    @property
     def ack_mode(self) -> AckMode:
         """The mode in force: the master's choice, adopted by the slave at the open."""
         return self._acks.mode
@@ -91,6 +100,7 @@ class ConnectionView:
 
     @property
     def controller(self) -> RateController:
+        """The rate controller deciding when data packets may leave."""
         return self._controller
 
     @property
@@ -149,6 +159,11 @@ class ConnectionView:
     def pending_events(self) -> int:
         """Events waiting for :meth:`next_event`."""
         return self._events.count()
+
+    def take_challenge(self, now: float) -> bool:
+        """Unkeyed slave: may a PATH_CHALLENGE go out on this session's behalf (its share, a token
+        of its bucket: PROTOCOL.md 5.8)? (Changes only that bucket.)"""
+        return self._path.take_challenge(now)
 
     def control_held(self, count: int) -> None:
         """A driver's count of delivered control messages its application has not read yet: they

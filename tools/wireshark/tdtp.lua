@@ -47,6 +47,9 @@ local PN = 2
 local TAG = 16
 local VERSION = 4
 local RESET_ECHO = 16
+-- MESSAGE: code, the master's nonce, seq, ack before the message; MESSAGE_ACK: code, nonce, ack.
+local MESSAGE_PREFIX = 21
+local MESSAGE_ACK = 19
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
@@ -458,29 +461,34 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
                 return name .. " (truncated)"
             end
             local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
-            if (code == 10 and sealed < 5) or (code == 11 and sealed ~= 2) then
+            -- Sealed: the nonce and the numbers (MESSAGE: and at least one message byte).
+            if (code == 10 and sealed < MESSAGE_PREFIX) or (code == 11 and sealed ~= MESSAGE_ACK - 1) then
                 tree:add_proto_expert_info(e.bad_control)
             end
             return string.format("%s pn=%d", name, pn)
         end
+        -- Both carry the master's nonce after the code byte (version 4), then the numbers.
         if code == 11 then
-            if length ~= HEADER + 3 then
+            if length ~= HEADER + MESSAGE_ACK then
                 tree:add_proto_expert_info(e.bad_control)
                 return name .. " (wrong length)"
             end
-            tree:add(f.msg_ack, tvb(HEADER + 1, 2))
-            return string.format("MESSAGE_ACK next=%d", tvb(HEADER + 1, 2):uint())
+            tree:add(f.nonce, tvb(HEADER + 1, 16))
+            tree:add(f.msg_ack, tvb(HEADER + 17, 2))
+            return string.format("MESSAGE_ACK next=%d", tvb(HEADER + 17, 2):uint())
         end
-        if length < HEADER + 6 then
+        if length < HEADER + MESSAGE_PREFIX + 1 then
             tree:add_proto_expert_info(e.bad_control)
             return name .. " (no message)"
         end
-        tree:add(f.msg_seq, tvb(HEADER + 1, 2))
-        tree:add(f.msg_ack, tvb(HEADER + 3, 2))
-        tree:add(f.message_len, length - HEADER - 5):set_generated()
-        tree:add(f.message, tvb(HEADER + 5, length - HEADER - 5))
-        return string.format("MESSAGE seq=%d next=%d len=%d", tvb(HEADER + 1, 2):uint(),
-            tvb(HEADER + 3, 2):uint(), length - HEADER - 5)
+        local data = length - HEADER - MESSAGE_PREFIX
+        tree:add(f.nonce, tvb(HEADER + 1, 16))
+        tree:add(f.msg_seq, tvb(HEADER + 17, 2))
+        tree:add(f.msg_ack, tvb(HEADER + 19, 2))
+        tree:add(f.message_len, data):set_generated()
+        tree:add(f.message, tvb(HEADER + MESSAGE_PREFIX, data))
+        return string.format("MESSAGE seq=%d next=%d len=%d", tvb(HEADER + 17, 2):uint(),
+            tvb(HEADER + 19, 2):uint(), data)
     end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then
