@@ -388,7 +388,10 @@ class MpReportBody(NamedTuple):
     """MP_REPORT (either way, multipath sessions): what one path delivered to the sender of this
     report."""
 
+    nonce: bytes
+    """The master's nonce (a blind attacker does not know it)."""
     path_id: int
+    """The path the report is about (and travels on)."""
     seq: int
     """The low 12 bits of the highest data sequence number received on the path (a u16 whose top
     four bits senders set to zero and receivers ignore)."""
@@ -455,7 +458,7 @@ _MESSAGE: Final = struct.Struct(">B16sHH")  # code nonce seq ack, then the messa
 _MESSAGE_ACK: Final = struct.Struct(">B16sH")  # code nonce ack
 _MP_CHALLENGE: Final = struct.Struct(">B16sB8s")  # code nonce path_id token
 _MP_RESPONSE: Final = struct.Struct(">B16sB8s8s")  # code nonce path_id echo token
-_MP_REPORT: Final = struct.Struct(">BBHBIIH")  # code path_id seq hold received first lag
+_MP_REPORT: Final = struct.Struct(">B16sBHBIIH")  # code nonce path_id seq hold received first lag
 _MP_ABANDON: Final = struct.Struct(">B16sBB")  # code nonce path_id reason
 
 OPEN_BODY_SIZE: Final = _OPEN.size
@@ -504,7 +507,7 @@ MP_CHALLENGE_BODY_SIZE: Final = _MP_CHALLENGE.size
 MP_RESPONSE_BODY_SIZE: Final = _MP_RESPONSE.size
 """34 bytes: an unkeyed MP_RESPONSE is 39 bytes, a keyed one 57."""
 MP_REPORT_BODY_SIZE: Final = _MP_REPORT.size
-"""15 bytes: an unkeyed MP_REPORT is 20 bytes, a keyed one 38."""
+"""31 bytes: an unkeyed MP_REPORT is 36 bytes, a keyed one 54."""
 MP_ABANDON_BODY_SIZE: Final = _MP_ABANDON.size
 """19 bytes: an unkeyed MP_ABANDON is 24 bytes, a keyed one 42."""
 MP_LAG_UNIT: Final = 0.0001
@@ -615,6 +618,7 @@ def encode_mp_report(body: MpReportBody) -> bytes:
     """An MP_REPORT body (code byte included); counters wrap at 2^32, the lag saturates."""
     return _MP_REPORT.pack(
         ControlCode.MP_REPORT,
+        body.nonce,
         body.path_id,
         body.seq & 0xFFF,
         body.hold,
@@ -651,8 +655,8 @@ def _decode_multipath(code: ControlCode, body: bytes | memoryview) -> ControlBod
             raise MalformedPacketError(
                 "bad_control", f"MP_REPORT body is {size} bytes, not {MP_REPORT_BODY_SIZE}"
             )
-        _, path_id, seq, hold, received, first, lag = _MP_REPORT.unpack(body)
-        return MpReportBody(path_id, seq & 0xFFF, hold, received, first, lag)
+        _, nonce, path_id, seq, hold, received, first, lag = _MP_REPORT.unpack(body)
+        return MpReportBody(nonce, path_id, seq & 0xFFF, hold, received, first, lag)
     if size != MP_ABANDON_BODY_SIZE:
         raise MalformedPacketError(
             "bad_control", f"MP_ABANDON body is {size} bytes, not {MP_ABANDON_BODY_SIZE}"

@@ -106,6 +106,7 @@ MpResponseBody: Any = Struct(
 """MP_RESPONSE (multipath): the challenge's token echoed, and a token of the responder's own
 (zeros: none)."""
 MpReportBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE),
     "path_id" / Int8ub,
     "seq" / Int16ub,
     "hold" / Int8ub,
@@ -113,7 +114,7 @@ MpReportBody: Any = Struct(
     "first" / Int32ub,
     "lag" / Int16ub,
 )
-"""MP_REPORT (multipath): one path's receiver report."""
+"""MP_REPORT (multipath): the master's nonce and one path's receiver report."""
 MpAbandonBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "reason" / Int8ub)
 
 ControlBody: Any = Struct(

@@ -80,7 +80,7 @@ UNKEYED_SIZES = {
     ControlCode.MESSAGE_ACK: 19,
     ControlCode.MP_CHALLENGE: 26,
     ControlCode.MP_RESPONSE: 34,
-    ControlCode.MP_REPORT: 15,
+    ControlCode.MP_REPORT: 31,
     ControlCode.MP_ABANDON: 19,
 }
 

@@ -755,7 +755,7 @@ def slave_multipath() -> dict[str, Any]:
         _step(
             0.027,
             "master",
-            _mp(encode_mp_report(MpReportBody(1, SLAVE_ISN, 255, 0, 0, 0))),
+            _mp(encode_mp_report(MpReportBody(MASTER_NONCE, 1, SLAVE_ISN, 255, 0, 0, 0))),
             note="a report naming path 1 that came on path 0",
         ),
         _step(

@@ -54,7 +54,7 @@ local MESSAGE_ACK = 19
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
     [8] = { 22 }, [9] = { 38 },
-    [17] = { 31, 49 }, [18] = { 39, 57 }, [19] = { 20, 38 }, [20] = { 24, 42 },
+    [17] = { 31, 49 }, [18] = { 39, 57 }, [19] = { 36, 54 }, [20] = { 24, 42 },
 }
 
 local f = tdtp.fields
@@ -444,14 +444,15 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
             return string.format("MP_ABANDON path=%d %s", tvb(HEADER + 17, 1):uint(),
                 REASON_NAMES[reason] or tostring(reason))
         end
-        tree:add(f.path_id, tvb(HEADER + 1, 1))
-        tree:add(f.mp_seq, tvb(HEADER + 2, 2))
-        tree:add(f.mp_hold, tvb(HEADER + 4, 1))
-        tree:add(f.mp_received, tvb(HEADER + 5, 4))
-        tree:add(f.mp_first, tvb(HEADER + 9, 4))
-        tree:add(f.mp_lag, tvb(HEADER + 13, 2))
-        return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 1, 1):uint(),
-            tvb(HEADER + 5, 4):uint(), tvb(HEADER + 9, 4):uint())
+        tree:add(f.nonce, tvb(HEADER + 1, 16))
+        tree:add(f.path_id, tvb(HEADER + 17, 1))
+        tree:add(f.mp_seq, tvb(HEADER + 18, 2))
+        tree:add(f.mp_hold, tvb(HEADER + 20, 1))
+        tree:add(f.mp_received, tvb(HEADER + 21, 4))
+        tree:add(f.mp_first, tvb(HEADER + 25, 4))
+        tree:add(f.mp_lag, tvb(HEADER + 29, 2))
+        return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 17, 1):uint(),
+            tvb(HEADER + 21, 4):uint(), tvb(HEADER + 25, 4):uint())
     end
     -- The reliable control channel (section 5.10): session control, protected in a keyed session.
     if code == 10 or code == 11 then

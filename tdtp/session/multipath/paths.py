@@ -480,6 +480,9 @@ class Multipath:
             self._queue(self._seal(reply, MP_PROBE_PREFIX_SIZE), path, 0)
 
     def _on_report(self, body: MpReportBody, path: Path | None, size: int, now: float) -> None:
+        if body.nonce != self._nonce:
+            self._stats.count_drop(DropReason.NONCE_MISMATCH)  # forged blind, or another session's
+            return
         if path is None or body.path_id != path.path_id:
             self._stats.count_drop(DropReason.UNKNOWN_PATH)  # a report travels on its own path
             return
@@ -702,6 +705,7 @@ class Multipath:
         lag = int(path.rx_lag / MP_LAG_UNIT)
         body = encode_mp_report(
             MpReportBody(
+                self._nonce,
                 path.path_id,
                 path.rx_highest & 0xFFF,
                 encode_hold(now - path.rx_highest_at),
