@@ -304,6 +304,8 @@ class Connection:
         self.channel = ControlChannel(self.cfg, self.isn, peer_isn, now)
         if self.flags & wire.FLAG_MULTIPATH and self.peer is not None:
             self.mp = Multipath(self.cfg, self.role, self.nonce, self.peer, now)
+            if self.opener is not None:
+                self.opener.window = crypto.MULTIPATH_REPLAY_WINDOW
 
     # -- receiving: the table of section 5.5 ----------------------------------------------------
     def receive(self, data: bytes, addr: Addr, now: float) -> None:

@@ -61,7 +61,8 @@ class Multipath:
         self.role = role
         self.nonce = nonce  # the session's (the master's)
         self.paths: dict[int, Path] = {0: Path(0, addr, now, learned=False, validated=True)}
-        self.paths[0].last_arrival = now
+        self.paths[0].last_arrival = now  # the handshake that proved the path
+        self.paths[0].last_sent = now
         self.new_paths = TokenBucket(cfg.new_paths_per_second, cfg.max_paths, now)
         self.taken: dict[int, float] = {}  # full sequence number -> when its first copy arrived
         self.last_token: bytes | None = None  # the last token sent (the vector runner's {token})
