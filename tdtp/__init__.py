@@ -13,6 +13,7 @@ from tdtp._moved_modules import install as _install_moved_modules
 from tdtp.aio.api import Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.reconnect import ReconnectPolicy, ReconnectRecord
+from tdtp.aio.rendezvous_relay import Relay, relay
 from tdtp.aio.ticker import Ticker, TickHandle
 from tdtp.aio.timer import monotonic
 from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, ControllerName, Role
@@ -36,6 +37,7 @@ from tdtp.errors import (
 )
 from tdtp.protection.key_file import load_keys, write_key_file
 from tdtp.protection.keys import KeyRing, PresharedKey
+from tdtp.rendezvous.settings import RelayConfig, Rendezvous
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
@@ -104,6 +106,9 @@ __all__ = [
     "PresharedKey",
     "ReconnectPolicy",
     "ReconnectRecord",
+    "Relay",
+    "RelayConfig",
+    "Rendezvous",
     "Role",
     "Server",
     "ServerClosedError",
@@ -118,6 +123,7 @@ __all__ = [
     "listen",
     "load_keys",
     "monotonic",
+    "relay",
     "write_key_file",
 ]
 

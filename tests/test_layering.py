@@ -31,6 +31,7 @@ LAYERS: dict[str, int] = {
     "tdtp.session.stats": 3,
     "tdtp.admission": 4,
     "tdtp.session": 5,
+    "tdtp.rendezvous": 5,
     # sans-IO pieces beside the core, for its drivers and for applications
     "tdtp.netem": 1,
     "tdtp.teleop": 1,
@@ -46,7 +47,14 @@ LAYERS: dict[str, int] = {
 }
 """A module may import modules of a lower layer and of its own group, nothing above."""
 
-CORE = ("tdtp.wire", "tdtp.protection", "tdtp.control", "tdtp.admission", "tdtp.session")
+CORE = (
+    "tdtp.wire",
+    "tdtp.protection",
+    "tdtp.control",
+    "tdtp.admission",
+    "tdtp.session",
+    "tdtp.rendezvous",
+)
 CORE_MUST_NOT_IMPORT = (
     "asyncio",
     "uvloop",

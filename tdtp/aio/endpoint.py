@@ -104,6 +104,13 @@ def rx_time_of(stamp: int, now: float, wall_ns: int) -> float | None:
     return now - (wall_ns - stamp) * 1e-9
 
 
+class PathReport(Protocol):
+    """What an endpoint that met its peer through a rendezvous tells of it
+    (:class:`tdtp.aio.traversal.Traversal`)."""
+
+    def report(self, first_sample_at: float | None = None) -> dict[str, object]: ...
+
+
 class Endpoint:
     """A master's or slave's end of one association. Create it with :func:`tdtp.connect` or take it
     from a :class:`tdtp.Server`; do not construct it directly."""
@@ -123,6 +130,8 @@ class Endpoint:
         reconnect: ReconnectPolicy | None = None,
         new_connection: Callable[[], Connection] | None = None,
         outbox: SocketOutbox | None = None,
+        on_session: Callable[[Endpoint], None] | None = None,
+        reopen_to: Callable[[], Address | None] | None = None,
     ) -> None:
         self._conn = conn
         self._socket = transport
@@ -140,6 +149,13 @@ class Endpoint:
         self._on_watchdog = on_watchdog
         self._on_closed = on_closed
         self._on_established = on_established
+        self._on_session = on_session
+        """Called on every session established, the first and each reopened one (rendezvous)."""
+        self._reopen_to = reopen_to
+        """Where a reconnecting endpoint opens its next session (default: the last peer)."""
+        self.rendezvous: PathReport | None = None
+        """Through a rendezvous (``tdtp.connect(rendezvous=...)``): which path the session uses,
+        the candidates tried (``ep.rendezvous.report()``); ``None`` otherwise."""
         self._transport_closed = transport_closed
         self._queue: deque[DataReceived] = deque()
         self._max_queue = conn.config.max_pending_events
@@ -749,6 +765,8 @@ class Endpoint:
             if self._on_established is not None:
                 callback, self._on_established = self._on_established, None
                 callback(self)
+            if self._on_session is not None:
+                self._on_session(self)
         else:
             if self._policy is not None and self._may_reopen(event):
                 self._reopen(event)
@@ -814,7 +832,7 @@ class Endpoint:
     def _start_reopen(self) -> None:
         self._reopen_handle = None
         conn = self._conn
-        remote = self._remote
+        remote = self._remote if self._reopen_to is None else self._reopen_to()
         if self._closing or remote is None or conn.state is not State.IDLE:
             return
         conn.connect(remote, now=monotonic())

@@ -96,6 +96,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return bandwidth_main(arguments[1:])
     args = build_parser().parse_args(arguments)  # exits 2 with argparse's message on its own
     try:
+        if args.command == "master" and (args.address is None) == (args.listen is None):
+            raise UsageError(
+                "give the slave's HOST:PORT to dial it, or --listen PORT to let it dial this "
+                "master (one of the two)"
+            )
         if args.command in ("demo", "master", "slave"):
             args.session_keys = session_keys(args)
         if hasattr(args, "timer"):

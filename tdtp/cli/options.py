@@ -137,6 +137,30 @@ def _positive_seconds(text: str) -> float:
     return value
 
 
+def _add_reconnect_arguments(parser: argparse.ArgumentParser, peer: str) -> None:
+    parser.add_argument(
+        "--reconnect",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help=f"when dialing: open a new session when the {peer} restarts (RESET), the session "
+        f"idles out, or the {peer} is silent for --reconnect-after seconds (default: on)",
+    )
+    parser.add_argument(
+        "--reconnect-after",
+        type=_positive_seconds,
+        default=3.0,
+        metavar="SECONDS",
+        help=f"silence from the {peer} after which a dialer that reconnects opens a new session (3)",
+    )
+
+
+def _listen_address(text: str) -> tuple[str, int]:
+    """``--listen``: ``PORT``, ``:PORT`` or ``HOST:PORT`` (port 0 picks a free one)."""
+    if text.isdigit():
+        text = ":" + text
+    return _host_port_or_port(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     common = CommandParser(add_help=False)
     common.add_argument(
@@ -235,11 +259,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.set_defaults(duration=None)
     add_key_arguments(demo, demo=True)
-    slave = commands.add_parser("slave", parents=[common], help="serve masters on a UDP port")
-    slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
-    slave.add_argument(
-        "--port", type=_integer(0, 65535), required=True, help="UDP port (0: any free port)"
+    slave = commands.add_parser(
+        "slave", parents=[common], help="serve masters on a UDP port, or dial one (--connect)"
     )
+    slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
+    where = slave.add_mutually_exclusive_group(required=True)
+    where.add_argument("--port", type=_integer(0, 65535), help="UDP port (0: any free port)")
+    where.add_argument(
+        "--connect",
+        type=host_port,
+        metavar="HOST:PORT",
+        help="dial the master listening there (tdtp master --listen PORT) instead of listening: "
+        "a robot behind a NAT or firewall reaches its operator without a port forward",
+    )
+    _add_reconnect_arguments(slave, "master")
     slave.add_argument(
         "--max-peers", type=_integer(1, 1 << 20), default=256, help="masters served at once (256)"
     )
@@ -259,22 +292,18 @@ def build_parser() -> argparse.ArgumentParser:
         "before another one takes control (3)",
     )
     add_key_arguments(slave)
-    master = commands.add_parser("master", parents=[common], help="connect to a slave")
-    master.add_argument("address", type=host_port, help="the slave, HOST:PORT")
-    master.add_argument(
-        "--reconnect",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="open a new session when the slave restarts (RESET), the session idles out, or the "
-        "slave is silent for --reconnect-after seconds (default: on)",
+    master = commands.add_parser(
+        "master", parents=[common], help="connect to a slave, or let one dial in (--listen)"
     )
+    master.add_argument("address", type=host_port, nargs="?", help="the slave, HOST:PORT")
     master.add_argument(
-        "--reconnect-after",
-        type=_positive_seconds,
-        default=3.0,
-        metavar="SECONDS",
-        help="silence from the slave after which a reconnecting master opens a new session (3)",
+        "--listen",
+        type=_listen_address,
+        metavar="[HOST:]PORT",
+        help="listen there for a slave that dials this master (tdtp slave --connect) instead of "
+        "dialing one; a bare PORT listens on every interface",
     )
+    _add_reconnect_arguments(master, "slave")
     master.add_argument(
         "--takeover",
         action="store_true",

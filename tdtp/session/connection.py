@@ -27,7 +27,7 @@ from typing import Final
 from tdtp.admission.admission import Admission, AdmittedOpen
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.registry import create_controller
-from tdtp.errors import ArgumentTypeError, ConnectionStateError
+from tdtp.errors import ConnectionStateError
 from tdtp.protection.keys import KeyInput, KeysInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session.ack_scheduler import AckScheduler
@@ -51,7 +51,7 @@ from tdtp.session.receive_window import LATE, NEW, STALE
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
-from tdtp.session.state import CLOSED, ESTABLISHED, OPENING, State, refusal
+from tdtp.session.state import CLOSED, ESTABLISHED, OPENING, State, dialing, refusal
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
 from tdtp.session.view import ConnectionView
@@ -83,18 +83,15 @@ _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 
 
 class Connection(ConnectionView):
-    """One TDTP association between a master and a slave.
-
-    Unkeyed by default. A master given ``key=`` (a :class:`~tdtp.protection.PresharedKey` or its
-    secret bytes) opens a keyed session; a slave given ``keys=`` (one key, several, or a
-    :class:`~tdtp.protection.KeyRing`) accepts keyed sessions only, from masters holding one of them.
-    A slave validates every master's address with a cookie before it keeps any state
-    (:mod:`tdtp.admission`); a server sharing one socket among many slave connections passes them one
-    shared ``admission``.
-
-    ``rng`` supplies the nonces and the initial sequence number; pass a seeded
-    :class:`random.Random` for reproducible runs (the default draws from the operating system's
-    CSPRNG, which a keyed session needs: its nonces must be unpredictable).
+    """One TDTP association between a master and a slave (``role``: the master commands, the
+    slave obeys); ``dials``: this end sends the OPEN (by default the master does; a slave that dials
+    reaches a master behind a NAT, docs/PROTOCOL.md 5.1). Unkeyed by default: a dialer given
+    ``key=`` (a :class:`~tdtp.protection.PresharedKey` or its secret) opens a keyed session; a
+    listener given ``keys=`` (one, several, a :class:`~tdtp.protection.KeyRing`) accepts keyed
+    sessions only. A listener validates its dialer's address with a cookie before it keeps any
+    state (:mod:`tdtp.admission`; a server shares one ``admission`` among its connections).
+    ``rng`` supplies the nonces and the initial sequence number (seed it for reproducible runs; the
+    default, the operating system's CSPRNG, is what a keyed session needs).
     """
 
     def __init__(
@@ -106,9 +103,9 @@ class Connection(ConnectionView):
         key: KeyInput | None = None,
         keys: KeysInput | None = None,
         admission: Admission | None = None,
+        dials: bool | None = None,
     ) -> None:
-        if not isinstance(role, Role):
-            raise ArgumentTypeError(f"role must be Role.MASTER or Role.SLAVE, got {role!r}")
+        self.dials = dials = dialing(role, dials)  # whether this end sends the OPEN
         self.config = config = config if config is not None else ConnectionConfig()
         self.role = role
         rng = rng if rng is not None else random.SystemRandom()
@@ -120,6 +117,7 @@ class Connection(ConnectionView):
             config,
             role,
             rng,
+            dials=dials,
             key=key,
             keys=keys,
             admission=admission,
@@ -127,7 +125,7 @@ class Connection(ConnectionView):
             outbox=outbox,
             liveness=liveness,
         )
-        self._state = State.IDLE if role is Role.MASTER else State.LISTENING
+        self._state = State.IDLE if dials else State.LISTENING
         self._peer: Address | None = None
         self.last_rx_time: float | None = None  # receive_datagram(rx_time=) of the last one
         self._path = PeerPath(config, stats)  # the peer's address: validated, or under the 3x limit
@@ -181,11 +179,11 @@ class Connection(ConnectionView):
     # ------------------------------------------------------------------ caller API
 
     def connect(self, addr: Address, *, now: float) -> None:
-        """Master only: start opening towards the slave at ``addr``."""
-        if self.role is not Role.MASTER:
+        """The dialing side only: start opening towards the peer at ``addr``."""
+        if not self.dials:
             raise ConnectionStateError(
-                "connect() is for the master; a slave connection opens when its master's OPEN "
-                "arrives through receive_datagram()"
+                "connect() is for the side that dials (dials=True); a listening connection opens "
+                "when its peer's OPEN arrives through receive_datagram()"
             )
         if self._state is not State.IDLE:
             raise ConnectionStateError(
@@ -251,13 +249,9 @@ class Connection(ConnectionView):
         self._channel.send(message, now)
 
     def pause_sending(self) -> None:
-        """The layer below cannot take datagrams now (the socket's send buffer is full).
-
-        Data is held: the pending sample waits and newer samples supersede it (counted in
-        ``samples_superseded`` and ``samples_blocked``) instead of queueing in a buffer out of sight.
-        Acknowledgements and control packets still go out. Call :meth:`resume_sending` when the
-        buffer has drained, then :meth:`datagrams_to_send`.
-        """
+        """The layer below cannot take datagrams now (the socket's send buffer is full): the pending
+        sample is held and superseded by newer ones (``samples_superseded``, ``samples_blocked``);
+        ACKs and control packets still go out. Then :meth:`resume_sending`, :meth:`datagrams_to_send`."""
         self._sender.pause()
 
     def resume_sending(self) -> None:
@@ -280,10 +274,11 @@ class Connection(ConnectionView):
         """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already
         admitted for ``addr`` (a server demultiplexing many masters on one socket does this; a
         stand-alone slave gets its OPENs through :meth:`receive_datagram`)."""
-        if self.role is not Role.SLAVE or self._state is not State.LISTENING:
+        if self.dials or self._state is not State.LISTENING:
             raise ConnectionStateError(
-                f"accept_open() is for a listening slave (this is a {self.role.value} in state "
-                f"{self._state.value}); create a new Connection for each master"
+                f"accept_open() is for a listening connection (this is a {self.role.value} "
+                f"that {'dials' if self.dials else 'listens'}, in state {self._state.value}); "
+                "create a new Connection for each peer"
             )
         self._stats.datagrams_in += 1
         self._hint.value = -math.inf
@@ -345,7 +340,7 @@ class Connection(ConnectionView):
                 self._on_reset(data, now)
                 return
             if code in PATH_CODES:  # an unkeyed master answers a PATH_CHALLENGE
-                established = self._state is State.ESTABLISHED and self.role is Role.MASTER
+                established = self._state is State.ESTABLISHED and self.dials
                 nonce = self._handshake.master_nonce
                 answer = self._path.answer(data, now, established and not self.keyed, nonce)
                 if answer is not None:
@@ -465,6 +460,14 @@ class Connection(ConnectionView):
         self._hint.value = -math.inf
         self._path.move(True, 0, 0, 0)
         self._heard(now)
+
+    def use_path(self, addr: Address) -> None:
+        """Send to ``addr`` from now on: another path to the same peer whose round trip was proven
+        outside the session (a relay and a direct path, PROTOCOL.md 5.12), so no 3x limit."""
+        if self._state is not ESTABLISHED:
+            raise ConnectionStateError(f"use_path() needs an established session, not {self!r}")
+        self._peer = addr
+        self._hint.value = -math.inf
 
     def _on_unopened(self, opener: PacketOpener, now: float) -> None:
         """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
@@ -601,8 +604,7 @@ class Connection(ConnectionView):
         if not isinstance(body, CloseBody | KeepaliveBody):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)
             return
-        # Another session's, or a blind forgery (the nonce is secret to off-path attackers): a
-        # forged KEEPALIVE must not pass for a sign of life and hide a dead master.
+        # Another session's, or a blind forgery: it must not pass for a sign of life.
         if body.nonce != self._handshake.master_nonce:
             stats.count_drop(DropReason.NONCE_MISMATCH)
             return
@@ -628,7 +630,7 @@ class Connection(ConnectionView):
         self._hint.value = -math.inf  # the opening's timers may move
         handshake = self._handshake
         state = self._state
-        if self.role is Role.SLAVE:
+        if not self.dials:
             verdict = handshake.on_open(
                 data, addr, now, listening=state is State.LISTENING, srtt=self._recovery.rtt.srtt
             )
@@ -702,9 +704,8 @@ class Connection(ConnectionView):
         self._channel.open(self._recovery.sent.next_seq, initial_seq)
         self._delivery.open(initial_seq)
         self._establish(now)
-        # Confirm at once (the slave waits for our first packet of the session): the next
-        # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
-        # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
+        # Confirm at once (the slave waits for our first packet): a KEEPALIVE unless a sample goes
+        # (twice the interval back: once can round to a deadline just after ``now``).
         liveness = self._liveness
         liveness.last_send = now - 2.0 * liveness.keepalive
 
@@ -742,13 +743,12 @@ class Connection(ConnectionView):
         state = self._state
         if state is OPENING:
             handshake = self._handshake
-            if self.role is Role.SLAVE:
+            if not self.dials:
                 return handshake.open_deadline
             return min(handshake.open_next, handshake.open_deadline)
         if state is not ESTABLISHED:
             return None
-        # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
-        # for a waiting sample; the next ACK; the next loss; the controller's own.
+        # Watchdog (or outage limit), keep-alive, pacer, ACK, loss, reorder wait, controller.
         if self._path.blocked(self._outbox.control):
             # Nothing may leave before more arrives from the new path: only the watchdog's clock.
             deadline = self._liveness.watchdog_deadline()
@@ -775,7 +775,7 @@ class Connection(ConnectionView):
         state = self._state
         if state is OPENING:
             if now >= self._handshake.open_deadline:
-                if self.role is Role.MASTER:
+                if self.dials:
                     detail = f"no answer to OPEN within {self.config.open_timeout} s"
                 else:
                     detail = (
@@ -814,7 +814,7 @@ class Connection(ConnectionView):
         out: list[tuple[bytes, Address]] = []
         outbox = self._outbox
         state = self._state
-        if state is OPENING and self.role is Role.MASTER and self._handshake.open_due(now):
+        if state is OPENING and self.dials and self._handshake.open_due(now):
             self._emit_open(out, now)
         path = self._path
         # The 3x limit of an unvalidated new path (PROTOCOL.md 5.8).

@@ -81,6 +81,15 @@ class ControlCode(enum.IntEnum):
     MESSAGE_ACK = 11
     """either way: the cumulative acknowledgement of the peer's control messages alone, when no
     MESSAGE of ours leaves to carry it."""
+    REGISTER = 21
+    """endpoint -> relay (version 4): wait under a rendezvous id (:mod:`tdtp.wire.rendezvous`)."""
+    REFERRAL = 22
+    """relay -> endpoint (version 4): a cookie, "waiting", the peer's addresses, or a refusal."""
+    PROBE = 23
+    """endpoint -> endpoint (version 4): does this candidate path work? A token and a MAC under
+    the pair's probe key."""
+    PROBE_ACK = 24
+    """endpoint -> endpoint (version 4): the PROBE's token echoed on the path it came on."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -110,10 +119,18 @@ class OpenFlags(enum.IntFlag):
     TAKEOVER = 0x08
     """OPEN only, keyed only: an exclusive slave hands control to this master at once, ending the
     session of the master that had it (docs/PROTOCOL.md 5.9). Never echoed in the OPEN_ACK."""
+    SLAVE_DIALS = 0x80
+    """Version 4: the sender of the OPEN is the slave (the robot) and the listener the master (the
+    operator); without it the dialer is the master. Echoed in the OPEN_ACK; a listener whose own
+    role is the dialer's answers REJECT ``ROLE_CONFLICT`` (docs/PROTOCOL.md 5.1)."""
 
 
 KNOWN_FLAGS: Final = int(
-    OpenFlags.SEPARATE_ACKS | OpenFlags.KEYED | OpenFlags.ENCRYPTED | OpenFlags.TAKEOVER
+    OpenFlags.SEPARATE_ACKS
+    | OpenFlags.KEYED
+    | OpenFlags.ENCRYPTED
+    | OpenFlags.TAKEOVER
+    | OpenFlags.SLAVE_DIALS
 )
 
 
@@ -153,6 +170,12 @@ class CloseReason(enum.IntEnum):
     TAKEN_OVER = 13
     """CLOSE: the slave is exclusive and another master took control (after this one was silent,
     or at once with the TAKEOVER flag)."""
+    ROLE_CONFLICT = 21
+    """REJECT (version 4): the dialer plays the listener's own role: a master dialed a master, or
+    a slave dialed a slave (the OPEN's SLAVE_DIALS flag, docs/PROTOCOL.md 5.1)."""
+    RENDEZVOUS_FULL = 22
+    """REFERRAL (version 4): the relay holds as many rendezvous as it may, or this source registers
+    too often; try again later or use another relay (docs/PROTOCOL.md 5.11)."""
 
 
 class OpenBody(NamedTuple):
@@ -503,6 +526,10 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, token = _PATH_CHALLENGE.unpack(body)
         return PathChallengeBody(token)
+    if code >= ControlCode.REGISTER:
+        # The rendezvous messages (tdtp.wire.rendezvous) belong to relays and path probing,
+        # never to a session.
+        raise MalformedPacketError("bad_control", f"{code.name} is not a session's message")
     if code is ControlCode.PATH_RESPONSE:
         if len(body) != PATH_RESPONSE_BODY_SIZE:
             raise MalformedPacketError(
