@@ -20,7 +20,13 @@ from tdtp.cli.live_stats import (
     LiveDisplay,
     receive_line,
 )
-from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
+from tdtp.cli.options import (
+    netem_directions,
+    netem_seed,
+    rendezvous_settings,
+    session_config,
+    side_deadband,
+)
 from tdtp.cli.outcome import (
     EXIT_FAILED,
     EXIT_OK,
@@ -54,12 +60,14 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
     if args.listen is not None:
         await _listening_master(args, outcome, capture)
         return
-    host, port = args.address
+    meet = rendezvous_settings(args)
+    host, port = args.address if meet is None else (None, None)
     side = _side(args)
     ms_spec, _ = netem_directions(args)
     async with connect(
         host,
         port,
+        rendezvous=meet,
         config=session_config(args),
         timer=args.timer,
         on_data=side.on_data,
@@ -71,7 +79,8 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
     ) as ep:
         start = monotonic()
         until = start + (args.duration or math.inf)
-        await _session(args, outcome, side, ep, start, until, format_address((host, port)))
+        peer = format_address(ep.peer) if meet is not None else format_address((host, port))
+        await _session(args, outcome, side, ep, start, until, peer)
 
 
 def _side(args: argparse.Namespace) -> Side:
@@ -207,6 +216,8 @@ async def _session(
             "longest_silence_s": round(ep.stats.longest_silence, 3),
             "close": close_info(ep),
         }
+        if ep.rendezvous is not None:
+            outcome.summary["rendezvous"] = ep.rendezvous.report(side.first_sample_at)
         if side.deadband is not None:
             outcome.summary["master_to_slave"]["deadband"] = side.deadband_report("m")
         if side.control is not None:

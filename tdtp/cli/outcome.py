@@ -43,6 +43,8 @@ class Side:
     slave: the force)."""
     control: ControlCounter | None = None
     """``--control-rate HZ``: this side's counter on the control channel."""
+    first_sample_at: float | None = None
+    """``monotonic()`` when the first sample arrived (``--rendezvous``: time to first sample)."""
 
     def deadband_report(self, unit: str) -> dict[str, Any] | None:
         """The ``deadband`` entry of the direction this side sends, ``None`` without a deadband."""
@@ -61,6 +63,8 @@ class Side:
         }
 
     def on_data(self, event: DataReceived) -> None:
+        if not self.received:
+            self.first_sample_at = event.received_at
         self.received += 1
         sample = HapticSample.decode(event.payload)
         if sample is None:

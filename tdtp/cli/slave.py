@@ -27,7 +27,13 @@ from tdtp.cli.live_stats import (
     LiveDisplay,
     age_text,
 )
-from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
+from tdtp.cli.options import (
+    netem_directions,
+    netem_seed,
+    rendezvous_settings,
+    session_config,
+    side_deadband,
+)
 from tdtp.cli.outcome import EXIT_FAILED, Outcome, Side, close_info
 from tdtp.cli.session_tasks import (
     _with_display,
@@ -125,7 +131,8 @@ async def _slave(
     _, sm_spec = netem_directions(args)
     async with listen(
         args.host,
-        args.port,
+        args.port or 0,
+        rendezvous=rendezvous_settings(args),
         config=session_config(args),
         max_peers=args.max_peers,
         timer=args.timer,
@@ -164,6 +171,10 @@ async def _slave(
                 "admission": asdict(server.stats.admission),
                 "sessions": sessions,
             }
+            if server.rendezvous is not None:
+                firsts = [side.first_sample_at for _, side in sides.values()]
+                first = min((at for at in firsts if at is not None), default=None)
+                outcome.summary["rendezvous"] = server.rendezvous.report(first)
 
 
 def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
