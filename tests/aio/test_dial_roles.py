@@ -55,9 +55,7 @@ async def test_a_slave_dials_its_master_and_samples_flow_both_ways() -> None:
 @pytest.mark.parametrize(
     ("listener", "dialer"), [(Role.SLAVE, Role.SLAVE), (Role.MASTER, Role.MASTER)]
 )
-async def test_a_dialer_of_the_listeners_own_role_is_refused(
-    listener: Role, dialer: Role
-) -> None:
+async def test_a_dialer_of_the_listeners_own_role_is_refused(listener: Role, dialer: Role) -> None:
     async with listen(role=listener) as server:
         with pytest.raises(ConnectError, match="same role"):
             await connect("127.0.0.1", server.port, role=dialer)
