@@ -15,7 +15,6 @@ import time
 from typing import Any
 
 import pytest
-
 from natlab import RELAY_ADDR, NatLab, missing
 
 pytestmark = pytest.mark.skipif(missing() is not None, reason=str(missing()))

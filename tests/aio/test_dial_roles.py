@@ -135,9 +135,9 @@ async def test_an_icmp_refusal_says_what_it_means_behind_a_nat(role: Role) -> No
 
 @pytest.mark.asyncio
 async def test_a_role_that_is_not_a_role_is_refused_at_the_call() -> None:
-    with pytest.raises(ArgumentTypeError, match="Role.MASTER"):
+    with pytest.raises(ArgumentTypeError, match=r"Role\.MASTER"):
         connect("127.0.0.1", 9, role="slave")  # type: ignore[arg-type]
-    with pytest.raises(ArgumentTypeError, match="Role.SLAVE"):
+    with pytest.raises(ArgumentTypeError, match=r"Role\.SLAVE"):
         listen(role="master")  # type: ignore[arg-type]
 
 
