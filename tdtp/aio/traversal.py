@@ -154,6 +154,7 @@ class Traversal:
             return None if at is None else round(at - start, 4)
 
         return {
+            "started_at": round(start, 6),  # monotonic(): compare runs on one host
             "relay": format_address(client.relay),
             "path": None if kind is None else kind.value,
             "reflexive": None if client.reflexive is None else format_address(client.reflexive),
