@@ -130,7 +130,15 @@ def _stop(*processes: subprocess.Popen[str]) -> None:
 
 
 def _pair(lab: NatLab, name: str, seconds: float) -> tuple[Json, Json]:
-    common = ("--rendezvous", RELAY, "--rendezvous-name", name, "--duration", str(seconds), "--json")
+    common = (
+        "--rendezvous",
+        RELAY,
+        "--rendezvous-name",
+        name,
+        "--duration",
+        str(seconds),
+        "--json",
+    )
     slave = lab.start("ha", *TDTP, "slave", *common)
     master = lab.start("hb", *TDTP, "master", *common)
     return _json(master, "master"), _json(slave, "slave")
@@ -203,7 +211,7 @@ def _latency(report: Json, key: str) -> float | None:
 def relay_latency(repeat: int, seconds: float) -> Json:
     """Relayed (symmetric NAT) against direct (two EIM NATs) in the same lab, alternated."""
     added: list[float] = []
-    rates: list[float] = []
+    rates: dict[str, list[float]] = {"direct": [], "relayed": []}
     with NatLab() as lab:
         lab.open()
         lab.add_site("a", "eim")
@@ -225,14 +233,18 @@ def relay_latency(repeat: int, seconds: float) -> Json:
                 if ms is None or sm is None:
                     continue
                 figures[mode] = (ms + sm) / 2
-                if mode == "relayed":
-                    rates.append(min(session["master_to_slave"]["mean_rate"],
-                                     master["slave_to_master"]["mean_rate"]))  # fmt: skip
+                rate = min(
+                    session["master_to_slave"]["mean_rate"], master["slave_to_master"]["mean_rate"]
+                )
+                rates[mode].append(rate)
             if len(figures) == 2:
                 added.append(figures["relayed"] - figures["direct"])
         _stop(relay)
         _json(relay, "relay")
-    return {"added_latency_ms": _spread(added), "relayed_samples_per_s_each_way": _spread(rates)}
+    return {
+        "added_latency_ms": _spread(added),
+        "samples_per_s_each_way": {mode: _spread(values) for mode, values in rates.items()},
+    }
 
 
 def relay_cpu(repeat: int, seconds: float, rate: float) -> Json:
@@ -246,7 +258,9 @@ def relay_cpu(repeat: int, seconds: float, rate: float) -> Json:
                 if mode == "relay":
                     server = lab.start("relay", *TDTP, "relay", "--port", "7800", "--json")
                 else:
-                    server = lab.start("relay", sys.executable, "-c", RAW_FORWARDER, str(seconds + 3))
+                    server = lab.start(
+                        "relay", sys.executable, "-c", RAW_FORWARDER, str(seconds + 3)
+                    )
                 time.sleep(1.5)
                 load = lab.python(
                     "public", LOAD, RELAY_ADDR, "7800", mode, str(ROOT), str(rate), str(seconds),
@@ -287,11 +301,15 @@ def upgrade_and_failover(seconds: float) -> Json:
 
         def lost(master: Json, slave: Json) -> int:
             session = slave["sessions"][-1]
-            return int(master["master_to_slave"]["losses"]) + int(session["slave_to_master"]["losses"])
+            return int(master["master_to_slave"]["losses"]) + int(
+                session["slave_to_master"]["losses"]
+            )
 
         def start(name: str) -> tuple[subprocess.Popen[str], subprocess.Popen[str]]:
             common = ("--rendezvous", RELAY, "--rendezvous-name", name, "--json")
-            return lab.start("ha", *TDTP, "slave", *common), lab.start("hb", *TDTP, "master", *common)
+            return lab.start("ha", *TDTP, "slave", *common), lab.start(
+                "hb", *TDTP, "master", *common
+            )
 
         # Relay to direct: opened with the direct path cut, healed once samples flow.
         for healed in (False, True):
@@ -344,7 +362,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     if args.tries < 1 or args.symmetric_tries < 1 or args.seconds <= 0 or args.repeat < 1:
-        print("nat.py: --tries, --symmetric-tries, --repeat >= 1 and --seconds > 0", file=sys.stderr)
+        print(
+            "nat.py: --tries, --symmetric-tries, --repeat >= 1 and --seconds > 0", file=sys.stderr
+        )
         return 2
     why = missing()
     if why is not None:

@@ -1,4 +1,4 @@
-"""tdtp against its own conformance vectors (tests/vectors/tdtp-v3-*.json, tests/vectors/README.md).
+"""tdtp against its own conformance vectors (tests/vectors/tdtp-v4-*.json, tests/vectors/README.md).
 
 The files are data for any implementation; this is tdtp's runner. It reads the committed files (it
 never regenerates them) and checks every vector, so a change of behaviour that the vectors pin fails
@@ -7,6 +7,7 @@ here until the vectors are regenerated on purpose (tools/vectors/generate.py) an
 
 from __future__ import annotations
 
+import hmac
 import json
 import sys
 from collections.abc import Callable
@@ -21,7 +22,10 @@ from tdtp.protection.derivation import (
     derive_open_secret,
     derive_session_secrets,
 )
+from tdtp.protection.keys import PresharedKey
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
+from tdtp.rendezvous.relay import RelayCore
+from tdtp.rendezvous.settings import meeting
 from tdtp.session.receive_window import ReceiveWindow
 from tdtp.session.rtt import RttEstimator
 from tdtp.session.sent_log import LostPacket, SentPacketLog
@@ -37,6 +41,14 @@ from tdtp.wire import (
     expand_seq,
 )
 from tdtp.wire.errors import MalformedPacketError
+from tdtp.wire.rendezvous import (
+    PROBE,
+    REGISTER,
+    ReferralKind,
+    decode_probe,
+    decode_referral,
+    decode_register,
+)
 
 VECTORS = Path(__file__).resolve().parent / "vectors"
 sys.path.insert(0, str(VECTORS))
@@ -44,12 +56,22 @@ sys.path.insert(0, str(VECTORS))
 from tdtp_adapter import ScriptRunner  # noqa: E402
 
 FORMAT_VERSION = 1
-SUITES = ("header", "hold", "seqnum", "control", "receiver", "sender", "keyed", "endpoint")
+SUITES = (
+    "header",
+    "hold",
+    "seqnum",
+    "control",
+    "receiver",
+    "sender",
+    "keyed",
+    "endpoint",
+    "rendezvous",
+)
 
 
 def _load(suite: str) -> dict[str, Any]:
     data: dict[str, Any] = json.loads(
-        (VECTORS / f"tdtp-v3-{suite}.json").read_text(encoding="utf-8")
+        (VECTORS / f"tdtp-v4-{suite}.json").read_text(encoding="utf-8")
     )
     return data
 
@@ -59,13 +81,13 @@ def _approx(value: float | None) -> object:
 
 
 def test_every_file_is_a_known_format_version_and_suite() -> None:
-    files = sorted(path.name for path in VECTORS.glob("tdtp-v3-*.json"))
-    assert files == sorted(f"tdtp-v3-{suite}.json" for suite in SUITES)
+    files = sorted(path.name for path in VECTORS.glob("tdtp-v4-*.json"))
+    assert files == sorted(f"tdtp-v4-{suite}.json" for suite in SUITES)
     for suite in SUITES:
         data = _load(suite)
         assert data["format"] == "tdtp-conformance-vectors"
         assert data["format_version"] == FORMAT_VERSION
-        assert data["protocol_version"] == 3
+        assert data["protocol_version"] == 4
         assert data["suite"] == suite
         assert data["description"]
 
@@ -315,6 +337,47 @@ def test_the_endpoint_scripts_cover_every_drop_reason() -> None:
     assert covered == {reason.value for reason in DropReason}
 
 
+def check_rendezvous(data: dict[str, Any]) -> int:
+    checked = 0
+    for vector in data["names"]:
+        key = None if vector["psk_hex"] is None else PresharedKey(bytes.fromhex(vector["psk_hex"]))
+        met = meeting(key, vector["rendezvous_name"])
+        assert met.rendezvous_id.hex() == vector["rendezvous_id_hex"], vector["name"]
+        assert met.probe_key.hex() == vector["probe_key_hex"], vector["name"]
+        checked += 1
+    probe_key = meeting(None, "robot-7").probe_key
+    for vector in data["probes"]:
+        body = decode_probe(bytes.fromhex(vector["datagram_hex"]))
+        tag = b"P" if body.code == PROBE else b"A"
+        mac = hmac.digest(probe_key, tag + bytes([vector["side"]]) + body.token, "sha256")[:16]
+        assert (body.token.hex(), body.mac) == (vector["token_hex"], mac), vector["name"]
+        checked += 1
+    for vector in data["valid"]:
+        raw = bytes.fromhex(vector["datagram_hex"])
+        body = decode_register(raw) if raw[5] == REGISTER else decode_referral(raw)
+        fields = vector["fields"]
+        for name, value in body._asdict().items():
+            if isinstance(value, bytes):
+                value = value.hex()
+            elif isinstance(value, tuple):
+                value = [list(item) if isinstance(item, tuple) else item for item in value]
+            assert value == fields[name], (vector["name"], name)
+        checked += 1
+    relay = RelayCore()
+    for number, vector in enumerate(data["relay_answers"]):
+        answers = relay.receive(
+            bytes.fromhex(vector["datagram_hex"]), ("198.51.100.9", number), 0.0
+        )
+        if vector["answer_kind"] is None:
+            assert answers == [], vector["name"]
+        else:
+            ((reply, _),) = answers
+            assert ReferralKind(decode_referral(reply).kind).name == vector["answer_kind"]
+            assert len(reply) == vector["answer_size"], vector["name"]
+        checked += 1
+    return checked
+
+
 CHECKS: dict[str, Callable[[dict[str, Any]], int]] = {
     "header": check_header,
     "hold": check_hold,
@@ -324,6 +387,7 @@ CHECKS: dict[str, Callable[[dict[str, Any]], int]] = {
     "sender": check_sender,
     "keyed": check_keyed,
     "endpoint": check_endpoint,
+    "rendezvous": check_rendezvous,
 }
 
 

@@ -41,9 +41,9 @@ HEADER = encode_header(PacketType.DATA, 0x0ABC, 0x0123, 0b101010, encode_hold(25
 SEALED_DATA = "2a f0 48 ea 1f 00 01 51 93 f9 13 9c 89 52 5a fb 0b 37 64 e9 ef bd 3d 41 9d f9 92 24"
 CLEAR_DATA = "2a f0 48 ea 1f 00 01 68 65 6c 6c 6f 64 e1 dc 5d 25 5e b6 b2 d0 20 f7 ac 2f d9 7d 80"
 KEYED_OPEN = (
-    "96 94 00 00 ff 01 03 06 01 04 b0 00 01 00 11 22 33 44 55 66 77 88 99 aa bb cc dd ee ff "
+    "96 94 00 00 ff 01 04 06 01 04 b0 00 01 00 11 22 33 44 55 66 77 88 99 aa bb cc dd ee ff "
     "eb 49 4c 5f a4 4b 9c 55 00 00 ab cd 11 11 11 11 11 11 11 11 11 11 11 11 "
-    "7d 32 45 80 e0 54 f6 8b e8 fb 79 fa 82 98 06 9b"
+    "50 d3 2f c2 a2 cb 3d 78 2a 1a 3f 4a 6b 35 17 3a"
 )
 
 
@@ -89,7 +89,7 @@ def test_sealed_data_is_pinned_and_opens(encrypt: bool, expected: str) -> None:
 
 
 def test_keyed_open_is_pinned() -> None:
-    body = OpenBody(3, 0x06, 1, 1200, 1, MASTER_NONCE, derive_key_id(PSK), COOKIE)
+    body = OpenBody(4, 0x06, 1, 1200, 1, MASTER_NONCE, derive_key_id(PSK), COOKIE)
     datagram = encode_header(PacketType.CONTROL, 0x5A5, 0, 0, 255) + encode_open(body)
     tagger = Direction(SUITE, derive_open_secret(PSK, MASTER_NONCE, SUITE))
     datagram += tagger.tag(1, datagram)

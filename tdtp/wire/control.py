@@ -34,9 +34,10 @@ from typing import Final, NamedTuple
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.protected import TAG_SIZE
 
-PROTOCOL_VERSION: Final = 3
+PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
-had no RESET, no path validation, and its KEEPALIVE carried no nonce)."""
+had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 no dialing slave
+(``SLAVE_DIALS``) and no rendezvous messages)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""

@@ -1,4 +1,4 @@
-"""Drives tdtp's sans-IO Connection through an endpoint script of tdtp-v3-endpoint.json.
+"""Drives tdtp's sans-IO Connection through an endpoint script of tdtp-v4-endpoint.json.
 
 Another implementation writes the same adapter for itself (tests/vectors/README.md says what it must
 do). Here it serves twice: tools/vectors/generate.py records what tdtp does for each script, and the

@@ -83,46 +83,46 @@ UNKEYED_SIZES = {
 # one after the other, nonces and cookies as raw bytes.
 GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
     # OPEN, first attempt, no cookie yet: SEQ 0x5A5 (the master's initial data sequence number), no ACK
-    # -> 96 94 00 00 ff; code 01, version 03, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
+    # -> 96 94 00 00 ff; code 01, version 04, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
     # 00 00, nonce, key id 0 (unkeyed), cookie 0 (none).
     (
-        "96 94 00 00 ff" + "01 03 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
+        "96 94 00 00 ff" + "01 04 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
+        OpenBody(4, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
         b"",
     ),
-    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 03, the master's nonce, the cookie.
+    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 04, the master's nonce, the cookie.
     (
-        "80 00 00 00 ff" + "06 03" + NONCE.hex() + COOKIE.hex(),
+        "80 00 00 00 ff" + "06 04" + NONCE.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0, 0, 0, 255),
-        CookieBody(3, NONCE, COOKIE),
+        CookieBody(4, NONCE, COOKIE),
         b"",
     ),
     # OPEN, second attempt, echoing the cookie: attempt 00 01.
     (
-        "96 94 00 00 ff" + "01 03 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
+        "96 94 00 00 ff" + "01 04 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
+        OpenBody(4, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
         b"",
     ),
     # A keyed OPEN: flags 06 (KEYED | ENCRYPTED), suite 01 (AES-128-GCM), the key id, then the tag.
     (
         "96 94 00 00 ff"
-        + "01 03 06 01 04b0 0001"
+        + "01 04 06 01 04b0 0001"
         + NONCE.hex()
         + KEY_ID.hex()
         + COOKIE.hex()
         + TAG.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
+        OpenBody(4, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
         TAG,
     ),
-    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 03, flags 01 (SEPARATE_ACKS), suite
+    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 04, flags 01 (SEPARATE_ACKS), suite
     # 00, max_payload 100 = 00 64, packet number 00 00, both nonces.
     (
-        "83 0c 00 00 ff" + "02 03 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
+        "83 0c 00 00 ff" + "02 04 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
         Header(PacketType.CONTROL, 0x0C3, 0, 0, 255),
-        OpenAckBody(3, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
+        OpenAckBody(4, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
         b"",
     ),
     # KEEPALIVE carrying an acknowledgement: SEQ 0xABD, ACK 0x124, SACK 000001, HOLD 0 ->
@@ -195,7 +195,7 @@ def encode_body(body: ControlBody) -> bytes:
 
 
 def test_codes_and_constants_are_pinned() -> None:
-    assert PROTOCOL_VERSION == 3
+    assert PROTOCOL_VERSION == 4
     assert {c.name: int(c) for c in ControlCode} == {
         "OPEN": 1,
         "OPEN_ACK": 2,
