@@ -46,7 +46,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT))
 
-from natlab import PUBLIC_ADDR, RELAY_ADDR, NatLab, missing  # noqa: E402
+from natlab import RELAY_ADDR, NatLab, missing  # noqa: E402
 
 Json = dict[str, Any]
 TDTP = (sys.executable, "-m", "tdtp")

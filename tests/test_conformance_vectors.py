@@ -356,11 +356,12 @@ def check_rendezvous(data: dict[str, Any]) -> int:
         raw = bytes.fromhex(vector["datagram_hex"])
         body = decode_register(raw) if raw[5] == REGISTER else decode_referral(raw)
         fields = vector["fields"]
-        for name, value in body._asdict().items():
-            if isinstance(value, bytes):
-                value = value.hex()
-            elif isinstance(value, tuple):
-                value = [list(item) if isinstance(item, tuple) else item for item in value]
+        for name, raw_value in body._asdict().items():
+            value = raw_value
+            if isinstance(raw_value, bytes):
+                value = raw_value.hex()
+            elif isinstance(raw_value, tuple):
+                value = [list(item) if isinstance(item, tuple) else item for item in raw_value]
             assert value == fields[name], (vector["name"], name)
         checked += 1
     relay = RelayCore()

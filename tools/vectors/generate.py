@@ -31,20 +31,9 @@ from tdtp.protection.derivation import (  # noqa: E402  # noqa: E402
     reset_tag,
 )
 from tdtp.protection.keys import PresharedKey  # noqa: E402
+from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
 from tdtp.rendezvous.relay import RelayCore  # noqa: E402
 from tdtp.rendezvous.settings import meeting  # noqa: E402
-from tdtp.wire.rendezvous import (  # noqa: E402
-    PROBE,
-    PROBE_ACK,
-    ReferralBody,
-    RegisterBody,
-    decode_referral,
-    decode_register,
-    encode_probe,
-    encode_referral,
-    encode_register,
-)
-from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
 from tdtp.session.receive_window import ReceiveWindow  # noqa: E402
 from tdtp.session.rtt import RttEstimator  # noqa: E402
 from tdtp.session.sent_log import LostPacket, SentPacketLog  # noqa: E402
@@ -74,6 +63,17 @@ from tdtp.wire import (  # noqa: E402
     expand_seq,
 )
 from tdtp.wire.errors import MalformedPacketError  # noqa: E402
+from tdtp.wire.rendezvous import (  # noqa: E402
+    PROBE,
+    PROBE_ACK,
+    ReferralBody,
+    RegisterBody,
+    decode_referral,
+    decode_register,
+    encode_probe,
+    encode_referral,
+    encode_register,
+)
 
 sys.path.insert(0, str(ROOT / "tests" / "vectors"))
 from endpoint_scripts import (  # noqa: E402  (beside this file)
