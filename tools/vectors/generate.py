@@ -1010,7 +1010,7 @@ def rendezvous_vectors() -> dict[str, Any]:
                 True,
                 (("192.168.1.2", 40000),),
             ),
-        ),  # fmt: skip
+        ),
         (
             "REFUSED RENDEZVOUS_FULL",
             ReferralBody(3, 22, nonce, bytes(16), 0, None, None, False, ()),
