@@ -272,3 +272,18 @@ def test_a_dead_direct_path_goes_back_to_the_relay_within_a_second_and_returns()
         _exchange(dialer, listener, now)
     assert now - healed_at <= SETTINGS.retry_interval + 0.05
     assert dialer.events[-1].kind is PathKind.DIRECT and dialer.stats.direct_lost == 1
+
+
+def test_replayed_probes_draw_a_bounded_number_of_answers() -> None:
+    """An on-path attacker replaying an authentic PROBE from spoofed sources: at most 200 answers
+    a second (a burst of 20), each the PROBE's size."""
+    dialer, listener = _client(False), _client(True)
+    _meet(dialer, listener, 0.0)
+    dialer.handle_timer(0.05)
+    probe = next(d for d, to in dialer.datagrams_to_send(0.05) if to == A)  # one to replay
+    answered = 0
+    for i in range(2000):
+        listener.receive(probe, (f"198.51.100.{i % 250}", 1000 + i), 1.0 + i * 0.0005)
+        answered += len([d for d, to in listener.datagrams_to_send(1.0) if to != RELAY])
+    assert answered <= 20 + 200 * 1.0 + 1
+    assert listener.stats.drops["rate_limited"] == 2000 - answered

@@ -28,6 +28,7 @@ from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Final
 
+from tdtp.admission.rate_limit import TokenBucket
 from tdtp.rendezvous.settings import Meeting, Rendezvous
 from tdtp.session.events import Address
 from tdtp.wire.errors import MalformedPacketError
@@ -58,6 +59,9 @@ party can forge: they cost us a REGISTER, nothing more)."""
 MAX_OUTSTANDING: Final = 256
 """PROBE tokens remembered (oldest forgotten first)."""
 MAX_PEER_CANDIDATES: Final = 8
+PROBE_ACKS_PER_SECOND: Final = 200.0
+"""PROBE_ACKs an endpoint sends at most per second, all together: authentic PROBEs replayed from a
+spoofed source draw no more (the peer itself sends a few dozen a second)."""
 _NO_COOKIE: Final = bytes(COOKIE_SIZE)
 
 
@@ -152,6 +156,7 @@ class RendezvousClient:
         self._punch_until = 0.0
         self._check_at = 0.0
         self._out: list[tuple[bytes, Address]] = []
+        self._ack_budget = TokenBucket(PROBE_ACKS_PER_SECOND, PROBE_ACKS_PER_SECOND / 10.0)
 
     # ------------------------------------------------------------------ driver inputs
 
@@ -360,6 +365,9 @@ class RendezvousClient:
         self.accepted.add(key)
         if self._add_candidate(key, now):  # a peer-reflexive address: probe it too
             self._punch_until = max(self._punch_until, now + self.settings.punch_for)
+        if not self._ack_budget.take(now):
+            self.stats.count_drop("rate_limited")
+            return
         self.stats.probes_answered += 1
         ack = encode_probe(PROBE_ACK, body.token, self._mac(b"A", self._side, body.token))
         self._out.append((ack, addr))
