@@ -30,7 +30,7 @@ from typing import Final, Protocol, TypeVar
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.rate_limit import TokenBucket
 from tdtp.config import AdmissionConfig
-from tdtp.session.events import Address
+from tdtp.wire.address import Address
 from tdtp.wire.control import (
     PATH_CHALLENGE_BODY_SIZE,
     ControlCode,

@@ -287,14 +287,14 @@ async def _connect(
     if batched is not None and recorder is None:
         batched.batch_receiver = endpoint.receive_batch
     conn.connect(remote, now=monotonic())
-    endpoint._flush()
+    endpoint.flush()
     try:
         await endpoint.wait_established()
     except EndpointClosedError as exc:
         await endpoint.close()
         raise ConnectError(f"could not open a TDTP connection to {protocol.where}: {exc}") from exc
     except PortUnreachableError:
-        endpoint._release()  # nobody to send a CLOSE to
+        # fail_open() released the endpoint already: nobody to send a CLOSE to
         transport.close()
         logger.info("tdtp %s: nothing listens at %s", role.value, protocol.where)
         raise

@@ -378,7 +378,7 @@ class Endpoint:
             self.reconnects.samples_dropped += 1
             return
         if not sent or conn.timer_hint < self._timer.deadline:
-            self._flush(now)
+            self.flush(now)
 
     def send_control(self, message: bytes | bytearray | memoryview) -> None:
         """Queue a message on the reliable control channel: the peer gets it exactly once and in
@@ -393,7 +393,7 @@ class Endpoint:
             if exc.event is None:
                 raise
             raise EndpointClosedError(exc.event) from None
-        self._flush(now)
+        self.flush(now)
 
     async def recv_control(self) -> ControlReceived:
         """The peer's next control message, in the order it sent them. Raises
@@ -518,7 +518,7 @@ class Endpoint:
             self._reopen_handle.cancel()
         if not self.is_closed:
             self._conn.close(now=monotonic())
-            self._flush()
+            self.flush()
         self._release()
         closed = self._transport_closed
         if closed is not None:
@@ -540,7 +540,7 @@ class Endpoint:
     def datagram_received(self, data: bytes, addr: Address) -> None:
         now = monotonic()
         self._conn.receive_datagram(data, addr, now=now)
-        self._flush(now)
+        self.flush(now)
 
     def receive_batch(
         self,
@@ -569,9 +569,9 @@ class Endpoint:
                 ecn = classes[i] & 3 if classes is not None and classes[i] >= 0 else None
                 conn.receive_datagram(datas[i], addrs[i], now=now, rx_time=rx_time, ecn=ecn)
                 if conn.state is CLOSED:
-                    self._flush(now)  # ended (or reopening): what follows finds the next session
+                    self.flush(now)  # ended (or reopening): what follows finds the next session
                     conn = self._conn
-            self._flush(now)
+            self.flush(now)
         finally:
             if owner is not None:
                 owner.release_batch(count)
@@ -588,33 +588,38 @@ class Endpoint:
         if self._conn.sending_paused:
             self._conn.resume_sending()
             if not self.is_closed:
-                self._flush()
+                self.flush()
 
     def evict(self, now: float) -> None:
         """Slave side: end this silent session so that a new master can have its slot (the
         server does this when it is full; the session closes as ``EVICTED``)."""
         self._conn.evict(now=now)
-        self._flush(now)
+        self.flush(now)
         self._release()
 
     def fail_open(self, exc: BaseException) -> None:
         """The transport reported an error that ends a connection still opening (e.g. ICMP port
-        unreachable): :meth:`wait_established` raises ``exc``."""
+        unreachable): :meth:`wait_established` raises ``exc``, and the endpoint lets go of its
+        timer and socket at once (nobody listens: there is no one to send a CLOSE to)."""
         if not self._established.done():
             self._established.set_exception(exc)
             self._established.exception()  # retrieved: connect() reports it itself
+            self._release()
 
     def _on_timer(self) -> None:
         now = monotonic()
         self._conn.handle_timer(now=now)
-        self._flush(now)
+        self.flush(now)
 
     async def wait_established(self) -> None:
         await asyncio.shield(self._established)
 
-    # ------------------------------------------------------------------ internals
-
-    def _flush(self, now: float | None = None) -> None:
+    def flush(self, now: float | None = None) -> None:
+        """Hand the core's events to the application, send what is due and re-arm the timer: what
+        follows every input. The endpoint's own entry points (:meth:`send`, :meth:`datagram_received`,
+        the timer) do it themselves; a driver that feeds :attr:`connection` directly (the server and
+        its demultiplexer) calls it after each batch. ``now``: the clock read with the input, if any.
+        """
         conn = self._conn
         event = conn.next_event()  # (rather than asking pending_events first: one call less)
         if event is not None and conn.state is ESTABLISHED:
@@ -661,6 +666,8 @@ class Endpoint:
             deadline = conn.get_timer()
             if deadline is not None and deadline < timer.deadline:
                 timer.arm(deadline)
+
+    # ------------------------------------------------------------------ internals
 
     def _drain_events(self, event: Event | None = None) -> None:
         """Take the connection's events, ``event`` (the first, already taken) and those after it."""
@@ -836,7 +843,7 @@ class Endpoint:
         if self._closing or remote is None or conn.state is not State.IDLE:
             return
         conn.connect(remote, now=monotonic())
-        self._flush()
+        self.flush()
 
     def _reopened(self) -> None:
         record = self.reconnects
@@ -861,7 +868,7 @@ class Endpoint:
             return
         self._silence_reopen = True
         conn.close(now=monotonic())
-        self._flush()
+        self.flush()
 
     def _name(self) -> str:
         return f"tdtp {self._conn.role.value} {format_address(self._conn.peer)}"

@@ -300,7 +300,7 @@ class Server:
             # endpoint.datagram_received(data, addr), inline: one Python call less per datagram
             now = monotonic()
             endpoint._conn.receive_datagram(data, addr, now=now)
-            endpoint._flush(now)
+            endpoint.flush(now)
             if key in self._peers or not is_open(data):
                 return
             # The connection ended on this OPEN: its master restarted and opens anew.
@@ -345,7 +345,7 @@ class Server:
         assert peer is not None
         now = monotonic()
         endpoint._conn.receive_datagram(data, peer, now=now)
-        endpoint._flush(now)
+        endpoint.flush(now)
         return True
 
     def _move_rendezvous_session(self, change: PathChange) -> None:
@@ -391,7 +391,7 @@ class Server:
                     old_key[1],
                     format_address(addr),
                 )
-                endpoint._flush(now)
+                endpoint.flush(now)
                 return
 
     def _exclusive_refuses(self, admitted: AdmittedOpen, addr: Address, now: float) -> bool:
@@ -418,7 +418,7 @@ class Server:
                 " (takeover flag)" if takeover else " (silent)",
             )
             endpoint.connection.close(now=now, taken_over=True)
-            endpoint._flush(now)
+            endpoint.flush(now)
         return False
 
     def _open(
@@ -464,7 +464,7 @@ class Server:
             pending.popleft()
         pending.append(endpoint)
         conn.accept_open(admitted, addr, now=now)
-        endpoint._flush(now)
+        endpoint.flush(now)
 
     def _evict_silent(self, now: float) -> None:
         """The server is full and a validated master arrives: the session whose master has been

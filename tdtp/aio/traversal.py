@@ -228,7 +228,7 @@ def move_session(endpoint: Endpoint | None, change: PathChange) -> None:
         change.kind.value,
         format_address(change.addr),
     )
-    endpoint._flush()
+    endpoint.flush()
 
 
 async def dial_via_rendezvous(
@@ -325,7 +325,7 @@ async def dial_via_rendezvous(
         "tdtp %s: opening on the %s path %s", role.value, kind.value, format_address(choice)
     )
     conn.connect(choice, now=monotonic())
-    endpoint._flush()
+    endpoint.flush()
     try:
         await endpoint.wait_established()
     except EndpointClosedError as exc:

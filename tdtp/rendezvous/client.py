@@ -30,7 +30,7 @@ from typing import Final
 
 from tdtp.admission.rate_limit import TokenBucket
 from tdtp.rendezvous.settings import Meeting, Rendezvous
-from tdtp.session.events import Address
+from tdtp.wire.address import Address
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.rendezvous import (
     COOKIE_SIZE,

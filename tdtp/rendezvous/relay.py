@@ -33,7 +33,7 @@ from typing import Final
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
 from tdtp.rendezvous.settings import RelayConfig
-from tdtp.session.events import Address
+from tdtp.wire.address import Address
 from tdtp.wire.control import CloseReason
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.rendezvous import (

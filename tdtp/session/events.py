@@ -10,10 +10,8 @@ from typing import Any, Final, cast
 
 from mypy_extensions import mypyc_attr
 
-from tdtp._build import load_extension
-
-Address = tuple[Any, ...]
-"""A socket address as asyncio reports it: ``(host, port)`` or ``(host, port, flowinfo, scope_id)``."""
+from tdtp._extensions import load_extension
+from tdtp.wire.address import Address as Address  # noqa: PLC0414 - its old home, re-exported
 
 
 class CloseCause(enum.Enum):
