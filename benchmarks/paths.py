@@ -376,7 +376,10 @@ def free_udp_port() -> int:
 class Relay:
     """``tdtp netem-relay`` in its own process: listen on a fresh port, forward to ``target``."""
 
-    def __init__(self, spec: str | None, target: int, seed: int) -> None:
+    def __init__(
+        self, spec: str | None, target: int, seed: int, return_spec: str | None = None
+    ) -> None:
+        """``spec`` forward (client -> target), ``return_spec`` back (default: ``spec``)."""
         self.port = free_udp_port()
         # "delay 0ms" impairs nothing: a relay with no impairment keeps the rows comparable.
         command = [
@@ -393,6 +396,8 @@ class Relay:
         ]
         if spec is not None:
             command += ["--seed", str(seed)]  # the way back: seed + 1, as tdtp's rows
+        if return_spec is not None:
+            command += ["--return-spec", return_spec]
         self.process = subprocess.Popen(
             command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )

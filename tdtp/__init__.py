@@ -16,7 +16,14 @@ from tdtp.aio.reconnect import ReconnectPolicy, ReconnectRecord
 from tdtp.aio.rendezvous_relay import Relay, relay
 from tdtp.aio.ticker import Ticker, TickHandle
 from tdtp.aio.timer import monotonic
-from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, ControllerName, Role
+from tdtp.config import (
+    AckMode,
+    AdmissionConfig,
+    ConnectionConfig,
+    ControllerName,
+    MultipathConfig,
+    Role,
+)
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,
@@ -48,9 +55,11 @@ from tdtp.session.events import (
     ControlReceived,
     DataReceived,
     Event,
+    PathChanged,
     PeerResumed,
     PeerSilent,
 )
+from tdtp.session.multipath.path import PathStats
 from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats, DirectionStats, DropReason
 from tdtp.wire import HEADER_SIZE, CipherSuite
@@ -98,6 +107,9 @@ __all__ = [
     "InvalidArgumentError",
     "InvalidKeyError",
     "KeyRing",
+    "MultipathConfig",
+    "PathChanged",
+    "PathStats",
     "PayloadTooLargeError",
     "PayloadTypeError",
     "PeerResumed",

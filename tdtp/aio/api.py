@@ -15,6 +15,7 @@ import asyncio
 import logging
 import random
 import socket
+from collections.abc import Sequence
 
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpoint
@@ -26,6 +27,8 @@ from tdtp.aio.endpoint import (
     format_address,
 )
 from tdtp.aio.impairment import ImpairedTransport
+from tdtp.aio.multipath import LocalAddress, check_path_netem, parse_local_address
+from tdtp.aio.multipath_connect import connect_multipath, multipath_config
 from tdtp.aio.opening import (
     Opener,
     _check_common,
@@ -133,6 +136,8 @@ def connect(
     key: KeyInput | None = None,
     pcap: CaptureTarget | None = None,
     reconnect: bool | ReconnectPolicy | None = False,
+    local_addresses: Sequence[str | tuple[str, int] | LocalAddress] | None = None,
+    path_netem: Sequence[NetemSpec | str | None] | None = None,
 ) -> Opener[Endpoint]:
     """Dial the peer listening at ``host``:``port`` and wait until it accepts the session.
 
@@ -166,6 +171,15 @@ def connect(
     loops go on; ``ep.reconnects`` says how often and why (:mod:`tdtp.aio.reconnect`). The first
     open still raises as above.
 
+    ``local_addresses`` opens a **multipath** session (docs/PROTOCOL.md 5.11): one socket per
+    entry (``"10.0.1.1"``, ``"10.0.1.1:7001"``, an interface ``"%wwan0"``, each optionally
+    ``"=HOST:PORT"`` for a remote end other than ``host:port``); the session opens on the first and
+    a path from each other one joins once the slave has answered on it. Every sample then goes on
+    every working path (``MultipathConfig(scheduler="adaptive")``: on the best one while it
+    behaves), the first copy wins, and the session rides out any path's failure. ``ep.paths`` has
+    each path's figures and events. ``path_netem`` (one per local address) impairs each path both
+    ways in-process (``netem`` is then not allowed).
+
     ``rendezvous=tdtp.Rendezvous(relay_host, relay_port)`` (instead of ``host`` and ``port``) meets
     a peer that listens with the same rendezvous (``tdtp.listen(rendezvous=...)``) through a relay
     (``tdtp relay``): both may sit behind NATs. The session opens on a direct path when one works
@@ -186,6 +200,36 @@ def connect(
     port = _check_port(port, allow_zero=False)
     _check_local(local_addr)
     spec = _check_common(config, timer, on_data, on_watchdog, netem)
+    if local_addresses is not None or path_netem is not None:
+        if isinstance(local_addresses, str) or not local_addresses:
+            raise InvalidArgumentError(
+                "local_addresses must be a non-empty list of local addresses, e.g. "
+                "['10.0.1.1', '10.0.2.1'] (a string is one address: put it in a list)"
+            )
+        locals_ = [parse_local_address(entry) for entry in local_addresses]
+        if local_addr is not None or netem is not None or pcap is not None:
+            raise InvalidArgumentError(
+                "with local_addresses, give the first path's address as its first entry (not "
+                "local_addr), impair paths with path_netem (not netem); pcap is not supported"
+            )
+        specs = check_path_netem(path_netem, len(locals_))
+        chosen = multipath_config(config)
+        return Opener(
+            lambda: connect_multipath(
+                host,
+                port,
+                locals_,
+                config=chosen,
+                timer=timer,
+                on_data=on_data,
+                on_watchdog=on_watchdog,
+                rng=rng,
+                path_netem=specs,
+                netem_seed=netem_seed,
+                key=key,
+                reconnect=policy,
+            )
+        )
     return Opener(
         lambda: _connect(
             host,

@@ -36,9 +36,10 @@ import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import Any, Final, Protocol
+from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
+from tdtp.aio.multipath import PathSet
 from tdtp.aio.outbox import SocketOutbox
 from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
@@ -53,11 +54,15 @@ from tdtp.session.events import (
     ControlReceived,
     DataReceived,
     Event,
+    PathChanged,
     PeerResumed,
     PeerSilent,
 )
 from tdtp.session.state import CLOSED, ESTABLISHED, State
 from tdtp.session.stats import ConnectionStats
+
+if TYPE_CHECKING:
+    from tdtp.aio.traversal import Traversal
 
 __all__ = [
     "ControlCallback",
@@ -104,13 +109,6 @@ def rx_time_of(stamp: int, now: float, wall_ns: int) -> float | None:
     return now - (wall_ns - stamp) * 1e-9
 
 
-class PathReport(Protocol):
-    """What an endpoint that met its peer through a rendezvous tells of it
-    (:class:`tdtp.aio.traversal.Traversal`)."""
-
-    def report(self, first_sample_at: float | None = None) -> dict[str, object]: ...
-
-
 class Endpoint:
     """A master's or slave's end of one association. Create it with :func:`tdtp.connect` or take it
     from a :class:`tdtp.Server`; do not construct it directly."""
@@ -130,7 +128,6 @@ class Endpoint:
         reconnect: ReconnectPolicy | None = None,
         new_connection: Callable[[], Connection] | None = None,
         outbox: SocketOutbox | None = None,
-        on_session: Callable[[Endpoint], None] | None = None,
         reopen_to: Callable[[], Address | None] | None = None,
     ) -> None:
         self._conn = conn
@@ -149,13 +146,9 @@ class Endpoint:
         self._on_watchdog = on_watchdog
         self._on_closed = on_closed
         self._on_established = on_established
-        self._on_session = on_session
-        """Called on every session established, the first and each reopened one (rendezvous)."""
-        self._reopen_to = reopen_to
-        """Where a reconnecting endpoint opens its next session (default: the last peer)."""
-        self.rendezvous: PathReport | None = None
-        """Through a rendezvous (``tdtp.connect(rendezvous=...)``): which path the session uses,
-        the candidates tried (``ep.rendezvous.report()``); ``None`` otherwise."""
+        self._reopen_to = reopen_to  # where the next session opens (default: the last peer)
+        self.rendezvous: Traversal | None = None
+        """Met through a rendezvous: its path, candidates tried (``.report()``); else ``None``."""
         self._transport_closed = transport_closed
         self._queue: deque[DataReceived] = deque()
         self._max_queue = conn.config.max_pending_events
@@ -186,6 +179,7 @@ class Endpoint:
         self._remote: Address | None = None
         self._demux_batch = 0
         """The server's receive batch that last handed us a datagram (its Demultiplexer's count)."""
+        self._path_set: PathSet | None = None  # a multipath session's paths, once asked for
         size = getattr(transport, "get_write_buffer_size", None)
         if size is not None and size() > 0:
             conn.pause_sending()  # a shared socket that is backed up already
@@ -210,6 +204,13 @@ class Endpoint:
     @property
     def peer(self) -> Address | None:
         return self._conn.peer
+
+    @property
+    def paths(self) -> PathSet:
+        """A multipath session's paths: their figures, events, and ``add`` / ``remove``."""
+        if self._path_set is None:
+            self._path_set = PathSet(self)
+        return self._path_set
 
     @property
     def stats(self) -> ConnectionStats:
@@ -648,6 +649,8 @@ class Endpoint:
                 except OSError:
                     # No buffer space or an ICMP error reported on this send: lost like any other.
                     self._send_errors += 1
+        if self._path_set is not None:
+            self._path_set.flush()  # what leaves through a multipath master's other sockets
         if event is None:
             event = conn.next_event()
         if event is not None:
@@ -700,6 +703,8 @@ class Endpoint:
                         self._wake(self._data_waiters)
             elif isinstance(event, ControlReceived | ControlExpired):
                 self._on_control_event(event)
+            elif isinstance(event, PathChanged):
+                self.paths.on_event(event)
             else:
                 self._on_other_event(event)
             event = conn.next_event()
@@ -770,10 +775,7 @@ class Endpoint:
             if not self._established.done():
                 self._established.set_result(None)
             if self._on_established is not None:
-                callback, self._on_established = self._on_established, None
-                callback(self)
-            if self._on_session is not None:
-                self._on_session(self)
+                self._on_established(self)  # every session: a reconnecting one's next ones too
         else:
             if self._policy is not None and self._may_reopen(event):
                 self._reopen(event)

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
 from tdtp.admission.path_migration import MigrationStats
+from tdtp.admission.rate_limit import TokenBucket
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpoint
 from tdtp.aio.demultiplexer import Demultiplexer, is_open
@@ -57,7 +58,20 @@ from tdtp.rendezvous.client import PathChange, RendezvousClient
 from tdtp.rendezvous.settings import Meeting, Rendezvous, meeting
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
-from tdtp.wire.control import CloseReason, OpenFlags
+from tdtp.wire.control import NONCE_SIZE, CloseReason, ControlCode, OpenFlags
+from tdtp.wire.header import HEADER_SIZE, PacketType
+
+_MP_CHALLENGE_BITS = int(PacketType.CONTROL) << 6
+
+
+def is_path_challenge(data: bytes) -> bool:
+    """Whether a datagram is an MP_CHALLENGE (a multipath master opening a path), by its prefix."""
+    return (
+        len(data) >= HEADER_SIZE + 1 + NONCE_SIZE
+        and data[0] & 0xC0 == _MP_CHALLENGE_BITS
+        and data[HEADER_SIZE] == ControlCode.MP_CHALLENGE
+    )
+
 
 __all__ = ["Server", "ServerStats", "listen"]
 
@@ -88,6 +102,13 @@ class ServerStats:
     """The front door: OPENs seen, cookies and rejects sent, drops by reason, bytes in and out."""
     migration: MigrationStats = field(default_factory=MigrationStats)
     """Path migration: datagrams from unknown addresses, trials, challenges, sessions moved."""
+    path_challenges: int = 0
+    """Multipath: MP_CHALLENGEs from addresses no session holds (a master opening a path)."""
+    paths_learned: int = 0
+    """Of those, the ones a session took: its master's new address joined the session."""
+    path_challenges_unclaimed: int = 0
+    """Of those, the ones no multipath session's nonce matched, or over ``path_budget`` per
+    second (dropped, unanswered)."""
 
 
 class _ServerProtocol(asyncio.DatagramProtocol):
@@ -176,6 +197,14 @@ class Server:
         self._outbox: SocketOutbox | None = None
         """The socket's outbox on the batched layer (nothing between the endpoints and it)."""
         self._peers: dict[tuple[object, object], Endpoint] = {}
+        """Every address a session holds: its master's, and (multipath) each of its paths'."""
+        self._sessions: dict[Endpoint, None] = {}
+        """The sessions, each once (in the order they opened)."""
+        self._path_budget = TokenBucket(
+            self._admission.config.admission.migration_trials_per_second,
+            self._admission.config.admission.migration_trials_per_second / 10.0,
+        )
+        """MP_CHALLENGEs from unknown addresses looked at per second (each may cost an AEAD check)."""
         self._pending: deque[Endpoint] = deque()
         """Endpoints of admitted masters nobody has accepted yet, opening or established."""
         self._waiters: list[asyncio.Future[None]] = []
@@ -214,7 +243,7 @@ class Server:
     @property
     def endpoints(self) -> list[Endpoint]:
         """The masters connected (or connecting) now."""
-        return list(self._peers.values())
+        return list(self._sessions)
 
     async def accept(self) -> Endpoint:
         """The next master's endpoint, once its connection is established."""
@@ -258,7 +287,7 @@ class Server:
             self._closed = True
             if self._traversal is not None:
                 self._traversal.close()
-            for endpoint in list(self._peers.values()):
+            for endpoint in list(self._sessions):
                 await endpoint.close()
             if self._sender is not None:
                 self._sender.close()
@@ -270,9 +299,7 @@ class Server:
     def __repr__(self) -> str:
         state = "closed" if self._closed else "listening"
         keyed = " keyed" if self.keyed else ""
-        return (
-            f"<Server {self._where()} {state}{keyed} masters={len(self._peers)}/{self._max_peers}>"
-        )
+        return f"<Server {self._where()} {state}{keyed} masters={len(self._sessions)}/{self._max_peers}>"
 
     def _where(self) -> str:
         if self._transport is None:
@@ -344,7 +371,7 @@ class Server:
         peer = endpoint.peer
         assert peer is not None
         now = monotonic()
-        endpoint._conn.receive_datagram(data, peer, now=now)
+        endpoint.connection.receive_datagram(data, peer, now=now)
         endpoint.flush(now)
         return True
 
@@ -361,14 +388,42 @@ class Server:
                 del self._peers[_peer_key(old)]
             self._peers[_peer_key(new)] = endpoint
 
+    def _learn_path(self, data: bytes, key: tuple[object, object], addr: Address) -> bool:
+        """An MP_CHALLENGE from an address no session holds: the master of a multipath session
+        opening a path (PROTOCOL.md 5.11), found by the nonce in the clear. True when it was one."""
+        if not is_path_challenge(data):
+            return False
+        stats = self.stats
+        stats.path_challenges += 1
+        now = monotonic()
+        nonce = data[HEADER_SIZE + 1 : HEADER_SIZE + 1 + NONCE_SIZE]
+        if self._path_budget.take(now):
+            for endpoint in self._sessions:
+                conn = endpoint.connection
+                paths = conn.multipath
+                if paths is None or conn.master_nonce != nonce:
+                    continue
+                conn.receive_datagram(data, addr, now=now)
+                paths = conn.multipath
+                if paths is not None and paths.has_path(0, addr):
+                    self._peers[key] = endpoint
+                    stats.paths_learned += 1
+                endpoint.flush(now)
+                return True
+        stats.path_challenges_unclaimed += 1
+        return True
+
     def _on_unattached(self, data: bytes, key: tuple[object, object], addr: Address) -> None:
-        """A datagram from an address no session holds: a master that moved (PROTOCOL.md 5.8)?"""
+        """A datagram from an address no session holds: a multipath session's new path, or a
+        master that moved (PROTOCOL.md 5.8)?"""
         assert self._sender is not None
+        if self._learn_path(data, key, addr):
+            return
         now = monotonic()
         peers = self._peers
         paths = self._admission.paths
         outcome = paths.on_unattached(
-            data, addr, now, [endpoint.connection for endpoint in peers.values()]
+            data, addr, now, [endpoint.connection for endpoint in self._sessions]
         )
         if outcome is None:
             # Only a datagram no session may own gets a RESET (PROTOCOL.md 5.7): one that might be
@@ -398,7 +453,7 @@ class Server:
         """Exclusive server (PROTOCOL.md 5.9): the master commanding the slave keeps it unless it
         has been silent for ``takeover_after`` watchdog periods, or the new master is keyed and
         asks with TAKEOVER; then it is ended (``taken_over``). True: refused with REJECT IN_USE."""
-        holders = [ep for ep in self._peers.values() if not ep.is_closed]
+        holders = [ep for ep in self._sessions if not ep.is_closed]
         if not holders:
             return False
         takeover = admitted.key is not None and bool(admitted.body.flags & OpenFlags.TAKEOVER)
@@ -427,9 +482,9 @@ class Server:
         assert self._sender is not None
         if self._exclusive and self._exclusive_refuses(admitted, addr, now):
             return
-        if len(self._peers) >= self._max_peers:
+        if len(self._sessions) >= self._max_peers:
             self._evict_silent(now)
-        if len(self._peers) >= self._max_peers or (
+        if len(self._sessions) >= self._max_peers or (
             self._on_data is None and len(self._pending) >= self._backlog
         ):
             self.stats.peers_refused += 1
@@ -437,7 +492,7 @@ class Server:
             logger.info(
                 "tdtp slave: refused %s (busy: %d masters, %d waiting to be accepted)",
                 format_address(addr),
-                len(self._peers),
+                len(self._sessions),
                 len(self._pending),
             )
             return
@@ -454,6 +509,7 @@ class Server:
             outbox=self._outbox,
         )
         self._peers[key] = endpoint
+        self._sessions[endpoint] = None
         traversal = self._traversal
         if traversal is not None and (str(addr[0]), int(addr[1])) in traversal.client.accepted:
             self._rendezvous_endpoint = endpoint
@@ -472,7 +528,7 @@ class Server:
         Live sessions are never evicted, so a master that keeps talking keeps its slot."""
         longest: Endpoint | None = None
         longest_since = now
-        for endpoint in self._peers.values():
+        for endpoint in self._sessions:
             since = endpoint.connection.silent_since
             if since is not None and since < longest_since:
                 longest, longest_since = endpoint, since
@@ -498,6 +554,10 @@ class Server:
         peer = endpoint.peer
         if peer is not None and self._peers.get(_peer_key(peer)) is endpoint:
             del self._peers[_peer_key(peer)]
+        if endpoint.connection.multipath is not None:  # its paths' addresses too
+            for key in [key for key, holder in self._peers.items() if holder is endpoint]:
+                del self._peers[key]
+        self._sessions.pop(endpoint, None)
         if endpoint in self._pending:
             self._pending.remove(endpoint)
 

@@ -300,7 +300,7 @@ async def dial_via_rendezvous(
         transport_closed=transport_closed,
         reconnect=reconnect,
         new_connection=new_connection,
-        on_session=on_session,
+        on_established=on_session,
         reopen_to=reopen_to,
     )
     endpoint.rendezvous = traversal

@@ -1,18 +1,13 @@
 """The sans-IO TDTP connection: a state machine that never touches a socket or reads a clock.
 
-The caller owns I/O and time. It feeds datagrams in with :meth:`Connection.receive_datagram`, timer
-expiries with :meth:`Connection.handle_timer` and samples with :meth:`Connection.send`, always passing
-``now`` (seconds on one monotonic clock). After every input it collects
-:meth:`Connection.datagrams_to_send` and re-arms a single timer at :meth:`Connection.get_timer`. What
-happened comes out of :meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and
-the virtual-time simulator all drive this one class. The watchdog's reactions (PeerSilent, PeerResumed,
-the idle timeout: docs/PROTOCOL.md section 5.2) and path migration (5.8) live here too.
-
-:class:`Connection` holds the session's state machine: it checks the caller's input against the state,
-takes every datagram in (address, size, packet protection, type) and dispatches it, and carries out
-what the opening and the watchdog decide. The pieces with state of their own (listed in
-:mod:`tdtp.session`) live beside it, each owning that state and importing nothing of the connection.
-
+The caller owns I/O and time: datagrams in (:meth:`Connection.receive_datagram`), timer expiries
+(:meth:`Connection.handle_timer`), samples (:meth:`Connection.send`), each with ``now``; after every
+input it collects :meth:`Connection.datagrams_to_send`, re-arms one timer at
+:meth:`Connection.get_timer` and takes :meth:`Connection.next_event`. The asyncio endpoints, the
+emulator and the simulator all drive this one class. It checks input against the state, takes every
+datagram in (address, size, protection, type), dispatches it, and carries out what the opening, the
+watchdog (PROTOCOL.md 5.2) and path migration (5.8) decide; the pieces with state of their own (listed
+in :mod:`tdtp.session`, a multipath session's paths in :mod:`tdtp.session.multipath`) live beside it.
 Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
 ``stats.drops`` by reason. Misuse by the caller raises a :class:`~tdtp.errors.TdtpError` subclass.
 """
@@ -45,6 +40,7 @@ from tdtp.session.events import (
 )
 from tdtp.session.handshake import Handshake, Reaction, close_reason_text
 from tdtp.session.liveness import Liveness
+from tdtp.session.multipath.paths import Multipath
 from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import LATE, NEW, STALE
@@ -83,16 +79,12 @@ _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 
 
 class Connection(ConnectionView):
-    """One TDTP association between a master and a slave (``role``: the master commands, the
-    slave obeys); ``dials``: this end sends the OPEN (by default the master does; a slave that dials
-    reaches a master behind a NAT, docs/PROTOCOL.md 5.1). Unkeyed by default: a dialer given
-    ``key=`` (a :class:`~tdtp.protection.PresharedKey` or its secret) opens a keyed session; a
-    listener given ``keys=`` (one, several, a :class:`~tdtp.protection.KeyRing`) accepts keyed
-    sessions only. A listener validates its dialer's address with a cookie before it keeps any
-    state (:mod:`tdtp.admission`; a server shares one ``admission`` among its connections).
-    ``rng`` supplies the nonces and the initial sequence number (seed it for reproducible runs; the
-    default, the operating system's CSPRNG, is what a keyed session needs).
-    """
+    """One TDTP association. ``role``: the master commands, the slave obeys; ``dials``: this end
+    sends the OPEN (by default the master; a slave dials a master behind a NAT, PROTOCOL.md 5.1).
+    A dialer's ``key=`` opens a keyed session; a listener's ``keys=`` (one, several, a KeyRing)
+    accepts keyed sessions only, after a cookie validated the dialer's address (``admission=``: a
+    server's shared one). ``rng``: nonces and initial sequence number (seeded: reproducible runs;
+    the default, the system's CSPRNG, is what a keyed session needs)."""
 
     def __init__(
         self,
@@ -175,6 +167,7 @@ class Connection(ConnectionView):
             config, events=self._events, stats=stats, rtt=recovery.rtt
         )
         self._ages = delivery.ages
+        self.multipath: Multipath | None = None  # a multipath session's paths (PROTOCOL.md 5.11)
 
     # ------------------------------------------------------------------ caller API
 
@@ -217,16 +210,14 @@ class Connection(ConnectionView):
     ) -> bool:
         """:meth:`send` for the common case, with the datagram handed straight to ``transmit``.
 
-        When the sample may leave at once as the only datagram due (established, the pacer and the
-        socket allow it, no control packet, held ACK or separate ACK waiting), it is encoded and
+        When the sample may leave at once as the only datagram due (established, one path, the
+        pacer and the socket allow it, no control packet, held ACK or separate ACK waiting), it is
         passed to ``transmit(datagram, addr)`` (``addr`` ``None`` when ``connected``, else the
-        peer's address: ``transport.sendto`` fits) *before* any bookkeeping, which follows. An
-        :class:`OSError` from ``transmit`` counts in :attr:`transmit_errors` and the datagram is
-        lost like any other. Returns False when it did not send: the sample is then offered as by
-        :meth:`send`, and :meth:`datagrams_to_send` must run. Raises what :meth:`send` raises.
-        """
+        peer's) *before* any bookkeeping. An :class:`OSError` from it counts in
+        :attr:`transmit_errors` (the datagram is lost like any other). False when it did not send:
+        the sample is offered as by :meth:`send`; :meth:`datagrams_to_send` must run."""
         peer = self._peer
-        if self._state is not ESTABLISHED or peer is None or self._path.limited:
+        if self._state is not ESTABLISHED or peer is None or self._path.limited or self.multipath:
             self.send(payload, now=now)
             return False
         if not self._sender.send_direct(payload, transmit, peer, connected, now):
@@ -249,9 +240,9 @@ class Connection(ConnectionView):
         self._channel.send(message, now)
 
     def pause_sending(self) -> None:
-        """The layer below cannot take datagrams now (the socket's send buffer is full): the pending
-        sample is held and superseded by newer ones (``samples_superseded``, ``samples_blocked``);
-        ACKs and control packets still go out. Then :meth:`resume_sending`, :meth:`datagrams_to_send`."""
+        """The layer below cannot take datagrams now (a full send buffer). Data is held: the pending
+        sample waits, newer ones supersede it (``samples_superseded``, ``samples_blocked``); ACKs
+        and control still go out. Call :meth:`resume_sending` once drained, then flush."""
         self._sender.pause()
 
     def resume_sending(self) -> None:
@@ -312,7 +303,11 @@ class Connection(ConnectionView):
             stats.count_drop(DropReason.CLOSED)
             return
         peer = self._peer
-        if peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
+        paths = self.multipath
+        if paths is not None:
+            if not paths.admits(data, addr):  # from none of its paths (counted)
+                return
+        elif peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
             stats.count_drop(DropReason.WRONG_ADDRESS)
             return
         if rx_time is not None:
@@ -350,6 +345,8 @@ class Connection(ConnectionView):
         if ptype > _CONTROL:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
             return
+        if paths is not None and paths.intercept(data, ptype, now):
+            return  # multipath control, or a copy of a sample taken in already
         if peer is None:
             # A listening slave answers with a RESET (its master's session died with a restart).
             self._handshake.on_stranger(data, addr, now)
@@ -462,8 +459,7 @@ class Connection(ConnectionView):
         self._heard(now)
 
     def use_path(self, addr: Address) -> None:
-        """Send to ``addr`` from now on: another path to the same peer whose round trip was proven
-        outside the session (a relay and a direct path, PROTOCOL.md 5.12), so no 3x limit."""
+        """Send to ``addr``: a path to the peer proven outside the session (PROTOCOL.md 5.12)."""
         if self._state is not ESTABLISHED:
             raise ConnectionStateError(f"use_path() needs an established session, not {self!r}")
         self._peer = addr
@@ -718,11 +714,6 @@ class Connection(ConnectionView):
         outbox.sealer, self._opener = keys
         outbox.overhead = self._overhead = PROTECTION_OVERHEAD
 
-    def _peer_address(self) -> Address:
-        peer = self._peer
-        assert peer is not None  # set by connect() or at the OPEN
-        return peer
-
     def _establish(self, now: float) -> None:
         self._state = State.ESTABLISHED
         self._hint.value = -math.inf
@@ -730,6 +721,8 @@ class Connection(ConnectionView):
         liveness = self._liveness
         liveness.last_receive = now
         liveness.last_send = now
+        if self._handshake.multipath:
+            self.multipath = Multipath.attach(self, now)
         self._push_other_event(ConnectionEstablished(self._peer_address()))
 
     # ------------------------------------------------------------------ timers
@@ -765,6 +758,8 @@ class Connection(ConnectionView):
         hint.controller_seen = controller_deadline
         if controller_deadline is not None and controller_deadline < deadline:
             deadline = controller_deadline
+        if self.multipath is not None and (due := self.multipath.deadline()) is not None:
+            deadline = min(deadline, due)
         return deadline
 
     def handle_timer(self, *, now: float) -> None:
@@ -801,6 +796,8 @@ class Connection(ConnectionView):
         self._recovery.detect_losses(now)
         self._channel.expire(now)
         self._delivery.release(now)
+        if self.multipath is not None:
+            self.multipath.on_timer(now)
         controller_deadline = self._controller.get_timer()
         if controller_deadline is not None and now >= controller_deadline:
             self._controller.on_timer(now=now)
@@ -828,6 +825,8 @@ class Connection(ConnectionView):
             self._emit_session(out, now)
         if path.limited:
             path.on_sent(out)
+        if self.multipath is not None:
+            return self.multipath.route(out, now)  # spread over the paths
         return out
 
     def _emit_session(self, out: list[tuple[bytes, Address]], now: float) -> None:

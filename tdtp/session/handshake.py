@@ -44,6 +44,7 @@ from tdtp.wire.control import (
     KeepaliveBody,
     MessageAckBody,
     MessageBody,
+    MpReportBody,
     OpenAckBody,
     OpenBody,
     OpenFlags,
@@ -141,6 +142,9 @@ class Handshake:
         """Whether this session is keyed: the master's choice, adopted by the slave at the open."""
         self.encrypt = config.encrypt
         self.suite = config.cipher_suite if self.keyed else CipherSuite.NONE
+        self.multipath = self._master and config.multipath is not None
+        """Whether the session may run over several paths (the OPEN's MULTIPATH flag): the
+        master's choice, adopted by the slave at the open (PROTOCOL.md 5.11)."""
         self.confirming = False
         """A slave that answered OPEN_ACK and waits for the master's first packet of the session."""
         self.open_attempt = 0
@@ -175,6 +179,8 @@ class Handshake:
             flags |= OpenFlags.KEYED
             if self.encrypt:
                 flags |= OpenFlags.ENCRYPTED
+        if self.multipath:
+            flags |= OpenFlags.MULTIPATH
         return int(flags)
 
     # ------------------------------------------------------------------ master
@@ -253,7 +259,8 @@ class Handshake:
             | PathChallengeBody
             | PathResponseBody
             | MessageBody
-            | MessageAckBody,
+            | MessageAckBody
+            | MpReportBody,
         ):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
         elif body.nonce != self.master_nonce:
@@ -388,6 +395,7 @@ class Handshake:
         the session's :attr:`keys`)."""
         body = admitted.body
         self.master_nonce = body.nonce
+        self.multipath = bool(body.flags & OpenFlags.MULTIPATH)
         if admitted.key is not None:
             self.key = admitted.key
             self.keyed = True

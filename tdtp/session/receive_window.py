@@ -220,6 +220,10 @@ class ReceiveWindow:
             self.unreported_since = now
         return LATE
 
+    def arrived(self, seq: int) -> bool:
+        """Whether the full sequence number ``seq`` arrived and is still within the window."""
+        return 0 <= self.highest - seq < WINDOW and self._seen[seq & _SLOT] == seq
+
     def sack_below(self, seq: int) -> int:
         """SACK bits for the six sequence numbers below ``seq`` (which must be within the window):
         bit k says whether ``seq - 1 - k`` arrived (numbers below the window count as absent)."""

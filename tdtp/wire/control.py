@@ -16,6 +16,12 @@ Four kinds of control packet exist:
   authenticated datagram instead).
 * **RESET** (a restarted slave's "no session for you") is stateless and in the clear: an echo of the
   datagram that found no session and, keyed, tags under the slave's keys.
+* **Multipath** (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON; version 4, sessions opened with
+  the ``MULTIPATH`` flag): the validation and probing of a session's further paths, each path's
+  receiver report, and the end of a path. MP_CHALLENGE and MP_RESPONSE carry the master's nonce in
+  the clear after the code byte (a server finds the session by it before it knows the address); the
+  rest is sealed like session control in a keyed session (``header | code | nonce | PN | sealed |
+  tag``). MP_REPORT and MP_ABANDON are plain session control.
 * **Session control** (KEEPALIVE, CLOSE, and the reliable control channel's MESSAGE and MESSAGE_ACK)
   uses the session's packet protection when keyed, exactly like
   DATA and ACK: ``header | code | PN | sealed body | tag`` (``tdtp.protection``). Unkeyed, it is
@@ -36,8 +42,8 @@ from tdtp.wire.protected import TAG_SIZE
 
 PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
-had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 no dialing slave
-(``SLAVE_DIALS``) and no rendezvous messages)."""
+had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 had no multipath,
+no dialing slave (``SLAVE_DIALS``) and no rendezvous messages)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -82,6 +88,18 @@ class ControlCode(enum.IntEnum):
     MESSAGE_ACK = 11
     """either way: the cumulative acknowledgement of the peer's control messages alone, when no
     MESSAGE of ours leaves to carry it."""
+    MP_CHALLENGE = 17
+    """either way, multipath sessions: on a path, "answer this token on the same path": validates a
+    new path (its opener's first datagram on it; the other side's proof that the opener receives at
+    that address) and probes an idle or failed one (its round trip)."""
+    MP_RESPONSE = 18
+    """either way, multipath sessions: the challenge's token echoed on the path it came on, with
+    a token of the responder's own to validate the path the other way (zeros: none)."""
+    MP_REPORT = 19
+    """either way, multipath sessions: a receiver report for one path: what arrived on it (count,
+    first copies, the newest sequence number and how long ago) and how far it lags the first copy."""
+    MP_ABANDON = 20
+    """either way, multipath sessions: this path is no longer used (reason code)."""
     REGISTER = 21
     """endpoint -> relay (version 4): wait under a rendezvous id (:mod:`tdtp.wire.rendezvous`)."""
     REFERRAL = 22
@@ -107,6 +125,20 @@ MESSAGE_CODES: Final = frozenset(
     int(code) for code in (ControlCode.MESSAGE, ControlCode.MESSAGE_ACK)
 )
 """The reliable control channel (docs/PROTOCOL.md section 5.10): session control, sealed when keyed."""
+MULTIPATH_CODES: Final = frozenset(
+    int(code)
+    for code in (
+        ControlCode.MP_CHALLENGE,
+        ControlCode.MP_RESPONSE,
+        ControlCode.MP_REPORT,
+        ControlCode.MP_ABANDON,
+    )
+)
+"""Multipath (docs/PROTOCOL.md section 5.11): taken by the session's paths, sealed when keyed."""
+PROBE_CODES: Final = frozenset(
+    int(code) for code in (ControlCode.MP_CHALLENGE, ControlCode.MP_RESPONSE)
+)
+"""The two multipath codes that carry the master's nonce in the clear before their sealed body."""
 
 
 class OpenFlags(enum.IntFlag):
@@ -120,6 +152,10 @@ class OpenFlags(enum.IntFlag):
     TAKEOVER = 0x08
     """OPEN only, keyed only: an exclusive slave hands control to this master at once, ending the
     session of the master that had it (docs/PROTOCOL.md 5.9). Never echoed in the OPEN_ACK."""
+    MULTIPATH = 0x40
+    """The session may run over several paths at once (docs/PROTOCOL.md 5.11): either side may
+    validate further paths with MP_CHALLENGE, DATA may travel on several of them, and receivers
+    take the first copy of each sequence number. Echoed in the OPEN_ACK."""
     SLAVE_DIALS = 0x80
     """Version 4: the sender of the OPEN is the slave (the robot) and the listener the master (the
     operator); without it the dialer is the master. Echoed in the OPEN_ACK; a listener whose own
@@ -131,6 +167,7 @@ KNOWN_FLAGS: Final = int(
     | OpenFlags.KEYED
     | OpenFlags.ENCRYPTED
     | OpenFlags.TAKEOVER
+    | OpenFlags.MULTIPATH
     | OpenFlags.SLAVE_DIALS
 )
 
@@ -171,12 +208,18 @@ class CloseReason(enum.IntEnum):
     TAKEN_OVER = 13
     """CLOSE: the slave is exclusive and another master took control (after this one was silent,
     or at once with the TAKEOVER flag)."""
+    PATH_CLOSED = 19
+    """MP_ABANDON: the sender stopped using this path (the application removed it, its interface
+    went away)."""
+    PATH_LIMIT = 20
+    """MP_ABANDON: the path was refused: the session has as many paths as the receiver allows, or
+    new paths come faster than it takes them."""
     ROLE_CONFLICT = 21
     """REJECT (version 4): the dialer plays the listener's own role: a master dialed a master, or
     a slave dialed a slave (the OPEN's SLAVE_DIALS flag, docs/PROTOCOL.md 5.1)."""
     RENDEZVOUS_FULL = 22
     """REFERRAL (version 4): the relay holds as many rendezvous as it may, or this source registers
-    too often; try again later or use another relay (docs/PROTOCOL.md 5.11)."""
+    too often; try again later or use another relay (docs/PROTOCOL.md 5.12)."""
 
 
 class OpenBody(NamedTuple):
@@ -308,6 +351,72 @@ class MessageAckBody(NamedTuple):
         return ControlCode.MESSAGE_ACK
 
 
+class MpChallengeBody(NamedTuple):
+    """MP_CHALLENGE (either way, multipath sessions)."""
+
+    nonce: bytes
+    """The master's nonce (in the clear: names the session)."""
+    path_id: int
+    token: bytes
+    """8 random bytes the answer must echo on the same path."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.MP_CHALLENGE
+
+
+class MpResponseBody(NamedTuple):
+    """MP_RESPONSE (either way, multipath sessions)."""
+
+    nonce: bytes
+    """The master's nonce (in the clear)."""
+    path_id: int
+    echo: bytes
+    """The challenge's token."""
+    token: bytes
+    """The responder's own challenge for the same path (zeros: none)."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.MP_RESPONSE
+
+
+class MpReportBody(NamedTuple):
+    """MP_REPORT (either way, multipath sessions): what one path delivered to the sender of this
+    report."""
+
+    path_id: int
+    seq: int
+    """The low 12 bits of the highest data sequence number received on the path (a u16 whose top
+    four bits senders set to zero and receivers ignore)."""
+    hold: int
+    """HOLD code: how long ago that packet arrived (255: nothing has arrived on the path)."""
+    received: int
+    """DATA datagrams received on the path so far, copies included (mod 2^32)."""
+    first: int
+    """Of those, the first copies of their sequence number (mod 2^32)."""
+    lag: int
+    """How far the path recently lagged the first copy, in units of 100 us (65535: saturated)."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.MP_REPORT
+
+
+class MpAbandonBody(NamedTuple):
+    """MP_ABANDON (either way, multipath sessions)."""
+
+    nonce: bytes
+    """The master's nonce (a blind attacker cannot abandon a path, as it cannot CLOSE)."""
+    path_id: int
+    reason: int
+    """A close reason (PATH_CLOSED, PATH_LIMIT)."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.MP_ABANDON
+
+
 ControlBody = (
     ResetBody
     | OpenBody
@@ -319,6 +428,10 @@ ControlBody = (
     | PathResponseBody
     | MessageBody
     | MessageAckBody
+    | MpChallengeBody
+    | MpResponseBody
+    | MpReportBody
+    | MpAbandonBody
 )
 
 # Layouts, byte offsets from the code byte (the first byte after the base header).
@@ -335,6 +448,10 @@ _PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
 _PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
 _MESSAGE: Final = struct.Struct(">BHH")  # code seq ack, then the message
 _MESSAGE_ACK: Final = struct.Struct(">BH")  # code ack
+_MP_CHALLENGE: Final = struct.Struct(">B16sB8s")  # code nonce path_id token
+_MP_RESPONSE: Final = struct.Struct(">B16sB8s8s")  # code nonce path_id echo token
+_MP_REPORT: Final = struct.Struct(">BBHBIIH")  # code path_id seq hold received first lag
+_MP_ABANDON: Final = struct.Struct(">B16sBB")  # code nonce path_id reason
 
 OPEN_BODY_SIZE: Final = _OPEN.size
 """48 bytes: with the header an unkeyed OPEN is 53 bytes, a keyed one 69."""
@@ -366,6 +483,23 @@ MESSAGE_ACK_BODY_SIZE: Final = _MESSAGE_ACK.size
 """3 bytes: an unkeyed MESSAGE_ACK is 8 bytes, a keyed one 26."""
 MESSAGE_SEQ_MODULUS: Final = 1 << 16
 """Message numbers travel as their low 16 bits."""
+MP_TOKEN_SIZE: Final = 8
+"""Bytes of a multipath challenge token (random; a path is validated by its echo)."""
+NO_MP_TOKEN: Final = bytes(MP_TOKEN_SIZE)
+MP_PROBE_PREFIX_SIZE: Final = 1 + NONCE_SIZE
+"""MP_CHALLENGE and MP_RESPONSE: the code byte and the master's nonce, in the clear before the
+(keyed: sealed) rest; with the header, the 22-byte prefix a keyed session authenticates."""
+MP_CHALLENGE_BODY_SIZE: Final = _MP_CHALLENGE.size
+"""26 bytes: an unkeyed MP_CHALLENGE is 31 bytes, a keyed one 49."""
+MP_RESPONSE_BODY_SIZE: Final = _MP_RESPONSE.size
+"""34 bytes: an unkeyed MP_RESPONSE is 39 bytes, a keyed one 57."""
+MP_REPORT_BODY_SIZE: Final = _MP_REPORT.size
+"""15 bytes: an unkeyed MP_REPORT is 20 bytes, a keyed one 38."""
+MP_ABANDON_BODY_SIZE: Final = _MP_ABANDON.size
+"""19 bytes: an unkeyed MP_ABANDON is 24 bytes, a keyed one 42."""
+MP_LAG_UNIT: Final = 0.0001
+"""Seconds per unit of MP_REPORT's lag (100 us)."""
+MP_LAG_MAX: Final = 0xFFFF
 OPEN_NONCE_OFFSET: Final = struct.calcsize(">BBBBHH")
 """Where an OPEN body carries the master's nonce (after code, version, flags, suite, max_payload and
 attempt): 8."""
@@ -453,6 +587,66 @@ def encode_message_ack(ack: int) -> bytes:
     return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, ack & 0xFFFF)
 
 
+def encode_mp_challenge(nonce: bytes, path_id: int, token: bytes) -> bytes:
+    """An MP_CHALLENGE body (code byte included)."""
+    return _MP_CHALLENGE.pack(ControlCode.MP_CHALLENGE, nonce, path_id, token)
+
+
+def encode_mp_response(nonce: bytes, path_id: int, echo: bytes, token: bytes) -> bytes:
+    """An MP_RESPONSE body (code byte included)."""
+    return _MP_RESPONSE.pack(ControlCode.MP_RESPONSE, nonce, path_id, echo, token)
+
+
+def encode_mp_report(body: MpReportBody) -> bytes:
+    """An MP_REPORT body (code byte included); counters wrap at 2^32, the lag saturates."""
+    return _MP_REPORT.pack(
+        ControlCode.MP_REPORT,
+        body.path_id,
+        body.seq & 0xFFF,
+        body.hold,
+        body.received & 0xFFFFFFFF,
+        body.first & 0xFFFFFFFF,
+        min(body.lag, MP_LAG_MAX),
+    )
+
+
+def encode_mp_abandon(nonce: bytes, path_id: int, reason: int) -> bytes:
+    """An MP_ABANDON body (code byte included)."""
+    return _MP_ABANDON.pack(ControlCode.MP_ABANDON, nonce, path_id, reason)
+
+
+def _decode_multipath(code: ControlCode, body: bytes | memoryview) -> ControlBody:
+    """The four multipath bodies (code byte included), unprotected."""
+    size = len(body)
+    if code is ControlCode.MP_CHALLENGE:
+        if size != MP_CHALLENGE_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"MP_CHALLENGE body is {size} bytes, not {MP_CHALLENGE_BODY_SIZE}"
+            )
+        _, nonce, path_id, token = _MP_CHALLENGE.unpack(body)
+        return MpChallengeBody(nonce, path_id, token)
+    if code is ControlCode.MP_RESPONSE:
+        if size != MP_RESPONSE_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"MP_RESPONSE body is {size} bytes, not {MP_RESPONSE_BODY_SIZE}"
+            )
+        _, nonce, path_id, echo, token = _MP_RESPONSE.unpack(body)
+        return MpResponseBody(nonce, path_id, echo, token)
+    if code is ControlCode.MP_REPORT:
+        if size != MP_REPORT_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"MP_REPORT body is {size} bytes, not {MP_REPORT_BODY_SIZE}"
+            )
+        _, path_id, seq, hold, received, first, lag = _MP_REPORT.unpack(body)
+        return MpReportBody(path_id, seq & 0xFFF, hold, received, first, lag)
+    if size != MP_ABANDON_BODY_SIZE:
+        raise MalformedPacketError(
+            "bad_control", f"MP_ABANDON body is {size} bytes, not {MP_ABANDON_BODY_SIZE}"
+        )
+    _, nonce, path_id, reason = _MP_ABANDON.unpack(body)
+    return MpAbandonBody(nonce, path_id, reason)
+
+
 def _tagged(body: bytes | memoryview, size: int, name: str) -> bytes | memoryview:
     """The fixed part of a handshake body whose KEYED flag (its third byte) says whether a tag
     follows."""
@@ -470,7 +664,8 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
     """Decode the body after the base header; raises :class:`MalformedPacketError` on anything else.
 
     Handshake messages are checked in full (a keyed OPEN or OPEN_ACK must carry its tag, which is
-    not verified here). For KEEPALIVE and CLOSE this reads the *unprotected* form: a keyed session
+    not verified here). For KEEPALIVE, CLOSE, MESSAGE and the multipath codes this reads the
+    *unprotected* form: a keyed session
     removes the packet protection first.
     """
     if not body:
@@ -519,6 +714,8 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, ack = _MESSAGE_ACK.unpack(body)
         return MessageAckBody(ack)
+    if raw in MULTIPATH_CODES:
+        return _decode_multipath(code, body)
     if code is ControlCode.PATH_CHALLENGE:
         if len(body) != PATH_CHALLENGE_BODY_SIZE:
             raise MalformedPacketError(

@@ -65,3 +65,11 @@ class DropReason(enum.Enum):
     UNMATCHED_RESET = "unmatched_reset"
     """A RESET that echoes none of our recent datagrams, or (keyed) whose tags do not verify:
     forged, replayed, or too late."""
+    PATH_LIMIT = "path_limit"
+    """Multipath: a new path refused: the session has ``max_paths`` already, or new paths came
+    faster than ``new_paths_per_second`` (PROTOCOL.md 5.11)."""
+    UNKNOWN_PATH = "unknown_path"
+    """Multipath: a datagram from an address (or on a local socket) that is none of the session's
+    paths, or a multipath packet naming a path that arrived on another one."""
+    BAD_TOKEN = "bad_token"
+    """Multipath: an MP_RESPONSE echoing a token no challenge of ours on that path carried."""

@@ -19,6 +19,7 @@ from construct import (
     If,
     Int8ub,
     Int16ub,
+    Int32ub,
     Struct,
     Switch,
     this,
@@ -28,6 +29,7 @@ from construct.core import stream_size, stream_tell
 from tdtp.wire.control import (
     COOKIE_SIZE,
     KEY_ID_SIZE,
+    MP_TOKEN_SIZE,
     NONCE_SIZE,
     PATH_TOKEN_SIZE,
     RESET_ECHO_SIZE,
@@ -87,6 +89,29 @@ MessageBody: Any = Struct("seq" / Int16ub, "ack" / Int16ub, "data" / GreedyBytes
 """MESSAGE (the reliable control channel): the message's number and the cumulative acknowledgement
 of the peer's messages (both their low 16 bits), then the message itself (at least one byte)."""
 MessageAckBody: Any = Struct("ack" / Int16ub)
+MpChallengeBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "token" / Bytes(MP_TOKEN_SIZE)
+)
+"""MP_CHALLENGE (multipath): the master's nonce (in the clear even when keyed), the path's id, a
+random token the answer echoes on the same path."""
+MpResponseBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE),
+    "path_id" / Int8ub,
+    "echo" / Bytes(MP_TOKEN_SIZE),
+    "token" / Bytes(MP_TOKEN_SIZE),
+)
+"""MP_RESPONSE (multipath): the challenge's token echoed, and a token of the responder's own
+(zeros: none)."""
+MpReportBody: Any = Struct(
+    "path_id" / Int8ub,
+    "seq" / Int16ub,
+    "hold" / Int8ub,
+    "received" / Int32ub,
+    "first" / Int32ub,
+    "lag" / Int16ub,
+)
+"""MP_REPORT (multipath): one path's receiver report."""
+MpAbandonBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "reason" / Int8ub)
 
 ControlBody: Any = Struct(
     "code" / Int8ub,
@@ -105,6 +130,10 @@ ControlBody: Any = Struct(
             int(ControlCode.PATH_RESPONSE): PathResponseBody,
             int(ControlCode.MESSAGE): MessageBody,
             int(ControlCode.MESSAGE_ACK): MessageAckBody,
+            int(ControlCode.MP_CHALLENGE): MpChallengeBody,
+            int(ControlCode.MP_RESPONSE): MpResponseBody,
+            int(ControlCode.MP_REPORT): MpReportBody,
+            int(ControlCode.MP_ABANDON): MpAbandonBody,
         },
     ),
 )
@@ -136,8 +165,19 @@ ProtectedControl: Any = Struct(
     "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
     "tag" / Bytes(TAG_SIZE),
 )
-"""A keyed session's KEEPALIVE, CLOSE, MESSAGE or MESSAGE_ACK: as ProtectedData, with the control code in the clear
-after the header."""
+"""A keyed session's KEEPALIVE, CLOSE, MESSAGE, MESSAGE_ACK, MP_REPORT or MP_ABANDON: as
+ProtectedData, with the control code in the clear after the header."""
+
+ProtectedProbe: Any = Struct(
+    "header" / Header,
+    "code" / Int8ub,
+    "nonce" / Bytes(NONCE_SIZE),
+    "packet_number" / Int16ub,
+    "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
+    "tag" / Bytes(TAG_SIZE),
+)
+"""A keyed session's MP_CHALLENGE or MP_RESPONSE: the code and the master's nonce in the clear (a
+server finds the session by it), then the packet number, the sealed rest and the tag."""
 
 __all__ = [
     "CloseBody",
@@ -147,11 +187,16 @@ __all__ = [
     "KeepaliveBody",
     "MessageAckBody",
     "MessageBody",
+    "MpAbandonBody",
+    "MpChallengeBody",
+    "MpReportBody",
+    "MpResponseBody",
     "OpenAckBody",
     "OpenBody",
     "PathChallengeBody",
     "PathResponseBody",
     "ProtectedControl",
     "ProtectedData",
+    "ProtectedProbe",
     "ResetBody",
 ]

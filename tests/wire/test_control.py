@@ -76,6 +76,10 @@ UNKEYED_SIZES = {
     ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
     ControlCode.MESSAGE: 6,  # the smallest: code, seq, ack and a one-byte message
     ControlCode.MESSAGE_ACK: 3,
+    ControlCode.MP_CHALLENGE: 26,
+    ControlCode.MP_RESPONSE: 34,
+    ControlCode.MP_REPORT: 15,
+    ControlCode.MP_ABANDON: 19,
 }
 
 # Whole CONTROL datagrams, derived by hand field by field (docs/PROTOCOL.md section 7 shows the same).
@@ -208,6 +212,10 @@ def test_codes_and_constants_are_pinned() -> None:
         "PATH_RESPONSE": 9,
         "MESSAGE": 10,
         "MESSAGE_ACK": 11,
+        "MP_CHALLENGE": 17,
+        "MP_RESPONSE": 18,
+        "MP_REPORT": 19,
+        "MP_ABANDON": 20,
         "REGISTER": 21,
         "REFERRAL": 22,
         "PROBE": 23,
@@ -228,6 +236,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEY_EXHAUSTED": 11,
         "IN_USE": 12,
         "TAKEN_OVER": 13,
+        "PATH_CLOSED": 19,
+        "PATH_LIMIT": 20,
         "ROLE_CONFLICT": 21,
         "RENDEZVOUS_FULL": 22,
     }
@@ -237,6 +247,7 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEYED": 2,
         "ENCRYPTED": 4,
         "TAKEOVER": 8,
+        "MULTIPATH": 0x40,
         "SLAVE_DIALS": 128,
     }
     assert {s.name: int(s) for s in CipherSuite} == {

@@ -1,0 +1,170 @@
+"""Which paths a sample goes on (docs/PROTOCOL.md 5.11, docs/CONTROL.md 11).
+
+* ``redundant``: every usable path (validated, not failed), best first. The first copy to arrive wins
+  at the receiver, so a sample is as late as the fastest path made it and lost only if every path lost
+  it.
+* ``adaptive``: the best path alone while it behaves, every usable path while it does not (the 5G
+  study's partial duplication). The best path is the one with the lowest one-way delay estimate. It
+  *behaves* while its recent loss is at most ``loss_bound``, its recent one-way delay is within
+  ``delay_bound`` of the lowest it has shown, and the samples it carried are acknowledged in time: the
+  newest of the samples it carried alone that was acknowledged left no more than ``srtt + 4 rttvar``
+  ago, plus the usual gap between acknowledgements (their mean and four deviations: the peer's
+  cadence, a bursty path's batches) and 2 ms. That last test reacts within one round
+  trip to a path that stalls (a radio's capacity outage), long before any report could say so. Once a
+  bound is broken every path carries the samples for at least ``adaptive_hold``, and so they do
+  while the best path has been usable for less than that (just validated, or back from a failure).
+
+Everything else (stand-alone ACKs, keep-alives, control messages) goes on the best path, and a control
+message sent again goes on the second best, so that one path's outage costs a retransmission, not the
+message.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+from tdtp.config import MultipathConfig
+from tdtp.session.multipath.copies import SentRing
+from tdtp.session.multipath.path import Path
+from tdtp.session.recovery import LossRecovery
+
+STALL_MARGIN: Final = 0.001
+"""The least margin beyond ``srtt + 4 rttvar`` and the feedback's usual gaps before an
+unacknowledged sample counts as stalled."""
+PROBE_EVERY: Final = 8
+"""Adaptive, while the best path carries the samples alone: every this many samples one goes on every
+path anyway, so that each path's lag behind the first copy (its one-way delay, compared) stays
+measured and the best path is chosen by what the receiver saw, not by a stale figure."""
+GAP_GAIN: Final = 0.125
+"""Gain of the averages of the gaps between acknowledgements that advance (RFC 6298's alpha)."""
+
+
+def rank(paths: list[Path], now: float) -> list[Path]:
+    """The usable paths, best (lowest one-way delay estimate, then lowest id) first."""
+    usable = [path for path in paths if path.usable]
+    usable.sort(key=lambda path: (path.one_way_delay(now), path.path_id))
+    return usable
+
+
+class Scheduler:
+    """The scheduling policy, and (adaptive) whether the best path carries the samples alone now."""
+
+    __slots__ = (
+        "_acked",
+        "_acked_at",
+        "_alone_path",
+        "_alone_since",
+        "_config",
+        "_delivered",
+        "_gap",
+        "_gap_dev",
+        "_hold_until",
+        "_recovery",
+        "_ring",
+        "_since_probe",
+        "adaptive",
+        "breaches",
+        "reason",
+        "single_samples",
+        "spread_samples",
+    )
+
+    def __init__(
+        self,
+        config: MultipathConfig,
+        recovery: LossRecovery,
+        ring: SentRing,
+    ) -> None:
+        self._config = config
+        self._acked = recovery.sent.largest_acked
+        self._acked_at = -math.inf
+        self._gap = 0.0
+        self._gap_dev = 0.0
+        self._since_probe = 0
+        self._delivered: dict[int, float] = {}  # path id -> newest of its lone samples acknowledged
+        self._alone_path = -1  # the path carrying the samples alone now (-1: none)
+        self._alone_since = -math.inf
+        self.adaptive = config.scheduler == "adaptive"
+        self._recovery = recovery
+        self._ring = ring
+        self._hold_until = -math.inf
+        self.breaches = 0
+        """Adaptive: times the best path broke a bound and every path took the samples."""
+        self.reason = ""
+        """Adaptive: the last bound broken (``loss``, ``delay``, ``stall``, ``unmeasured``)."""
+        self.single_samples = 0
+        """Samples sent on one path only."""
+        self.spread_samples = 0
+        """Samples sent on several paths."""
+
+    def candidates(self, ranked: list[Path], now: float) -> list[Path]:
+        """The paths a sample should go on now (``ranked``: the usable paths, best first)."""
+        if self.adaptive:
+            self._feedback(now)
+        if not self.adaptive or len(ranked) < 2:
+            return ranked
+        best = ranked[0]
+        if self._alone(best, now):
+            if self._alone_path != best.path_id:
+                self._alone_path = best.path_id
+                self._alone_since = now
+            self._since_probe += 1
+            if self._since_probe < PROBE_EVERY:
+                return ranked[:1]
+        else:
+            self._alone_path = -1
+        self._since_probe = 0
+        return ranked
+
+    def _alone(self, best: Path, now: float) -> bool:
+        config = self._config
+        reason = ""
+        if not best.rtt.has_sample or now - best.state_since < config.adaptive_hold:
+            reason = "unmeasured"  # (or just validated, or just back: not yet trusted alone)
+        elif best.loss > config.loss_bound:
+            reason = "loss"
+        elif best.queue_delay / 2.0 > config.delay_bound:
+            reason = "delay"
+        elif self._stalled(best, now):
+            reason = "stall"
+        if reason:
+            if now >= self._hold_until:
+                self.breaches += 1
+            self._hold_until = now + config.adaptive_hold
+            self.reason = reason
+            return False
+        return now >= self._hold_until
+
+    def _stalled(self, best: Path, now: float) -> bool:
+        """No sample the best path carried alone has been acknowledged for longer than a round
+        trip and the usual feedback gap can explain (the samples every path carried prove nothing
+        about it: their acknowledgements may have come the other way)."""
+        if self._alone_path != best.path_id:
+            return False  # not alone on it yet
+        evidence = max(self._delivered.get(best.path_id, -math.inf), self._alone_since)
+        rtt = self._recovery.rtt
+        limit = rtt.srtt + 4.0 * rtt.rttvar + self._gap + 2.0 * self._gap_dev + STALL_MARGIN
+        return now - evidence > limit
+
+    def _feedback(self, now: float) -> None:
+        """The gaps between acknowledgements that advance, averaged (with their deviation) as RFC
+        6298 averages round trips: the peer's own cadence, and a bursty path's, in one figure."""
+        largest = self._recovery.sent.largest_acked
+        if largest == self._acked:
+            return
+        self._acked = largest
+        mask = self._ring.paths(largest)
+        if mask and not mask & (mask - 1):  # carried by one path alone: it delivers
+            sent_at = self._ring.send_time(largest)
+            if sent_at is not None:
+                self._delivered[mask.bit_length() - 1] = sent_at
+        if self._acked_at > -math.inf:
+            gap = now - self._acked_at
+            self._gap_dev += GAP_GAIN * 2.0 * (abs(gap - self._gap) - self._gap_dev)
+            self._gap += GAP_GAIN * (gap - self._gap)
+        self._acked_at = now
+
+    def deadline(self) -> float | None:
+        """Adaptive: when the hold ends (the best path may carry the samples alone again)."""
+        return self._hold_until if self.adaptive and self._hold_until > -math.inf else None
