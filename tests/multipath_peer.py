@@ -12,6 +12,7 @@ path's copies over time. Times are on the host's monotonic clock, which both nam
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import struct
 import sys
@@ -26,8 +27,14 @@ SIZE = 100
 
 async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> None:
     received: list[int] = []
+    arrivals: list[float] = []
     silences: list[float] = []
-    ep.set_data_callback(lambda sample: received.append(STAMP.unpack_from(sample.payload)[0]))
+
+    def on_data(sample: tdtp.DataReceived) -> None:
+        received.append(STAMP.unpack_from(sample.payload)[0])
+        arrivals.append(sample.received_at)
+
+    ep.set_data_callback(on_data)
     ep.set_watchdog_callback(
         lambda event: (
             silences.append(time.monotonic()) if isinstance(event, tdtp.PeerSilent) else None
@@ -60,6 +67,11 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
             for p in ep.paths
         ],
         drops=dict(ep.stats.drops),
+        departed=ep.stats.sent.data_packets,
+        longest_gaps=sorted(((b - a, a) for a, b in itertools.pairwise(arrivals)), reverse=True)[
+            :3
+        ],
+        superseded=ep.stats.samples_superseded,
         send_errors=ep.send_errors + ep.paths.send_errors,
     )
 

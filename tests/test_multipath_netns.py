@@ -149,10 +149,16 @@ def test_one_of_two_veth_paths_cut_and_restored_at_1khz(scheduler: str) -> None:
     assert slave_record["paths_learned"] >= 1
     for sender, receiver in ((master_record, slave_record), (slave_record, master_record)):
         # No silence on either side; every sample but the last few in flight arrived.
-        assert receiver["silences"] == [], receiver["silences"]
+        silent = [round(at - cut, 3) for at in receiver["silences"]]
+        gaps = [(round(gap, 3), round(at - cut, 3)) for gap, at in receiver["longest_gaps"]]
+        assert silent == [], (receiver["role"], "silences after the cut", silent, "gaps", gaps)
         assert receiver["duplicates_delivered"] == 0
-        missing = set(range(sender["sent"])) - set(receiver["received"])
-        assert len(missing) <= LOST_AT_MOST[scheduler], (sender["role"], sorted(missing)[:20])
+        # What the run recorded adds up: every sample offered left or was superseded (a loaded
+        # machine's late ticks), and of those that left, at most a few never arrived.
+        assert sender["departed"] + sender["superseded"] == sender["sent"]
+        lost = sender["departed"] - len(receiver["received"])
+        missing = sorted(set(range(sender["sent"])) - set(receiver["received"]))
+        assert 0 <= lost <= LOST_AT_MOST[scheduler], (sender["role"], lost, missing[:20])
     # The cut path failed, came back within a second of the restore, and carries copies again
     # (adaptive: when it is the better path, after adaptive_hold; not pinned here).
     events = [(at, path, state) for at, path, state in master_record["events"] if at >= cut - 0.05]

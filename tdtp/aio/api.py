@@ -191,6 +191,10 @@ def connect(
     if not isinstance(role, Role):
         raise ArgumentTypeError(f"role must be tdtp.Role.MASTER or tdtp.Role.SLAVE, got {role!r}")
     if rendezvous is not None:
+        if local_addresses is not None or path_netem is not None:
+            raise InvalidArgumentError(
+                "rendezvous= meets the peer on one socket: not with local_addresses or path_netem"
+            )
         return _connect_rendezvous(
             host, port, rendezvous, role, config, local_addr, timer, on_data, on_watchdog, rng,
             netem, key, pcap, policy,

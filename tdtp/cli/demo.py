@@ -34,6 +34,7 @@ from tdtp.cli.options import (
     side_deadband,
 )
 from tdtp.cli.outcome import Outcome, Side, header_line, settings_report
+from tdtp.cli.paths_report import continuity
 from tdtp.cli.session_tasks import (
     _settle,
     _with_display,
@@ -72,6 +73,7 @@ async def _demo(
     meet = rendezvous_settings(args)
     if meet is not None and meet.name is None and not keys.keyed:
         meet = replace(meet, name=secrets.token_hex(16))  # both ends are ours: any secret name
+    paths = args.path or []
     async with (
         listen(
             "127.0.0.1" if meet is None else "0.0.0.0",
@@ -95,6 +97,9 @@ async def _demo(
             netem_seed=netem_seed(args, 0),
             key=keys.master,
             pcap=capture,
+            # --path: one socket per path on the master's side, each impaired both ways there.
+            local_addresses=["127.0.0.1"] * len(paths) if paths else None,
+            path_netem=paths or None,
         ) as master,
     ):
         slave = await server.accept()
@@ -167,6 +172,12 @@ async def _demo(
                     observed_at=both,
                     duration=spent,
                     latency=slave_side.latency_counts(),
+                )
+                | continuity(
+                    sender=master,
+                    receiver=slave.stats,
+                    counter=slave_side.continuity,
+                    end=start + spent,
                 ),
                 "slave_to_master": direction_report(
                     sender=slave.stats,
@@ -174,6 +185,12 @@ async def _demo(
                     observed_at=both,
                     duration=spent,
                     latency=master_side.latency_counts(),
+                )
+                | continuity(
+                    sender=slave,
+                    receiver=master.stats,
+                    counter=master_side.continuity,
+                    end=start + spent,
                 ),
             }
             if master.rendezvous is not None and server.rendezvous is not None:
@@ -227,6 +244,15 @@ def demo_table(summary: dict[str, Any]) -> str:
             f"latency p50 {latency.get('p50', math.nan):.3f} ms p99 "
             f"{latency.get('p99', math.nan):.3f} ms, age p50 {age.get('p50', math.nan):.3f} ms p99 "
             f"{age.get('p99', math.nan):.3f} ms, header bytes {d['header_bytes']}, "
-            f"ACK packets {d['ack_packets_sent_back']}"
+            f"ACK packets {d['ack_packets_sent_back']}, dropouts {d.get('dropouts_100ms')}"
         )
+        if d.get("paths"):
+            rows.append(
+                f"{label}: duplicates {d['duplicates']}, paths "
+                + "; ".join(
+                    f"{p['id']}: {p['state']}, sent {p['sent']}, first {p['first_delivered']}, "
+                    f"srtt {p['srtt_ms']:.3f} ms"
+                    for p in d["paths"]
+                )
+            )
     return "\n".join(rows)

@@ -103,6 +103,10 @@ def check_command_line(args: argparse.Namespace) -> None:
     if meet and args.command in ("demo", "master", "slave"):
         if getattr(args, "netem", None) or getattr(args, "netem_ms", None) or args.pcap:
             raise UsageError("--netem and --pcap are not available with --rendezvous")
+        if getattr(args, "path", None) or getattr(args, "local_address", None):
+            raise UsageError(
+                "--rendezvous meets the peer on one socket: not with --path or --local-address"
+            )
         rendezvous_settings(args)
         unkeyed = getattr(args, "key_file", None) is None and not getattr(args, "keyed", False)
         if unkeyed and args.rendezvous_name is None and args.command != "demo":

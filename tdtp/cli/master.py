@@ -36,6 +36,7 @@ from tdtp.cli.outcome import (
     header_line,
     settings_report,
 )
+from tdtp.cli.paths_report import continuity
 from tdtp.cli.session_tasks import (
     _with_display,
     every_second,
@@ -76,6 +77,7 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
         key=args.session_keys.master,
         pcap=capture,
         reconnect=ReconnectPolicy(after_silence=args.reconnect_after) if args.reconnect else False,
+        local_addresses=args.local_address,
     ) as ep:
         start = monotonic()
         until = start + (args.duration or math.inf)
@@ -202,13 +204,17 @@ async def _session(
                 observed_at=["master"],
                 duration=elapsed,
                 latency=None,
-            ),
+            )
+            | continuity(sender=ep, receiver=None, counter=None, end=start + elapsed),
             "slave_to_master": direction_report(
                 sender=None,
                 receiver=ep.stats,
                 observed_at=["master"],
                 duration=elapsed,
                 latency=side.latency_counts(),
+            )
+            | continuity(
+                sender=None, receiver=ep.stats, counter=side.continuity, end=start + elapsed
             ),
             "samples_received": side.received,
             "reconnects": reconnect_report(ep, start),

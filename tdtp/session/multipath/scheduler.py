@@ -7,9 +7,9 @@
   study's partial duplication). The best path is the one with the lowest one-way delay estimate. It
   *behaves* while its recent loss is at most ``loss_bound``, its recent one-way delay is within
   ``delay_bound`` of the lowest it has shown, and the samples it carried are acknowledged in time: the
-  newest of the samples it carried alone that was acknowledged left no more than ``srtt + 4 rttvar``
-  ago, plus the usual gap between acknowledgements (their mean and four deviations: the peer's
-  cadence, a bursty path's batches) and 2 ms. That last test reacts within one round
+  newest of the samples it carried alone that was acknowledged left no longer ago than such a
+  sample's acknowledgement usually takes (a round trip and the peer's hold) plus the usual gap
+  between them (each a mean and four deviations) and 1 ms. That last test reacts within one round
   trip to a path that stalls (a radio's capacity outage), long before any report could say so. Once a
   bound is broken every path carries the samples for at least ``adaptive_hold``, and so they do
   while the best path has been usable for less than that (just validated, or back from a failure).
@@ -37,7 +37,9 @@ PROBE_EVERY: Final = 8
 path anyway, so that each path's lag behind the first copy (its one-way delay, compared) stays
 measured and the best path is chosen by what the receiver saw, not by a stale figure."""
 GAP_GAIN: Final = 0.125
-"""Gain of the averages of the gaps between acknowledgements that advance (RFC 6298's alpha)."""
+"""Gain of the averages of acknowledgement ages and gaps (RFC 6298's alpha)."""
+AGE_GAIN: Final = 0.25
+"""Gain of their deviations (RFC 6298's beta)."""
 
 
 def rank(paths: list[Path], now: float) -> list[Path]:
@@ -53,11 +55,14 @@ class Scheduler:
     __slots__ = (
         "_acked",
         "_acked_at",
+        "_age",
+        "_age_dev",
         "_alone_path",
         "_alone_since",
         "_config",
         "_delivered",
         "_gap",
+        "_gap_at",
         "_gap_dev",
         "_hold_until",
         "_recovery",
@@ -81,6 +86,9 @@ class Scheduler:
         self._acked_at = -math.inf
         self._gap = 0.0
         self._gap_dev = 0.0
+        self._gap_at = -math.inf
+        self._age = 0.0
+        self._age_dev = 0.0
         self._since_probe = 0
         self._delivered: dict[int, float] = {}  # path id -> newest of its lone samples acknowledged
         self._alone_path = -1  # the path carrying the samples alone now (-1: none)
@@ -109,6 +117,7 @@ class Scheduler:
             if self._alone_path != best.path_id:
                 self._alone_path = best.path_id
                 self._alone_since = now
+                self._gap_at = -math.inf  # the gaps that count are those while alone
             self._since_probe += 1
             if self._since_probe < PROBE_EVERY:
                 return ranked[:1]
@@ -121,8 +130,9 @@ class Scheduler:
         config = self._config
         reason = ""
         if not best.rtt.has_sample or now - best.state_since < config.adaptive_hold:
-            reason = "unmeasured"  # (or just validated, or just back: not yet trusted alone)
-        elif best.loss > config.loss_bound:
+            self.reason = "unmeasured"  # (or just validated, or just back: not trusted alone yet)
+            return False
+        if best.loss > config.loss_bound:
             reason = "loss"
         elif best.queue_delay / 2.0 > config.delay_bound:
             reason = "delay"
@@ -137,33 +147,49 @@ class Scheduler:
         return now >= self._hold_until
 
     def _stalled(self, best: Path, now: float) -> bool:
-        """No sample the best path carried alone has been acknowledged for longer than a round
-        trip and the usual feedback gap can explain (the samples every path carried prove nothing
-        about it: their acknowledgements may have come the other way)."""
+        """No sample the best path carried alone has been acknowledged for longer than the usual
+        wait for an acknowledgement and the usual gap between them can explain (the samples every
+        path carried prove nothing about it: their acknowledgements may have come the other way)."""
         if self._alone_path != best.path_id:
             return False  # not alone on it yet
         evidence = max(self._delivered.get(best.path_id, -math.inf), self._alone_since)
-        rtt = self._recovery.rtt
-        limit = rtt.srtt + 4.0 * rtt.rttvar + self._gap + 2.0 * self._gap_dev + STALL_MARGIN
-        return now - evidence > limit
+        return now - evidence > self._limit()
 
     def _feedback(self, now: float) -> None:
-        """The gaps between acknowledgements that advance, averaged (with their deviation) as RFC
-        6298 averages round trips: the peer's own cadence, and a bursty path's, in one figure."""
+        """A new largest acknowledged sample that one path carried alone: evidence that the path
+        delivers. How old such a sample is when its acknowledgement arrives (a round trip plus the
+        peer's hold), and the gaps between them (the peer's cadence, a bursty path's batches), are
+        averaged with their deviations as RFC 6298 averages round trips."""
         largest = self._recovery.sent.largest_acked
         if largest == self._acked:
             return
         self._acked = largest
         mask = self._ring.paths(largest)
-        if mask and not mask & (mask - 1):  # carried by one path alone: it delivers
-            sent_at = self._ring.send_time(largest)
-            if sent_at is not None:
-                self._delivered[mask.bit_length() - 1] = sent_at
-        if self._acked_at > -math.inf:
-            gap = now - self._acked_at
-            self._gap_dev += GAP_GAIN * 2.0 * (abs(gap - self._gap) - self._gap_dev)
-            self._gap += GAP_GAIN * (gap - self._gap)
+        sent_at = self._ring.send_time(largest)
+        if not mask or mask & (mask - 1) or sent_at is None:
+            return
+        self._delivered[mask.bit_length() - 1] = sent_at
+        age = now - sent_at
+        gap = now - self._gap_at
+        if age + gap > self._limit() and self._acked_at > -math.inf:
+            # Beyond what a stall is judged by: itself a sign of trouble, not a lesson in what
+            # is usual (a cut path's last samples, acknowledged the other way).
+            self._gap_at = now
+            return
+        if self._acked_at == -math.inf:
+            self._age, self._age_dev = age, age / 2.0
+        else:
+            self._age_dev += AGE_GAIN * (abs(age - self._age) - self._age_dev)
+            self._age += GAP_GAIN * (age - self._age)
         self._acked_at = now
+        if self._gap_at > -math.inf:
+            self._gap_dev += AGE_GAIN * (abs(gap - self._gap) - self._gap_dev)
+            self._gap += GAP_GAIN * (gap - self._gap)
+        self._gap_at = now
+
+    def _limit(self) -> float:
+        """How long after its send the newest acknowledged lone sample may be before a stall."""
+        return self._age + 4.0 * self._age_dev + self._gap + 4.0 * self._gap_dev + STALL_MARGIN
 
     def deadline(self) -> float | None:
         """Adaptive: when the hold ends (the best path may carry the samples alone again)."""
