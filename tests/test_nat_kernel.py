@@ -166,6 +166,7 @@ def test_a_cut_direct_path_falls_back_to_the_relay_and_comes_back() -> None:
             assert rendezvous["direct_paths_lost"] >= 1, rendezvous
             assert rendezvous["direct_paths_validated"] >= 1, rendezvous
             assert rendezvous["path"] == "direct", rendezvous
-        assert master["close"] is None or master["close"]["cause"] == "local_close", master["close"]
+        # Ended by the interrupt (ours or the slave's CLOSE first), never by the cut.
+        assert master["close"] is None or master["close"]["cause"] in ("local_close", "peer_close")
         assert master["reconnects"]["count"] == 0
         _flowed(master, slave)
