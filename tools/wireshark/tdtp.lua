@@ -276,11 +276,11 @@ local function add_flags(tree, tvb, offset)
     item:add(f.flag_keyed, tvb(offset, 1))
     item:add(f.flag_encrypted, tvb(offset, 1))
     item:add(f.flag_takeover, tvb(offset, 1))
-f.flag_multipath = ProtoField.bool("tdtp.flags.multipath", "MULTIPATH", 8, nil, 0x40)
+    item:add(f.flag_multipath, tvb(offset, 1))
     item:add(f.flag_slave_dials, tvb(offset, 1))
     item:add(f.flag_reserved, tvb(offset, 1))
     local flags = tvb(offset, 1):uint()
-    if low_bits(rshift(flags, 4), 3) ~= 0 then item:add_proto_expert_info(e.reserved_flags) end
+    if low_bits(rshift(flags, 4), 2) ~= 0 then item:add_proto_expert_info(e.reserved_flags) end
     return flags, item
 end
 
