@@ -40,7 +40,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
@@ -356,8 +356,15 @@ def upgrade_and_failover(seconds: float) -> Json:
     return result
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """Misuse is one line on stderr and exit status 2, as every benchmark's."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    parser = _OneLineParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--tries", type=int, default=20)
     parser.add_argument("--symmetric-tries", type=int, default=5)
     parser.add_argument("--seconds", type=float, default=2.0)

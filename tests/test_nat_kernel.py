@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -187,3 +188,17 @@ def test_a_cut_direct_path_falls_back_to_the_relay_and_comes_back() -> None:
         assert master["close"] is None or master["close"]["cause"] in ("local_close", "peer_close")
         assert master["reconnects"]["count"] == 0
         _flowed(master, slave)
+
+
+@pytest.mark.parametrize("argv", [["--tries", "0"], ["--seconds", "-1"], ["--tries", "many"]])
+def test_the_nat_benchmarks_misuse_is_one_line_and_status_2(argv: list[str]) -> None:
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "nat.py"
+    done = subprocess.run(
+        [sys.executable, str(script), *argv],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 2
+    assert len(done.stderr.strip().splitlines()) == 1, done.stderr

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from tdtp import Connection, Role, State, Ticker, connect, listen
-from tdtp.aio.api import _limit_write_buffer, _DialerProtocol
+from tdtp.aio.api import _DialerProtocol, _limit_write_buffer
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.timer import monotonic
 
