@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cellular import TRACES, find_traces
 
 import tdtp
 from tdtp import Connection, ConnectionConfig, MultipathConfig, Role
@@ -50,11 +51,6 @@ from tdtp.sim.scenarios.cellular import Arrivals, direction_figures
 
 Json = dict[str, Any]
 
-TRACES = {
-    "verizon": "Verizon-LTE-short",
-    "tmobile": "TMobile-LTE-short",
-    "att": "ATT-LTE-driving-2016",
-}
 STATIC = {"static-a": "delay 30ms 10ms loss 2%", "static-b": "delay 40ms 15ms loss 2%"}
 DELAY = "20ms"
 PROPAGATION = 0.020
@@ -72,15 +68,6 @@ RUNS = ("A", "B", "redundant", "adaptive")
 TARGET_REDUNDANT_P99 = 1.2
 TARGET_ADAPTIVE_BYTES = 1.3
 TARGET_ADAPTIVE_P99 = 1.1
-
-
-def find_traces() -> Path | None:
-    root = Path(__file__).resolve().parent.parent
-    for folder in (root, *root.parents):
-        candidate = folder / "shared" / "traces"
-        if candidate.is_dir():
-            return candidate
-    return None
 
 
 def path_spec(traces: Path | None, name: str, way: str, queue: int, offset: float) -> str:

@@ -118,6 +118,11 @@ print(n, got)
 """
 
 
+ON_STOP = ("--on-stop", "shutdown")
+"""An interrupted slave says it is gone for good, so that its master ends the session (and reports
+it) instead of reopening one before its own interrupt arrives."""
+
+
 def _json(process: subprocess.Popen[str], what: str, timeout: float = 60.0) -> Json:
     out, err = process.communicate(timeout=timeout)
     if process.returncode not in (0, 130):
@@ -142,7 +147,7 @@ def _pair(lab: NatLab, name: str, seconds: float) -> tuple[Json, Json]:
         str(seconds),
         "--json",
     )
-    slave = lab.start("ha", *TDTP, "slave", *common)
+    slave = lab.start("ha", *TDTP, "slave", *common, *ON_STOP)
     master = lab.start("hb", *TDTP, "master", *common)
     return _json(master, "master"), _json(slave, "slave")
 
@@ -310,7 +315,7 @@ def upgrade_and_failover(seconds: float) -> Json:
 
         def start(name: str) -> tuple[subprocess.Popen[str], subprocess.Popen[str]]:
             common = ("--rendezvous", RELAY, "--rendezvous-name", name, "--json")
-            return lab.start("ha", *TDTP, "slave", *common), lab.start(
+            return lab.start("ha", *TDTP, "slave", *common, *ON_STOP), lab.start(
                 "hb", *TDTP, "master", *common
             )
 

@@ -98,6 +98,7 @@ class BuildInfo:
 
     @property
     def compiled(self) -> bool:
+        """Whether the mypyc-compiled core runs."""
         return self.build == "compiled"
 
     def describe(self) -> str:
@@ -105,6 +106,7 @@ class BuildInfo:
         return "compiled (mypyc)" if self.compiled else f"pure Python ({self.reason})"
 
     def as_dict(self) -> dict[str, str]:
+        """``{"build": ..., "reason": ...}``, for a JSON summary."""
         return {"build": self.build, "reason": self.reason}
 
     def __repr__(self) -> str:
@@ -196,10 +198,13 @@ _CLASS_DOC: Final = re.compile(
 def restore_class_docstrings(modules: Sequence[str] = COMPILED_MODULES) -> int:
     """Give the classes of the compiled modules their docstrings back, from the ``.py`` beside them.
 
-    mypyc drops class docstrings (native classes get none, plain ones ``"mypyc filler docstring"``),
-    so ``help(tdtp.DataReceived)`` would say nothing in the compiled build. A scan of the sources (a
-    regular expression, not a parse: about a millisecond for the whole core) puts them back. Returns
-    how many classes got theirs; does nothing in the pure build, where Python kept them.
+    mypyc drops docstrings. setup.py writes those of the functions, methods, properties and
+    native classes into the compiled tables as it builds; the classes mypyc leaves plain Python
+    (``mypyc_attr(native_class=False)``, dataclasses, enums) get ``"mypyc filler docstring"``, so
+    ``help(tdtp.DataReceived)`` would say nothing in the compiled build. A scan of the sources (a
+    regular expression, not a parse: about a millisecond for the whole core) puts theirs back (and
+    any a build missed). Returns how many classes got theirs; does nothing in the pure build, where
+    Python kept them.
     """
     if not _INFO.compiled:
         return 0

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import heapq
 import random
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from tdtp import Connection, ConnectionConfig, DataReceived, Event, Role, State
 from tdtp.protection.keys import KeyInput, KeysInput
 
-from pair import Direction
+from pair import Direction, FakeTime
 
 SLAVE_ADDR = ("192.0.2.2", 40002)
 
@@ -54,7 +53,7 @@ class Side:
     """One-way latency of every sample delivered to this side (fake time is one clock)."""
 
 
-class MultipathPair:
+class MultipathPair(FakeTime):
     def __init__(
         self,
         links: list[PathLink],
@@ -106,27 +105,6 @@ class MultipathPair:
             side.rate = rate
             side.size = size
             side.next_sample = self.now
-
-    def run_for(self, duration: float) -> None:
-        self.run_until(self.now + duration)
-
-    def run_until(self, end: float, stop: Callable[[], bool] | None = None) -> None:
-        same = 0
-        while True:
-            if stop is not None and stop():
-                return
-            upcoming = self._next_time()
-            if upcoming is None or upcoming > end:
-                self.now = end
-                return
-            if upcoming <= self.now:
-                same += 1
-                if same > 100_000:
-                    raise AssertionError(f"livelock at t={self.now}: a deadline never moves on")
-            else:
-                same = 0
-            self.now = max(self.now, upcoming)
-            self._step()
 
     def _next_time(self) -> float | None:
         times = []

@@ -1,7 +1,13 @@
 """One end of tests/test_multipath_netns.py's session, run inside a network namespace.
 
-    python multipath_peer.py slave PORT DURATION
-    python multipath_peer.py master PORT DURATION SLAVE_ADDR LOCAL[=REMOTE] ...
+    python multipath_peer.py slave PORT DURATION SCHEDULER[:CONTROLLER]
+    python multipath_peer.py master PORT DURATION SCHEDULER[:CONTROLLER] SLAVE_ADDR LOCAL[=REMOTE] ...
+
+CONTROLLER is the session's (and so each path's) rate controller: ``fixed`` at no limit unless
+named, because the test is about failing over, and on a loaded machine each path's controller reads
+the processes' late turns as queueing and holds copies back (docs/CONTROL.md 11.2), which is the
+congestion control's business, tested in fake time; ``teleop`` (the default) for a figure on a quiet
+machine.
 
 Both ends send a numbered 100-byte sample every millisecond for DURATION seconds once the session is
 up (after "ready" on stdout), then drain for half a second and print one JSON line: what they sent,
@@ -14,12 +20,14 @@ from __future__ import annotations
 import asyncio
 import itertools
 import json
+import math
 import struct
 import sys
 import time
 from typing import Any
 
 import tdtp
+from tdtp.control.fixed import FixedConfig
 
 STAMP = struct.Struct(">I")
 SIZE = 100
@@ -79,7 +87,14 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
 async def main(argv: list[str]) -> None:
     role, port, duration = argv[0], int(argv[1]), float(argv[2])
     record: dict[str, Any] = {"role": role}
-    config = tdtp.ConnectionConfig(multipath=tdtp.MultipathConfig(scheduler=argv[3]))
+    scheduler, _, controller = argv[3].partition(":")
+    multipath = tdtp.MultipathConfig(scheduler=scheduler)  # type: ignore[arg-type]
+    if controller:
+        config = tdtp.ConnectionConfig(controller=controller, multipath=multipath)
+    else:
+        config = tdtp.ConnectionConfig(
+            controller="fixed", controller_config=FixedConfig(rate=math.inf), multipath=multipath
+        )
     if role == "slave":
         async with tdtp.listen("0.0.0.0", port, config=config) as server:
             print("listening", flush=True)

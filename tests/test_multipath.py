@@ -292,7 +292,7 @@ def test_a_congested_path_carries_fewer_copies() -> None:
     pair.run_for(3.0)
     assert paths.paths[1].pacer.rate < 1000.0
     assert paths.paths[1].sent_data - sent < 0.8 * 3000
-    assert paths.paths[0].pacer.rate == float("inf")
+    assert not paths.paths[0].pacer.congested()  # the other path's copies go on as before
 
 
 def test_a_shared_bottleneck_carries_one_copy_not_two() -> None:
@@ -309,10 +309,40 @@ def test_a_shared_bottleneck_carries_one_copy_not_two() -> None:
     spread = paths.stats.spread_samples
     single = paths.stats.single_samples
     pair.run_for(1.5)
-    assert all(
-        path.pacer.congested(pair.now) or path.pacer.rate < 1000 for path in paths.paths.values()
-    )
+    assert all(path.pacer.congested() for path in paths.paths.values())
+    assert paths.stats.bottleneck_skips > 0
     assert paths.stats.spread_samples - spread < 0.2 * (paths.stats.single_samples - single)
+
+
+def _fading(pair: MultipathPair, period: float, phase: float) -> Callable[[int], float]:
+    """A FIFO queue whose link carries 2000 datagrams/s but 600/s for 0.3 s of every ``period``
+    (a radio's fades): the extra delay each datagram waits behind those before it."""
+    free = [0.0]
+
+    def wait(_: int) -> float:
+        now = pair.now
+        capacity = 600.0 if (now + phase) % period < 0.3 else 2000.0
+        free[0] = max(now, free[0]) + 1.0 / capacity
+        return free[0] - now
+
+    return wait
+
+
+def test_independent_congestion_keeps_the_copies_on_both_paths() -> None:
+    """Each path's queue fills and drains on a rhythm of its own (two radio links): both are
+    congested, often at once, but they share no bottleneck, so each carries its copies at its own
+    controller's rate, rather than one path alone whenever both are congested."""
+    links = two_paths(0.010, 0.012)
+    pair = running(links)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    links[0].ms.extra_delay = _fading(pair, 0.7, 0.0)
+    links[1].ms.extra_delay = _fading(pair, 1.1, 0.35)
+    pair.run_for(6.0)
+    pacers = [path.pacer for path in paths.paths.values()]
+    assert all(path.pacer.controller.delay_decrease_count > 0 for path in paths.paths.values())  # type: ignore[attr-defined]
+    assert not pacers[0].shares_bottleneck(pacers[1], pair.now)
+    assert paths.stats.bottleneck_skips < 0.02 * 6000
 
 
 # --------------------------------------------------------------------------- paths come and go
@@ -469,13 +499,15 @@ def test_forged_multipath_packets_are_dropped_by_reason() -> None:
     pair.inject(bogus, to_slave=True, local=1)
     assert slave.stats.drops.get("bad_token", 0) == 1
     # A report naming path 1 arriving on path 0.
-    report = encode_mp_report(MpReportBody(1, 5, 0, 10, 10, 0))
+    report = encode_mp_report(MpReportBody(nonce, 1, 5, 0, 10, 10, 0))
     pair.inject(_probe(ControlCode.MP_REPORT, report), to_slave=True, local=0)
     assert slave.stats.drops.get("unknown_path", 0) == 1
-    # An abandon with another session's nonce.
+    # A report and an abandon with another session's nonce (a blind forgery).
+    report = encode_mp_report(MpReportBody(bytes(16), 1, 5, 0, 10, 10, 0))
+    pair.inject(_probe(ControlCode.MP_REPORT, report), to_slave=True, local=1)
     abandon = encode_mp_abandon(bytes(16), 1, 19)
     pair.inject(_probe(ControlCode.MP_ABANDON, abandon), to_slave=True, local=0)
-    assert slave.stats.drops.get("nonce_mismatch", 0) == 1
+    assert slave.stats.drops.get("nonce_mismatch", 0) == 2
     assert slave.multipath is not None and 1 in slave.multipath.paths
     assert_conserved(pair)
 

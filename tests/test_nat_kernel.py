@@ -43,7 +43,9 @@ def _pair(
     lab: NatLab, seconds: float, *extra: str
 ) -> tuple[subprocess.Popen[str], subprocess.Popen[str]]:
     common = ("--rendezvous", RELAY, *NAME, "--duration", str(seconds), "--json", *extra)
-    slave = lab.start("ha", *TDTP, "slave", *common)
+    # Interrupted, the slave says it is gone for good: its master then ends the session instead of
+    # reopening one (and reporting the empty new session) before its own interrupt arrives.
+    slave = lab.start("ha", *TDTP, "slave", *common, "--on-stop", "shutdown")
     master = lab.start("hb", *TDTP, "master", *common)
     return slave, master
 

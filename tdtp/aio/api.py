@@ -22,7 +22,6 @@ from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpo
 from tdtp.aio.endpoint import (
     DataCallback,
     Endpoint,
-    EndpointClosedError,
     WatchdogCallback,
     format_address,
 )
@@ -37,6 +36,8 @@ from tdtp.aio.opening import (
     _limit_write_buffer,
     _released,
     address_error,
+    established,
+    refused_text,
 )
 from tdtp.aio.reconnect import ReconnectPolicy, as_policy
 from tdtp.aio.server import Server, ServerStats, listen
@@ -50,7 +51,7 @@ from tdtp.errors import (
     PortUnreachableError,
 )
 from tdtp.netem import NetemSpec
-from tdtp.protection.keys import KeyInput, as_key
+from tdtp.protection.keys import OneKeyInput, PresharedKey, as_key
 from tdtp.rendezvous.settings import Rendezvous, meeting
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
@@ -106,19 +107,6 @@ class _DialerProtocol(asyncio.DatagramProtocol):
             self.closed.set_result(None)
 
 
-def refused_text(where: str, peer_role: Role) -> str:
-    """What an ICMP port unreachable in answer to our OPEN means: nothing listens there, or a NAT
-    or firewall in front of the peer answered for it (it has no mapping for an unsolicited
-    datagram); what to do about either."""
-    peer = peer_role.value
-    return (
-        f"nothing listens at {where}: the answer to our OPEN was ICMP port unreachable. Either no "
-        f"{peer} runs there (start it, or check the host and port), or the {peer} sits behind a "
-        "NAT or firewall that answered for it: let it dial out to us instead, or meet through a "
-        "relay (docs/NAT.md, 'The robot behind NAT')"
-    )
-
-
 def connect(
     host: str | None = None,
     port: int | None = None,
@@ -133,7 +121,7 @@ def connect(
     rng: random.Random | None = None,
     netem: NetemSpec | str | None = None,
     netem_seed: int | None = None,
-    key: KeyInput | None = None,
+    key: OneKeyInput | None = None,
     pcap: CaptureTarget | None = None,
     reconnect: bool | ReconnectPolicy | None = False,
     local_addresses: Sequence[str | tuple[str, int] | LocalAddress] | None = None,
@@ -158,9 +146,11 @@ def connect(
     sends, in tc-netem's language (``"delay 20ms 5ms loss 1%"``), emulated in-process (see
     :mod:`tdtp.aio.impairment`).
 
-    ``key`` (a :class:`~tdtp.PresharedKey` or its secret bytes) opens a keyed session: every
-    datagram authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must
-    hold the same key.
+    ``key`` (a :class:`~tdtp.PresharedKey`, its secret bytes, or ``tdtp.load_key(path)``: a key
+    file's first key, or ``load_key(path, name=...)``) opens a keyed session: every datagram
+    authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must hold the
+    same key. A collection of exactly one key (``tdtp.load_keys(path)`` of a one-key file) is
+    taken as that key; one of several raises :class:`~tdtp.InvalidKeyError` saying how to choose.
 
     ``pcap`` (a path, or a shared :class:`~tdtp.capture.pcap.PcapWriter`) records every datagram the socket
     sends and receives, with UDP/IP headers, for Wireshark (``tools/wireshark/tdtp.lua``).
@@ -204,6 +194,7 @@ def connect(
     port = _check_port(port, allow_zero=False)
     _check_local(local_addr)
     spec = _check_common(config, timer, on_data, on_watchdog, netem)
+    dialer_key = as_key(key) if key is not None else None  # checked now, as the rest
     if local_addresses is not None or path_netem is not None:
         if isinstance(local_addresses, str) or not local_addresses:
             raise InvalidArgumentError(
@@ -230,7 +221,7 @@ def connect(
                 rng=rng,
                 path_netem=specs,
                 netem_seed=netem_seed,
-                key=key,
+                key=dialer_key,
                 reconnect=policy,
             )
         )
@@ -247,7 +238,7 @@ def connect(
             rng=rng,
             netem=spec,
             netem_seed=netem_seed,
-            key=key,
+            key=dialer_key,
             pcap=pcap,
             reconnect=policy,
         )
@@ -267,7 +258,7 @@ async def _connect(
     rng: random.Random | None,
     netem: NetemSpec | None,
     netem_seed: int | None,
-    key: KeyInput | None,
+    key: PresharedKey | None,
     pcap: CaptureTarget | None,
     reconnect: ReconnectPolicy | None = None,
 ) -> Endpoint:
@@ -336,20 +327,12 @@ async def _connect(
         batched.batch_receiver = endpoint.receive_batch
     conn.connect(remote, now=monotonic())
     endpoint.flush()
-    try:
-        await endpoint.wait_established()
-    except EndpointClosedError as exc:
-        await endpoint.close()
-        raise ConnectError(f"could not open a TDTP connection to {protocol.where}: {exc}") from exc
-    except PortUnreachableError:
-        # fail_open() released the endpoint already: nobody to send a CLOSE to
+
+    def unreachable() -> None:
         transport.close()
         logger.info("tdtp %s: nothing listens at %s", role.value, protocol.where)
-        raise
-    except BaseException:
-        await endpoint.close()
-        raise
-    return endpoint
+
+    return await established(endpoint, protocol.where, port, unreachable)
 
 
 def _check_local(local_addr: object) -> None:
@@ -373,7 +356,7 @@ def _connect_rendezvous(
     on_watchdog: WatchdogCallback | None,
     rng: random.Random | None,
     netem: NetemSpec | str | None,
-    key: KeyInput | None,
+    key: OneKeyInput | None,
     pcap: CaptureTarget | None,
     policy: ReconnectPolicy | None,
 ) -> Opener[Endpoint]:

@@ -36,14 +36,22 @@ import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import TYPE_CHECKING, Any, Final, Protocol
+from typing import TYPE_CHECKING, Final, Protocol
 
+from tdtp.aio.datagram_transport import layer_description, layer_under
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.multipath import PathSet
 from tdtp.aio.outbox import SocketOutbox
-from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
+from tdtp.aio.reconnect import Reconnector, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
-from tdtp.errors import ConnectionClosedError, ConnectionStateError, EndpointClosedError
+from tdtp.errors import (
+    ArgumentTypeError,
+    ConnectionClosedError,
+    ConnectionStateError,
+    EndpointClosedError,
+    ReconnectingError,
+)
+from tdtp.netem import NetemLink
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
@@ -146,7 +154,6 @@ class Endpoint:
         self._on_watchdog = on_watchdog
         self._on_closed = on_closed
         self._on_established = on_established
-        self._reopen_to = reopen_to  # where the next session opens (default: the last peer)
         self.rendezvous: Traversal | None = None
         """Met through a rendezvous: its path, candidates tried (``.report()``); else ``None``."""
         self._transport_closed = transport_closed
@@ -167,16 +174,17 @@ class Endpoint:
         self._silence: PeerSilent | None = None
         self._resumed: PeerResumed | None = None
         self._send_errors = 0
-        self._policy = reconnect
-        self._new_connection = new_connection
-        self.reconnects = ReconnectRecord()
+        self._reconnect = (
+            Reconnector(reconnect, new_connection, loop, reopen_to)
+            if reconnect is not None and new_connection is not None
+            else None
+        )
+        self.reconnects = (
+            self._reconnect.record if self._reconnect is not None else ReconnectRecord()
+        )
         """What reconnecting did (a master with ``reconnect=``): sessions reopened and why, samples
         of the sessions before the current one. All zero otherwise."""
-        self._failures_in_a_row = 0
         self._closing = False
-        self._silence_reopen = False
-        self._reopen_handle: asyncio.TimerHandle | None = None
-        self._remote: Address | None = None
         self._demux_batch = 0
         """The server's receive batch that last handed us a datagram (its Demultiplexer's count)."""
         self._path_set: PathSet | None = None  # a multipath session's paths, once asked for
@@ -203,6 +211,7 @@ class Endpoint:
 
     @property
     def peer(self) -> Address | None:
+        """The peer's address once known (a slave's master, a master's slave), else ``None``."""
         return self._conn.peer
 
     @property
@@ -238,35 +247,22 @@ class Endpoint:
         """What carries this endpoint's datagrams: ``"datagram layer (compiled, coalescing)"``
         (the C engine, segmenting bursts; :mod:`tdtp.aio.datagram`), ``"datagram layer
         (compiled)"``, ``"datagram layer (pure)"``, or ``"loop's transport"``."""
-        layer = self._datagram_layer()
-        if layer is None:
-            return "loop's transport"
-        engine: str = layer.engine
-        if engine == "compiled" and layer.stats.get("segmenting"):
-            return "datagram layer (compiled, coalescing)"
-        return f"datagram layer ({engine})"
+        return layer_description(layer_under(self._socket))
 
     @property
     def datagram_layer_stats(self) -> dict[str, int] | None:
         """The datagram layer's counters for this endpoint's socket (system calls, datagrams and
         bytes each way, coalesced sends and receives, errors by kind; shared by every session of
         a :class:`~tdtp.Server`), or ``None`` on the loop's transport."""
-        layer = self._datagram_layer()
-        if layer is None:
-            return None
-        stats: dict[str, int] = layer.stats
-        return stats
+        layer = layer_under(self._socket)
+        return None if layer is None else layer.stats
 
-    def _datagram_layer(self) -> Any:
-        """The socket's datagram layer under any wrappers (a pcap capture, in-process impairment:
-        each holds the transport it wraps as ``_transport``), or ``None``."""
-        transport: object = self._transport
-        while transport is not None:
-            layer = getattr(transport, "layer", None)
-            if layer is not None:
-                return layer
-            transport = getattr(transport, "_transport", None)
-        return None
+    @property
+    def netem_link(self) -> NetemLink | None:
+        """The emulated link this endpoint sends through (``netem=`` on connect or listen), or
+        ``None``: its ``stats``, and with a trace its ``trace_queue``."""
+        link: NetemLink | None = getattr(getattr(self._socket, "line", None), "link", None)
+        return link
 
     @property
     def established(self) -> bool:
@@ -275,6 +271,7 @@ class Endpoint:
 
     @property
     def is_closed(self) -> bool:
+        """Whether the session has ended (:attr:`close_event` says why)."""
         return self._conn.state is State.CLOSED
 
     @property
@@ -284,8 +281,9 @@ class Endpoint:
 
     @property
     def peer_silent(self) -> bool:
-        """True while nothing has arrived from the peer for ``silence_timeout`` (the watchdog)."""
-        return self._conn.peer_silent
+        """True while nothing has arrived from the peer for ``silence_timeout`` (the watchdog), and
+        while there is no session to hear it in: once closed, and while reconnecting."""
+        return self._conn.peer_silent or self.reconnects.reopening
 
     @property
     def write_paused(self) -> bool:
@@ -346,8 +344,7 @@ class Endpoint:
 
         Raises :class:`~tdtp.PayloadTypeError` for anything but bytes, bytearray or memoryview,
         :class:`~tdtp.PayloadTooLargeError` above the connection's maximum, and
-        :class:`~tdtp.EndpointClosedError`, naming the cause, once the association is over.
-        """
+        :class:`~tdtp.EndpointClosedError`, naming the cause, once the association is over."""
         now = monotonic()
         conn = self._conn
         out = self._out
@@ -394,6 +391,16 @@ class Endpoint:
             if exc.event is None:
                 raise
             raise EndpointClosedError(exc.event) from None
+        except ConnectionStateError:
+            record = self.reconnects
+            if not record.reopening:
+                raise
+            why = f" ({record.lost[0]})" if record.lost is not None else ""
+            raise ReconnectingError(
+                f"no session to send the control message on: the last one ended{why} and the "
+                "next is opening; the message was not queued: send it again once the endpoint "
+                "is established (await ep.wait_resumed())"
+            ) from None
         self.flush(now)
 
     async def recv_control(self) -> ControlReceived:
@@ -512,13 +519,19 @@ class Endpoint:
 
     # ------------------------------------------------------------------ ending
 
-    async def close(self) -> None:
-        """Send CLOSE to the peer and release the timer (and a master's socket). Idempotent."""
+    async def close(self, *, restarting: bool = False) -> None:
+        """Send CLOSE to the peer and release the timer (and a master's socket). Idempotent.
+
+        ``restarting=True``: this side stops but will be back soon (a service restart): the CLOSE
+        says ``RESTARTING``, and a reconnecting master reopens at once (PROTOCOL.md 5.2). The
+        default says ``NORMAL``: the session is over for good."""
+        if not isinstance(restarting, bool):
+            raise ArgumentTypeError(f"restarting must be True or False, got {restarting!r}")
         self._closing = True
-        if self._reopen_handle is not None:
-            self._reopen_handle.cancel()
+        if self._reconnect is not None:
+            self._reconnect.cancel()
         if not self.is_closed:
-            self._conn.close(now=monotonic())
+            self._conn.close(now=monotonic(), restarting=restarting)
             self.flush()
         self._release()
         closed = self._transport_closed
@@ -539,6 +552,7 @@ class Endpoint:
     # ------------------------------------------------------------------ driven by the transport
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
+        """The transport's hand-off: one datagram from ``addr``, taken in and answered at once."""
         now = monotonic()
         self._conn.receive_datagram(data, addr, now=now)
         self.flush(now)
@@ -591,12 +605,14 @@ class Endpoint:
             if not self.is_closed:
                 self.flush()
 
-    def evict(self, now: float) -> None:
-        """Slave side: end this silent session so that a new master can have its slot (the
-        server does this when it is full; the session closes as ``EVICTED``)."""
-        self._conn.evict(now=now)
+    def evict(self, detail: str, now: float) -> bytes | None:
+        """Slave side: end this session so that a new master can have its slot (the server's slot
+        policy chose it; the session closes as ``EVICTED``, its master gets a CLOSE ``EVICTED``,
+        which is returned so that the server can repeat it)."""
+        close = self._conn.evict(detail, now=now)
         self.flush(now)
         self._release()
+        return close
 
     def fail_open(self, exc: BaseException) -> None:
         """The transport reported an error that ends a connection still opening (e.g. ICMP port
@@ -613,6 +629,7 @@ class Endpoint:
         self.flush(now)
 
     async def wait_established(self) -> None:
+        """Wait until the opening handshake completes; raises what ended it otherwise."""
         await asyncio.shield(self._established)
 
     def flush(self, now: float | None = None) -> None:
@@ -751,10 +768,9 @@ class Endpoint:
     ) -> None:
         if isinstance(event, PeerSilent):
             self._silence = event
-            policy = self._policy
-            if policy is not None and policy.after_silence is not None:
-                wait = policy.after_silence - (event.detected_at - event.since)
-                self._loop.call_later(max(0.0, wait), self._silence_check, self._conn, event)
+            wait = self._reconnect.silence_wait(event) if self._reconnect is not None else None
+            if wait is not None:
+                self._loop.call_later(wait, self._silence_check, self._conn, event)
             logger.warning(
                 "%s: nothing heard from the peer for %.3f s",
                 self._name(),
@@ -777,10 +793,14 @@ class Endpoint:
             if self._on_established is not None:
                 self._on_established(self)  # every session: a reconnecting one's next ones too
         else:
-            if self._policy is not None and self._may_reopen(event):
-                self._reopen(event)
+            reconnect = self._reconnect
+            if reconnect is not None and reconnect.may_reopen(
+                event, established=self.established, closing=self._closing
+            ):
+                self._reopen(reconnect, event)
                 return
             self._close_event = event
+            self.reconnects.reopening = False  # (a reconnection that gave up)
             logger.info(
                 "%s: connection closed (%s: %s)", self._name(), event.cause.value, event.detail
             )
@@ -795,65 +815,32 @@ class Endpoint:
 
     # ------------------------------------------------------------------ reconnecting (a master)
 
-    def _may_reopen(self, event: ConnectionClosed) -> bool:
-        policy = self._policy
-        if policy is None or self._closing or self._new_connection is None or not self.established:
-            return False
-        if event.cause is CloseCause.LOCAL_CLOSE:
-            return self._silence_reopen
-        if event.cause not in REOPEN_CAUSES:
-            return False
-        if event.cause is CloseCause.OPEN_TIMEOUT:
-            if not self.reconnects.reopening:
-                return False
-            self._failures_in_a_row += 1
-            self.reconnects.failed_attempts += 1
-            attempts = policy.attempts
-            return attempts is None or self._failures_in_a_row <= attempts
-        return True
-
-    def _reopen(self, event: ConnectionClosed) -> None:
-        """The session ended for a reason a new one can cure: open the next on the same socket."""
-        record = self.reconnects
+    def _reopen(self, reconnect: Reconnector, event: ConnectionClosed) -> None:
+        """The session ended for a reason a new one can cure: open the next on the same socket
+        (tdtp.aio.reconnect). While there is none, the watchdog says the peer is silent."""
         old = self._conn
-        if not record.reopening:
+        if not self.reconnects.reopening:
             why = "silence" if event.cause is CloseCause.LOCAL_CLOSE else event.cause.value
-            record.causes[why] = record.causes.get(why, 0) + 1
-            stats = old.stats
-            record.samples_received_before += stats.samples_delivered
-            record.samples_sent_before += stats.sent.data_packets
-            record.reopening = True
             logger.warning(
                 "%s: session lost (%s: %s); opening a new one", self._name(), why, event.detail
             )
-        self._silence_reopen = False
-        self._remote = old.peer
-        assert self._new_connection is not None and self._policy is not None
-        conn = self._new_connection()
-        if old.sending_paused:
-            conn.pause_sending()
-        self._conn = conn
-        failures = self._failures_in_a_row
-        policy = self._policy
-        delay = min(policy.max_backoff, policy.backoff * 2.0 ** (failures - 1)) if failures else 0.0
-        self._reopen_handle = self._loop.call_later(delay, self._start_reopen)
+            if self._silence is None:
+                now = monotonic()
+                self._silence = silence = PeerSilent(now - old.quiet_for(now), now)
+                self._wake(self._watch_waiters)
+                self._call_watchdog(silence)
+        self._conn = reconnect.reopen(old, event, self._start_reopen)
 
     def _start_reopen(self) -> None:
-        self._reopen_handle = None
-        conn = self._conn
-        remote = self._remote if self._reopen_to is None else self._reopen_to()
-        if self._closing or remote is None or conn.state is not State.IDLE:
-            return
-        conn.connect(remote, now=monotonic())
-        self.flush()
+        reconnect = self._reconnect
+        if reconnect is not None and not self._closing and reconnect.open(self._conn, monotonic()):
+            self.flush()
 
     def _reopened(self) -> None:
-        record = self.reconnects
-        record.reopening = False
-        record.count += 1
-        record.last_at = now = monotonic()
-        self._failures_in_a_row = 0
-        logger.info("%s: reconnected (%d so far)", self._name(), record.count)
+        now = monotonic()
+        if self._reconnect is not None:
+            self._reconnect.reopened(now)
+        logger.info("%s: reconnected (%d so far)", self._name(), self.reconnects.count)
         silence = self._silence
         if silence is not None:
             # The application held its machine on PeerSilent: the peer is back, in a new session.
@@ -866,9 +853,9 @@ class Endpoint:
         """``after_silence`` after the slave went silent: if it still is, open a new session."""
         if conn is not self._conn or self._closing or conn.silent_since != event.since:
             return
-        if conn.state is not State.ESTABLISHED:
+        if conn.state is not State.ESTABLISHED or self._reconnect is None:
             return
-        self._silence_reopen = True
+        self._reconnect.silence_reopen = True
         conn.close(now=monotonic())
         self.flush()
 

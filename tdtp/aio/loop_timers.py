@@ -193,7 +193,7 @@ class TickGroup:
     ``spin`` (seconds, 0 by default) arms the timer that long before each deadline and waits the
     rest on the CPU (a blocking busy-wait). A virtual CPU that idles until a deadline can be resumed
     late by its host: on this project's VM a bare 1 kHz ``timerfd`` wake-up comes more than 1 ms
-    late 2-7 % of the time, and 0.3-0.5 % with the CPU kept from idling (benchmarks/README.md,
+    late 2-7 % of the time, and 0.3-0.5 % with the CPU kept from idling (benchmarks/HISTORY.md,
     "Why the slave's ticks are late"). Spinning costs that CPU (up to ``spin * rate`` of a core,
     less when the loop is busy anyway) and backfires when another process wants the core (the
     busy-waiting one loses its time slice): it is for a process that has a core to itself.
@@ -366,6 +366,7 @@ class TickHandle:
 
     @property
     def ticker(self) -> Ticker:
+        """The :class:`~tdtp.Ticker` whose ticks call this handle's callback."""
         return self._ticker
 
     def cancel(self) -> None:

@@ -118,8 +118,13 @@ def parse_local_address(entry: str | tuple[str, int] | LocalAddress) -> LocalAdd
 
 
 class PathProtocol(asyncio.DatagramProtocol):
-    def __init__(self, receive: Callable[[bytes, Address], None]) -> None:
+    def __init__(
+        self,
+        receive: Callable[[bytes, Address], None],
+        on_error: Callable[[Exception], None] | None = None,
+    ) -> None:
         self.receive = receive
+        self.on_error = on_error
         self.errors = 0
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
@@ -127,6 +132,8 @@ class PathProtocol(asyncio.DatagramProtocol):
 
     def error_received(self, exc: Exception) -> None:
         self.errors += 1  # one path's ICMP error says nothing about the session
+        if self.on_error is not None:
+            self.on_error(exc)
 
 
 @dataclass(slots=True)
@@ -145,6 +152,7 @@ async def open_socket(
     spec: LocalAddress,
     remote: Address,
     receive: Callable[[bytes, Address], None],
+    on_error: Callable[[Exception], None] | None = None,
 ) -> tuple[asyncio.DatagramTransport, PathProtocol]:
     family = socket.AF_INET6 if ":" in str(remote[0]) else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_DGRAM)
@@ -160,7 +168,7 @@ async def open_socket(
         sock.bind((spec.host or ("::" if family == socket.AF_INET6 else "0.0.0.0"), spec.port))
         sock.connect((remote[0], remote[1]))
         transport, protocol = await loop.create_datagram_endpoint(
-            lambda: PathProtocol(receive), sock=sock
+            lambda: PathProtocol(receive, on_error), sock=sock
         )
     except BaseException:
         sock.close()
@@ -321,7 +329,7 @@ class PathSet:
         if callback is not None:
             try:
                 callback(event)
-            except Exception as exc:  # the application's error: reported, then on
+            except Exception as exc:  # the application's error: reported as asyncio does, then on
                 asyncio.get_running_loop().call_exception_handler(
                     {
                         "message": f"{self._endpoint!r}: the on_path callback raised",

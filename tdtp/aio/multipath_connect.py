@@ -14,18 +14,19 @@ import random
 import socket
 from collections.abc import Callable, Sequence
 
-from tdtp.aio.endpoint import DataCallback, Endpoint, EndpointClosedError, WatchdogCallback
+from tdtp.aio.endpoint import DataCallback, Endpoint, WatchdogCallback, format_address
 from tdtp.aio.impairment import ImpairedTransport, impaired_receiver
 from tdtp.aio.multipath import LocalAddress, PathSet, open_socket
-from tdtp.aio.opening import address_error
+from tdtp.aio.opening import address_error, established, refused_text
 from tdtp.aio.reconnect import ReconnectPolicy
 from tdtp.aio.timer import TimerPreference, monotonic
 from tdtp.config import ConnectionConfig, MultipathConfig, Role
-from tdtp.errors import ConnectError, PortUnreachableError
+from tdtp.errors import PortUnreachableError
 from tdtp.netem import NetemSpec
-from tdtp.protection.keys import KeyInput
+from tdtp.protection.keys import PresharedKey
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
+from tdtp.session.state import State
 
 __all__ = ["connect_multipath", "multipath_config"]
 
@@ -50,7 +51,7 @@ async def connect_multipath(
     rng: random.Random | None,
     path_netem: Sequence[NetemSpec | None],
     netem_seed: int | None,
-    key: KeyInput | None,
+    key: PresharedKey | None,
     reconnect: ReconnectPolicy | None,
 ) -> Endpoint:
     """:func:`tdtp.connect` with local addresses: the session on the first, a path from each."""
@@ -74,8 +75,16 @@ async def connect_multipath(
     if spec0 is not None:
         seed = None if netem_seed is None else netem_seed + 1
         receive0, _line = impaired_receiver(arrived, spec0, seed=seed, timer=timer)
+
+    def refused(exc: Exception) -> None:
+        # The slave's host answered our OPEN with ICMP port unreachable: nobody listens.
+        opening = bool(holder) and holder[0].connection.state is State.OPENING
+        if opening and isinstance(exc, ConnectionRefusedError):
+            where = format_address((host, port))
+            holder[0].fail_open(PortUnreachableError(refused_text(where, Role.SLAVE)))
+
     try:
-        transport, _ = await open_socket(loop, first, remotes[0], receive0)
+        transport, _ = await open_socket(loop, first, remotes[0], receive0, refused)
     except OSError as exc:
         raise address_error(exc, f"bind {first} and connect to", host, port) from exc
     sender: asyncio.DatagramTransport | ImpairedTransport = transport
@@ -107,18 +116,8 @@ async def connect_multipath(
             netem = path_netem[number] if number < len(path_netem) else None
             await path_set.bind(number, spec, remotes[number], netem)
     except OSError as exc:
-        await endpoint.close()
+        endpoint.fail_open(exc)  # lets go of the timer and every socket bound so far
         raise address_error(exc, f"bind {locals_[number]} and connect to", host, port) from exc
     conn.connect(remotes[0], now=monotonic())
     endpoint.flush()
-    try:
-        await endpoint.wait_established()
-    except EndpointClosedError as exc:
-        await endpoint.close()
-        raise ConnectError(f"could not open a TDTP connection to {host}:{port}: {exc}") from exc
-    except PortUnreachableError:
-        raise  # fail_open() released the endpoint already: nobody to send a CLOSE to
-    except BaseException:
-        await endpoint.close()
-        raise
-    return endpoint
+    return await established(endpoint, format_address((host, port)), port, transport.close)

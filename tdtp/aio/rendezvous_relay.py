@@ -89,6 +89,7 @@ class Relay:
 
     @property
     def port(self) -> int:
+        """The bound UDP port (the one ``relay(port=0)`` picked)."""
         return int(self.address[1])
 
     @property

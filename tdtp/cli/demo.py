@@ -26,6 +26,7 @@ from tdtp.cli.live_stats import (
     DirectionMeter,
     LiveDisplay,
 )
+from tdtp.cli.netem_view import netem_lines, netem_report
 from tdtp.cli.options import (
     netem_directions,
     netem_seed,
@@ -44,7 +45,7 @@ from tdtp.cli.session_tasks import (
     silence_note,
     watchdog_logger,
 )
-from tdtp.cli.summary import direction_report
+from tdtp.cli.summary import direction_report, srtt_text
 from tdtp.config import ConnectionConfig
 
 
@@ -157,6 +158,7 @@ async def _demo(
             if mc is not None and sc is not None:
                 lines.append(control_line("M->S", mc, sc, master))
                 lines.append(control_line("S->M", sc, mc, slave))
+            lines += netem_lines(master, slave)
             display.update(lines)
 
         def summarize() -> None:
@@ -198,6 +200,9 @@ async def _demo(
                     "master": master.rendezvous.report(master_side.first_sample_at),
                     "slave": server.rendezvous.report(slave_side.first_sample_at),
                 }
+            for key, ep in (("master_to_slave", master), ("slave_to_master", slave)):
+                if (link := netem_report(ep)) is not None:
+                    outcome.summary[key]["emulated_link"] = link
             if args.deadband is not None:
                 outcome.summary["master_to_slave"]["deadband"] = master_side.deadband_report("m")
                 outcome.summary["slave_to_master"]["deadband"] = slave_side.deadband_report("N")
@@ -240,7 +245,7 @@ def demo_table(summary: dict[str, Any]) -> str:
         rows.append(
             f"{label}: offered {d['samples_offered']}, sent {d['packets_sent']}, "
             f"received {d['packets_received']} ({d['delivery_ratio'] * 100:.2f} %), "
-            f"lost {d['losses']}, {d['mean_rate']:.1f} pkt/s, srtt {d['srtt_ms']:.3f} ms, "
+            f"lost {d['losses']}, {d['mean_rate']:.1f} pkt/s, {srtt_text(d['srtt_ms'])}, "
             f"latency p50 {latency.get('p50', math.nan):.3f} ms p99 "
             f"{latency.get('p99', math.nan):.3f} ms, age p50 {age.get('p50', math.nan):.3f} ms p99 "
             f"{age.get('p99', math.nan):.3f} ms, header bytes {d['header_bytes']}, "

@@ -143,8 +143,9 @@ def _add_reconnect_arguments(parser: argparse.ArgumentParser, peer: str) -> None
         "--reconnect",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help=f"when dialing: open a new session when the {peer} restarts (RESET), the session "
-        f"idles out, or the {peer} is silent for --reconnect-after seconds (default: on)",
+        help=f"when dialing: open a new session when the {peer} restarts (its CLOSE says "
+        f"RESTARTING, or a RESET says it restarted), evicts this end (after a back-off), the "
+        f"session idles out, or the {peer} is silent for --reconnect-after seconds (default: on)",
     )
     parser.add_argument(
         "--reconnect-after",
@@ -274,7 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = CommandParser(
         prog="tdtp",
         description="TDTP teleoperation transport: master, slave and demo.",
-        epilog="Exit status: 0 done, 1 session failed, 2 usage error, 130 interrupted.",
+        epilog="Exit status: 0 done, 1 session failed, 2 usage error, 130 interrupted (Ctrl-C), "
+        "143 stopped (SIGTERM).",
     )
     parser.add_argument("--version", action="version", version=f"tdtp {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -322,6 +324,15 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="--exclusive: watchdog periods (--silence-timeout each) a master must be silent "
         "before another one takes control (3)",
+    )
+    slave.add_argument(
+        "--on-stop",
+        choices=("restart", "shutdown"),
+        default="restart",
+        help="what the CLOSE tells the masters when Ctrl-C or SIGTERM stops this slave: restart "
+        "(it will be back soon: they reopen at once; the default, since a service restart looks "
+        "just like this) or shutdown (it is gone for good: they stop); the end of --duration "
+        "always says shutdown",
     )
     add_key_arguments(slave)
     master = commands.add_parser(

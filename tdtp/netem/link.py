@@ -239,6 +239,7 @@ class NetemStats:
     """Packets sent at once by the reorder decision, ahead of delayed ones."""
 
     def as_dict(self) -> dict[str, int]:
+        """The counters as a plain dict, for a JSON summary."""
         return asdict(self)
 
 
@@ -323,13 +324,8 @@ class NetemLink:
         elif old is not None and self.spec.trace == trace:
             old.limit, old.limit_bytes = spec.limit, spec.limit_bytes  # same trace: same clock
         else:
-            self._queue = TraceQueue(
-                trace.trace,
-                offset=trace.offset,
-                overhead=trace.overhead,
-                limit=spec.limit,
-                limit_bytes=spec.limit_bytes,
-                not_before=old.last_departure if old is not None else -math.inf,
+            self._queue = TraceQueue.of(
+                spec, not_before=old.last_departure if old is not None else -math.inf
             )
 
     # -- the sans-IO interface ---------------------------------------------------------------------

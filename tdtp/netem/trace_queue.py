@@ -36,9 +36,13 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import TYPE_CHECKING
 
 from tdtp.errors import InvalidArgumentError
 from tdtp.netem.trace_file import OPPORTUNITY_BYTES, Trace
+
+if TYPE_CHECKING:
+    from tdtp.netem.spec import NetemSpec
 
 __all__ = ["TraceQueue"]
 
@@ -94,14 +98,40 @@ class TraceQueue:
         self.last_departure = -math.inf
         """Departure of the latest datagram accepted."""
 
+    @classmethod
+    def of(
+        cls, spec: NetemSpec, *, origin: float | None = None, not_before: float = -math.inf
+    ) -> TraceQueue:
+        """The queue of ``spec``'s trace (its offset and overhead), sized by its ``limit`` or
+        ``limit_bytes``."""
+        trace = spec.trace
+        if trace is None:
+            raise InvalidArgumentError(f"a trace queue needs a spec with a trace, got {spec}")
+        return cls(
+            trace.trace,
+            offset=trace.offset,
+            overhead=trace.overhead,
+            limit=spec.limit,
+            limit_bytes=spec.limit_bytes,
+            origin=origin,
+            not_before=not_before,
+        )
+
     @property
     def trace(self) -> Trace:
+        """The recorded trace whose delivery opportunities serve this queue."""
         return self._trace
 
     def queued(self, now: float) -> tuple[int, int]:
-        """Datagrams and bytes waiting at ``now`` (none of their bytes served yet)."""
-        self._release(now)
-        return len(self._waiting), self._bytes
+        """Datagrams and bytes waiting at ``now`` (none of their bytes served yet); a look that
+        changes nothing, for a display."""
+        count, size = len(self._waiting), self._bytes
+        for start, wire in self._waiting:
+            if start > now:
+                break
+            count -= 1
+            size -= wire
+        return count, size
 
     def opportunity_time(self, index: int) -> float:
         """When the ``index``-th opportunity since the trace's start comes, on the caller's clock."""
@@ -149,11 +179,6 @@ class TraceQueue:
         self._bytes += wire
         self.last_departure = departure
         return departure
-
-    def _release(self, now: float) -> None:
-        waiting = self._waiting
-        while waiting and waiting[0][0] <= now:
-            self._bytes -= waiting.popleft()[1]
 
     def _first_after(self, now: float) -> int:
         """The first opportunity strictly after ``now`` and after the last one used."""

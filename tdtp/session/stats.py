@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -100,10 +101,15 @@ class ConnectionStats:
     the driver read the IP header's ECN field (``receive_datagram(..., ecn=3)``)."""
     migrations: int = 0
     """Times a slave's session followed its master to a new address (path migration, PROTOCOL.md
-    5.8): a keyed datagram that authenticated from there, or an unkeyed PATH_RESPONSE."""
+    5.8): a keyed datagram that authenticated from there, an unkeyed PATH_RESPONSE, or (unkeyed)
+    its old address speaking again before the new one was proven."""
     paths_validated: int = 0
-    """New paths validated (unkeyed: at once by the PATH_RESPONSE; keyed: by an authenticated
-    datagram from there that acknowledges a packet sent on it)."""
+    """New paths validated (unkeyed: its old address stayed silent for ``silence_timeout`` after
+    the PATH_RESPONSE moved it; keyed: by an authenticated datagram from there that acknowledges a
+    packet sent on it)."""
+    optimistic_acks: int = 0
+    """Acknowledgements in accepted DATA or KEEPALIVE datagrams that named a packet we never sent:
+    ignored, the rest of the datagram taken (a stand-alone ACK is dropped as ``optimistic_ack``)."""
     path_limited: int = 0
     """Times the amplification limit of a path not validated yet held back what was due."""
     unvalidated_bytes_in: int = 0
@@ -124,8 +130,11 @@ class ConnectionStats:
     """The peer's control messages delivered to the application (``ControlReceived``), in order."""
     control_dropped: dict[str, int] = field(default_factory=dict)
     """Peer control messages not delivered, by reason: ``duplicate`` (delivered or held already),
-    ``control_window``, ``control_backlog``, ``oversized``, ``bad_control`` and
-    ``optimistic_ack`` (each datagram is also in ``drops`` under the same reason)."""
+    ``control_window``, ``control_backlog``, ``oversized``, ``bad_control``, ``nonce_mismatch``
+    and ``optimistic_ack`` (each datagram is also in ``drops`` under the same reason)."""
+    closed: bool = False
+    """The connection has ended: ``srtt`` and ``rttvar`` read NaN, ``rate`` 0 and ``rate_limit``
+    ``"closed"`` (refreshed on access); the counters keep what the session did."""
     rtt_samples: int = 0
     srtt: float = 0.0
     rttvar: float = 0.0
@@ -139,6 +148,7 @@ class ConnectionStats:
 
     @property
     def dropped(self) -> int:
+        """Datagrams dropped, all reasons together (``drops`` has them by reason)."""
         return sum(self.drops.values())
 
     def count_handshake(self, size: int, tag: int) -> None:
@@ -153,6 +163,7 @@ class ConnectionStats:
         received.control_packets += 1
 
     def count_drop(self, reason: DropReason) -> None:
+        """Count one datagram dropped for ``reason``."""
         key = reason.value
         self.drops[key] = self.drops.get(key, 0) + 1
         if _logger.isEnabledFor(logging.DEBUG):
@@ -162,6 +173,7 @@ class ConnectionStats:
         """A JSON-ready copy (``math.inf`` rates become ``None``)."""
         data = asdict(self)
         data["dropped"] = self.dropped
-        if data["rate"] == float("inf"):
-            data["rate"] = None
+        for name in ("rate", "srtt", "rttvar"):
+            if not math.isfinite(data[name]):  # NaN once closed, inf when unlimited
+                data[name] = None
         return data

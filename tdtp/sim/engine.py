@@ -93,6 +93,7 @@ class Simulator:
         heapq.heappush(self._heap, (when, self._order, callback, args))
 
     def call_later(self, delay: float, callback: Callable[..., None], *args: Any) -> None:
+        """Call ``callback(*args)`` ``delay`` virtual seconds from now."""
         self.call_at(self.now + delay, callback, *args)
 
     def next_time(self) -> float | None:
@@ -131,16 +132,19 @@ class Timer:
         self.deadline: float | None = None
 
     def set(self, when: float) -> None:
+        """Fire at ``when`` (an earlier time than the one armed moves it; a later one is kept)."""
         self.deadline = when
         if when < self._scheduled:
             self._scheduled = when
             self._sim.call_at(when, self._fire, when)
 
     def cancel(self) -> None:
+        """Disarm: nothing fires until the next :meth:`set`."""
         self.deadline = None
 
     @property
     def armed(self) -> bool:
+        """Whether a deadline is set."""
         return self.deadline is not None
 
     def _fire(self, when: float) -> None:
@@ -305,14 +309,7 @@ class Link:
                     f"there instead of byte_limit ({spec})"
                 )
             # The trace's clock starts with the link, so that an offset means the same in every run.
-            self._trace = TraceQueue(
-                trace.trace,
-                offset=trace.offset,
-                overhead=trace.overhead,
-                limit=queue_spec.limit,
-                limit_bytes=queue_spec.limit_bytes,
-                origin=sim.now,
-            )
+            self._trace = TraceQueue.of(queue_spec, origin=sim.now)
             rate_bps = trace.trace.mean_rate_bps
             self._transmit = RateSpec(rate_bps).transmit_time  # not used: the trace serves
         else:
@@ -437,6 +434,7 @@ class Node:
         """Next hop by destination node name."""
 
     def bind(self, port: int, agent: Agent) -> None:
+        """Attach ``agent`` to ``port``: packets for it are handed to ``agent.receive``."""
         if port in self.agents:
             raise InvalidArgumentError(f"port {port} of {self.name} is already bound")
         self.agents[port] = agent
@@ -452,6 +450,7 @@ class Node:
         link.send(packet, now)
 
     def receive(self, packet: Packet, now: float) -> None:
+        """A packet arrived: to the agent bound to its port if it is for this node, else routed on."""
         if packet.dst != self.name:
             self.send(packet, now)
             return
@@ -540,6 +539,7 @@ class Network:
             source.routes.update(first_hop)
 
     def run(self, until: float) -> None:
+        """Run the simulation up to ``until`` (virtual seconds)."""
         self.sim.run(until)
 
 

@@ -43,7 +43,8 @@ from tdtp.wire.protected import TAG_SIZE
 PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
 had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 had no multipath,
-no dialing slave (``SLAVE_DIALS``) and no rendezvous messages)."""
+no dialing slave (``SLAVE_DIALS``) and no rendezvous messages, and its MESSAGE and MESSAGE_ACK
+carried no nonce)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -83,11 +84,12 @@ class ControlCode(enum.IntEnum):
     """master -> slave: the PATH_CHALLENGE's token and the master's nonce, from the master's current
     address."""
     MESSAGE = 10
-    """either way: one message of the reliable control channel (its 16-bit number, the cumulative
-    acknowledgement of the peer's messages, the message), retransmitted until acknowledged."""
+    """either way: one message of the reliable control channel (the master's nonce, its 16-bit
+    number, the cumulative acknowledgement of the peer's messages, the message), retransmitted until
+    acknowledged."""
     MESSAGE_ACK = 11
-    """either way: the cumulative acknowledgement of the peer's control messages alone, when no
-    MESSAGE of ours leaves to carry it."""
+    """either way: the master's nonce and the cumulative acknowledgement of the peer's control
+    messages alone, when no MESSAGE of ours leaves to carry it."""
     MP_CHALLENGE = 17
     """either way, multipath sessions: on a path, "answer this token on the same path": validates a
     new path (its opener's first datagram on it; the other side's proof that the opener receives at
@@ -208,6 +210,14 @@ class CloseReason(enum.IntEnum):
     TAKEN_OVER = 13
     """CLOSE: the slave is exclusive and another master took control (after this one was silent,
     or at once with the TAKEOVER flag)."""
+    EVICTED = 14
+    """CLOSE, slave -> master: the slave was full and gave this session's slot to another master,
+    after this one had been silent for the slave's reclaim time (docs/PROTOCOL.md 5.1, rule 2.7).
+    The master may reopen later; it should wait (back off) first."""
+    RESTARTING = 15
+    """CLOSE: the sender is stopping but expects to be back soon (a service restart: ``tdtp slave``
+    stopped by Ctrl-C or SIGTERM). A master should reopen at once, at its usual OPEN pacing
+    (docs/PROTOCOL.md 5.2). ``NORMAL`` says the opposite: the session is over for good."""
     PATH_CLOSED = 19
     """MP_ABANDON: the sender stopped using this path (the application removed it, its interface
     went away)."""
@@ -237,6 +247,7 @@ class OpenBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.OPEN
 
 
@@ -255,6 +266,7 @@ class OpenAckBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.OPEN_ACK
 
 
@@ -268,6 +280,7 @@ class CookieBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.COOKIE
 
 
@@ -298,6 +311,7 @@ class ResetBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.RESET
 
 
@@ -308,6 +322,7 @@ class PathChallengeBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.PATH_CHALLENGE
 
 
@@ -321,12 +336,15 @@ class PathResponseBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.PATH_RESPONSE
 
 
 class MessageBody(NamedTuple):
     """MESSAGE (either way): one message of the reliable control channel."""
 
+    nonce: bytes
+    """The master's nonce, as a KEEPALIVE carries it: a blind attacker cannot forge a message."""
     seq: int
     """The low 16 bits of the message's number (the sender numbers its messages consecutively)."""
     ack: int
@@ -337,17 +355,21 @@ class MessageBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MESSAGE
 
 
 class MessageAckBody(NamedTuple):
     """MESSAGE_ACK (either way): the cumulative acknowledgement of control messages alone."""
 
+    nonce: bytes
+    """The master's nonce."""
     ack: int
     """As :attr:`MessageBody.ack`."""
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MESSAGE_ACK
 
 
@@ -362,6 +384,7 @@ class MpChallengeBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MP_CHALLENGE
 
 
@@ -378,6 +401,7 @@ class MpResponseBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MP_RESPONSE
 
 
@@ -385,7 +409,10 @@ class MpReportBody(NamedTuple):
     """MP_REPORT (either way, multipath sessions): what one path delivered to the sender of this
     report."""
 
+    nonce: bytes
+    """The master's nonce (a blind attacker does not know it)."""
     path_id: int
+    """The path the report is about (and travels on)."""
     seq: int
     """The low 12 bits of the highest data sequence number received on the path (a u16 whose top
     four bits senders set to zero and receivers ignore)."""
@@ -400,6 +427,7 @@ class MpReportBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MP_REPORT
 
 
@@ -414,6 +442,7 @@ class MpAbandonBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MP_ABANDON
 
 
@@ -446,11 +475,11 @@ _CLOSE: Final = struct.Struct(">B16sB")  # code nonce reason
 _KEEPALIVE: Final = struct.Struct(">B16s")  # code nonce
 _PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
 _PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
-_MESSAGE: Final = struct.Struct(">BHH")  # code seq ack, then the message
-_MESSAGE_ACK: Final = struct.Struct(">BH")  # code ack
+_MESSAGE: Final = struct.Struct(">B16sHH")  # code nonce seq ack, then the message
+_MESSAGE_ACK: Final = struct.Struct(">B16sH")  # code nonce ack
 _MP_CHALLENGE: Final = struct.Struct(">B16sB8s")  # code nonce path_id token
 _MP_RESPONSE: Final = struct.Struct(">B16sB8s8s")  # code nonce path_id echo token
-_MP_REPORT: Final = struct.Struct(">BBHBIIH")  # code path_id seq hold received first lag
+_MP_REPORT: Final = struct.Struct(">B16sBHBIIH")  # code nonce path_id seq hold received first lag
 _MP_ABANDON: Final = struct.Struct(">B16sBB")  # code nonce path_id reason
 
 OPEN_BODY_SIZE: Final = _OPEN.size
@@ -478,9 +507,14 @@ that can trigger one (an unkeyed KEEPALIVE)."""
 PATH_RESPONSE_BODY_SIZE: Final = _PATH_RESPONSE.size
 """33 bytes: a PATH_RESPONSE datagram is 38 bytes."""
 MESSAGE_PREFIX_SIZE: Final = _MESSAGE.size
-"""5 bytes before a MESSAGE's data (code, seq, ack): an unkeyed MESSAGE is 10 bytes + the message."""
+"""21 bytes before a MESSAGE's data (code, nonce, seq, ack): an unkeyed MESSAGE is 26 bytes + the
+message."""
+MESSAGE_NONCE_OFFSET: Final = 1
+"""Where a MESSAGE or MESSAGE_ACK body carries the master's nonce (after the code byte)."""
+MESSAGE_NUMBERS_OFFSET: Final = MESSAGE_NONCE_OFFSET + NONCE_SIZE
+"""Where a MESSAGE body carries its seq and ack (a MESSAGE_ACK its ack): 17."""
 MESSAGE_ACK_BODY_SIZE: Final = _MESSAGE_ACK.size
-"""3 bytes: an unkeyed MESSAGE_ACK is 8 bytes, a keyed one 26."""
+"""19 bytes: an unkeyed MESSAGE_ACK is 24 bytes, a keyed one 42."""
 MESSAGE_SEQ_MODULUS: Final = 1 << 16
 """Message numbers travel as their low 16 bits."""
 MP_TOKEN_SIZE: Final = 8
@@ -494,7 +528,7 @@ MP_CHALLENGE_BODY_SIZE: Final = _MP_CHALLENGE.size
 MP_RESPONSE_BODY_SIZE: Final = _MP_RESPONSE.size
 """34 bytes: an unkeyed MP_RESPONSE is 39 bytes, a keyed one 57."""
 MP_REPORT_BODY_SIZE: Final = _MP_REPORT.size
-"""15 bytes: an unkeyed MP_REPORT is 20 bytes, a keyed one 38."""
+"""31 bytes: an unkeyed MP_REPORT is 36 bytes, a keyed one 54."""
 MP_ABANDON_BODY_SIZE: Final = _MP_ABANDON.size
 """19 bytes: an unkeyed MP_ABANDON is 24 bytes, a keyed one 42."""
 MP_LAG_UNIT: Final = 0.0001
@@ -535,6 +569,7 @@ def encode_open_ack(body: OpenAckBody) -> bytes:
 
 
 def encode_cookie(nonce: bytes, cookie: bytes) -> bytes:
+    """A COOKIE body (code byte included): the version, the master's nonce echoed, the cookie."""
     return _COOKIE.pack(ControlCode.COOKIE, PROTOCOL_VERSION, nonce, cookie)
 
 
@@ -570,21 +605,24 @@ def encode_keepalive(nonce: bytes) -> bytes:
 
 
 def encode_path_challenge(token: bytes) -> bytes:
+    """A PATH_CHALLENGE body (code byte included): the token the new address must echo."""
     return _PATH_CHALLENGE.pack(ControlCode.PATH_CHALLENGE, token)
 
 
 def encode_path_response(token: bytes, nonce: bytes) -> bytes:
+    """A PATH_RESPONSE body (code byte included): the challenge's token and the session's nonce."""
     return _PATH_RESPONSE.pack(ControlCode.PATH_RESPONSE, token, nonce)
 
 
-def encode_message(seq: int, ack: int, data: bytes) -> bytes:
-    """A MESSAGE body (code byte included): the low 16 bits of ``seq`` and ``ack``, then ``data``."""
-    return _MESSAGE.pack(ControlCode.MESSAGE, seq & 0xFFFF, ack & 0xFFFF) + data
+def encode_message(nonce: bytes, seq: int, ack: int, data: bytes) -> bytes:
+    """A MESSAGE body (code byte included): the master's nonce, the low 16 bits of ``seq`` and
+    ``ack``, then ``data``."""
+    return _MESSAGE.pack(ControlCode.MESSAGE, nonce, seq & 0xFFFF, ack & 0xFFFF) + data
 
 
-def encode_message_ack(ack: int) -> bytes:
-    """A MESSAGE_ACK body (code byte included)."""
-    return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, ack & 0xFFFF)
+def encode_message_ack(nonce: bytes, ack: int) -> bytes:
+    """A MESSAGE_ACK body (code byte included): the master's nonce and ``ack``'s low 16 bits."""
+    return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, nonce, ack & 0xFFFF)
 
 
 def encode_mp_challenge(nonce: bytes, path_id: int, token: bytes) -> bytes:
@@ -601,6 +639,7 @@ def encode_mp_report(body: MpReportBody) -> bytes:
     """An MP_REPORT body (code byte included); counters wrap at 2^32, the lag saturates."""
     return _MP_REPORT.pack(
         ControlCode.MP_REPORT,
+        body.nonce,
         body.path_id,
         body.seq & 0xFFF,
         body.hold,
@@ -637,8 +676,8 @@ def _decode_multipath(code: ControlCode, body: bytes | memoryview) -> ControlBod
             raise MalformedPacketError(
                 "bad_control", f"MP_REPORT body is {size} bytes, not {MP_REPORT_BODY_SIZE}"
             )
-        _, path_id, seq, hold, received, first, lag = _MP_REPORT.unpack(body)
-        return MpReportBody(path_id, seq & 0xFFF, hold, received, first, lag)
+        _, nonce, path_id, seq, hold, received, first, lag = _MP_REPORT.unpack(body)
+        return MpReportBody(nonce, path_id, seq & 0xFFF, hold, received, first, lag)
     if size != MP_ABANDON_BODY_SIZE:
         raise MalformedPacketError(
             "bad_control", f"MP_ABANDON body is {size} bytes, not {MP_ABANDON_BODY_SIZE}"
@@ -704,16 +743,16 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             raise MalformedPacketError(
                 "bad_control", f"MESSAGE body of {len(body)} bytes carries no message"
             )
-        _, seq, ack = _MESSAGE.unpack_from(body)
-        return MessageBody(seq, ack, bytes(body[MESSAGE_PREFIX_SIZE:]))
+        _, nonce, seq, ack = _MESSAGE.unpack_from(body)
+        return MessageBody(nonce, seq, ack, bytes(body[MESSAGE_PREFIX_SIZE:]))
     if code is ControlCode.MESSAGE_ACK:
         if len(body) != MESSAGE_ACK_BODY_SIZE:
             raise MalformedPacketError(
                 "bad_control",
                 f"MESSAGE_ACK body is {len(body)} bytes, not {MESSAGE_ACK_BODY_SIZE}",
             )
-        _, ack = _MESSAGE_ACK.unpack(body)
-        return MessageAckBody(ack)
+        _, nonce, ack = _MESSAGE_ACK.unpack(body)
+        return MessageAckBody(nonce, ack)
     if raw in MULTIPATH_CODES:
         return _decode_multipath(code, body)
     if code is ControlCode.PATH_CHALLENGE:

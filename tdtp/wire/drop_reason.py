@@ -65,6 +65,15 @@ class DropReason(enum.Enum):
     UNMATCHED_RESET = "unmatched_reset"
     """A RESET that echoes none of our recent datagrams, or (keyed) whose tags do not verify:
     forged, replayed, or too late."""
+    PEER_ALIVE = "peer_alive"
+    """A RESET that matches, while the slave has been heard within our ``silence_timeout``: a
+    slave that holds our session is talking, so the RESET answered a copy of one of our datagrams
+    sent elsewhere (a replay to this slave from another address, or to another slave holding the
+    key), not our session's datagram at a slave that lost it."""
+    FAR_AHEAD = "far_ahead"
+    """Unkeyed session: a DATA packet numbered further ahead of the highest received than the peer
+    can have sent in the time since (a blind forgery; taking it would make us acknowledge numbers
+    the peer never sent and drop the real packets as late)."""
     PATH_LIMIT = "path_limit"
     """Multipath: a new path refused: the session has ``max_paths`` already, or new paths came
     faster than ``new_paths_per_second`` (PROTOCOL.md 5.11)."""

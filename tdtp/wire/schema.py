@@ -85,10 +85,13 @@ ResetBody: Any = Struct(
 KeepaliveBody: Any = Struct("nonce" / Bytes(NONCE_SIZE))
 PathChallengeBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE))
 PathResponseBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE), "nonce" / Bytes(NONCE_SIZE))
-MessageBody: Any = Struct("seq" / Int16ub, "ack" / Int16ub, "data" / GreedyBytes)
-"""MESSAGE (the reliable control channel): the message's number and the cumulative acknowledgement
-of the peer's messages (both their low 16 bits), then the message itself (at least one byte)."""
-MessageAckBody: Any = Struct("ack" / Int16ub)
+MessageBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE), "seq" / Int16ub, "ack" / Int16ub, "data" / GreedyBytes
+)
+"""MESSAGE (the reliable control channel): the master's nonce, the message's number and the
+cumulative acknowledgement of the peer's messages (both their low 16 bits), then the message itself
+(at least one byte)."""
+MessageAckBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "ack" / Int16ub)
 MpChallengeBody: Any = Struct(
     "nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "token" / Bytes(MP_TOKEN_SIZE)
 )
@@ -103,6 +106,7 @@ MpResponseBody: Any = Struct(
 """MP_RESPONSE (multipath): the challenge's token echoed, and a token of the responder's own
 (zeros: none)."""
 MpReportBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE),
     "path_id" / Int8ub,
     "seq" / Int16ub,
     "hold" / Int8ub,
@@ -110,7 +114,7 @@ MpReportBody: Any = Struct(
     "first" / Int32ub,
     "lag" / Int16ub,
 )
-"""MP_REPORT (multipath): one path's receiver report."""
+"""MP_REPORT (multipath): the master's nonce and one path's receiver report."""
 MpAbandonBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "reason" / Int8ub)
 
 ControlBody: Any = Struct(

@@ -181,8 +181,12 @@ async def test_connect_to_nobody_fails_with_a_clear_error() -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:
         silent.bind(("127.0.0.1", 0))
         port = silent.getsockname()[1]
-        with pytest.raises(ConnectError, match=f"127.0.0.1:{port}"):
+        with pytest.raises(ConnectError, match=f"127.0.0.1:{port}") as unanswered:
             await connect("127.0.0.1", port, config=FAST_TIMEOUTS)
+    # What a user on another machine needs to hear: where the slave binds, firewalls, NAT.
+    message = str(unanswered.value)
+    assert "binds 127.0.0.1 unless given a host" in message
+    assert f"UDP port {port}" in message and "behind NAT" in message
 
 
 @pytest.mark.asyncio

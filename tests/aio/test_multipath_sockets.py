@@ -14,6 +14,7 @@ from tdtp import (
     InvalidArgumentError,
     MultipathConfig,
     PathChanged,
+    PortUnreachableError,
     Ticker,
     connect,
     listen,
@@ -73,7 +74,9 @@ async def test_two_local_sockets_one_session_first_copy_wins(keyed: bool) -> Non
             assert copies == firsts + drops["duplicate"] + drops.get("stale", 0)
             # (a first copy may still come too late for in-order delivery: dropped as late)
             assert receiver.stats.received.data_packets + drops.get("late", 0) == firsts
-            assert paths[1].sent > 0 and paths[0].sent >= paths[1].sent
+            # Both paths carried copies (either may have held a few back: each has a controller
+            # of its own, and a loaded machine's late turns read as queueing to it).
+            assert paths[0].sent > 0 and paths[1].sent > 0
         for ep in (master, slave):
             stats = ep.stats
             assert stats.datagrams_in == stats.received.datagrams + stats.dropped
@@ -157,3 +160,14 @@ async def test_a_slave_with_max_paths_one_refuses_the_second_path() -> None:
         assert [p.path_id for p in slave.paths] == [0]
         assert slave.stats.drops.get("path_limit", 0) >= 1
         assert [(e.path_id, e.state) for e in master.paths.events] == []
+
+
+@pytest.mark.asyncio
+async def test_nothing_listening_is_port_unreachable_at_once() -> None:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with pytest.raises(PortUnreachableError, match="nothing listens"):
+        await asyncio.wait_for(connect("127.0.0.1", port, local_addresses=TWO), 3.0)

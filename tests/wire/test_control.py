@@ -42,6 +42,8 @@ from tdtp.wire.control import (
     CLOSE_BODY_SIZE,
     COOKIE_BODY_SIZE,
     KEEPALIVE_BODY_SIZE,
+    MESSAGE_ACK_BODY_SIZE,
+    MESSAGE_PREFIX_SIZE,
     OPEN_ACK_BODY_SIZE,
     OPEN_BODY_SIZE,
     PATH_CHALLENGE_BODY_SIZE,
@@ -74,11 +76,11 @@ UNKEYED_SIZES = {
     ControlCode.RESET: 1 + RESET_ECHO_SIZE,
     ControlCode.PATH_CHALLENGE: PATH_CHALLENGE_BODY_SIZE,
     ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
-    ControlCode.MESSAGE: 6,  # the smallest: code, seq, ack and a one-byte message
-    ControlCode.MESSAGE_ACK: 3,
+    ControlCode.MESSAGE: 22,  # the smallest: code, nonce, seq, ack and a one-byte message
+    ControlCode.MESSAGE_ACK: 19,
     ControlCode.MP_CHALLENGE: 26,
     ControlCode.MP_RESPONSE: 34,
-    ControlCode.MP_REPORT: 15,
+    ControlCode.MP_REPORT: 31,
     ControlCode.MP_ABANDON: 19,
 }
 
@@ -173,6 +175,21 @@ GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
         CloseBody(ControlCode.REJECT, NONCE, CloseReason.BUSY),
         b"",
     ),
+    # MESSAGE: SEQ 0xABD, no ACK -> aa f4 00 00 ff; code 0a, the master's nonce, message number
+    # ff ff, next expected from the peer f0 c4, the message "E-STOP" (PROTOCOL.md 7.7).
+    (
+        "aa f4 00 00 ff 0a" + NONCE.hex() + "ffff f0c4" + b"E-STOP".hex(),
+        Header(PacketType.CONTROL, 0xABD, 0, 0, 255),
+        MessageBody(NONCE, 0xFFFF, 0xF0C4, b"E-STOP"),
+        b"",
+    ),
+    # MESSAGE_ACK: code 0b, the master's nonce, next expected 00 00 (0x10000 past the wrap).
+    (
+        "aa f4 00 00 ff 0b" + NONCE.hex() + "0000",
+        Header(PacketType.CONTROL, 0xABD, 0, 0, 255),
+        MessageAckBody(NONCE, 0),
+        b"",
+    ),
 ]
 
 
@@ -192,9 +209,9 @@ def encode_body(body: ControlBody) -> bytes:
     if isinstance(body, PathResponseBody):
         return encode_path_response(body.token, body.nonce)
     if isinstance(body, MessageBody):
-        return encode_message(body.seq, body.ack, body.data)
+        return encode_message(body.nonce, body.seq, body.ack, body.data)
     if isinstance(body, MessageAckBody):
-        return encode_message_ack(body.ack)
+        return encode_message_ack(body.nonce, body.ack)
     return encode_keepalive(body.nonce)
 
 
@@ -236,6 +253,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEY_EXHAUSTED": 11,
         "IN_USE": 12,
         "TAKEN_OVER": 13,
+        "EVICTED": 14,
+        "RESTARTING": 15,
         "PATH_CLOSED": 19,
         "PATH_LIMIT": 20,
         "ROLE_CONFLICT": 21,
@@ -258,6 +277,7 @@ def test_codes_and_constants_are_pinned() -> None:
     assert (OPEN_BODY_SIZE, OPEN_ACK_BODY_SIZE, COOKIE_BODY_SIZE) == (48, 40, 34)
     assert (CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, TAG_SIZE) == (18, 17, 16)
     assert (PATH_CHALLENGE_BODY_SIZE, PATH_RESPONSE_BODY_SIZE) == (17, 33)
+    assert (MESSAGE_PREFIX_SIZE, MESSAGE_ACK_BODY_SIZE) == (21, 19)
 
 
 def test_no_answer_to_an_unvalidated_open_is_larger_than_the_open() -> None:
@@ -277,7 +297,8 @@ def test_golden_control_packets(
     assert decode_header(raw) == header
     assert decode_control(raw[HEADER_SIZE:]) == body
     assert decode_control(memoryview(raw)[HEADER_SIZE:]) == body
-    assert len(raw) == HEADER_SIZE + UNKEYED_SIZES[body.code] + len(tag)
+    message = len(body.data) - 1 if isinstance(body, MessageBody) else 0  # beyond the smallest
+    assert len(raw) == HEADER_SIZE + UNKEYED_SIZES[body.code] + message + len(tag)
 
 
 def test_decoded_code_is_the_enum() -> None:

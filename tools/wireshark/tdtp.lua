@@ -43,8 +43,8 @@ local REASON_NAMES = {
     [0] = "NORMAL", [1] = "IDLE_TIMEOUT", [2] = "PROTOCOL_ERROR", [3] = "VERSION_UNSUPPORTED",
     [4] = "REFUSED", [5] = "BUSY", [6] = "KEY_REQUIRED", [7] = "KEY_UNKNOWN",
     [8] = "PAYLOAD_TOO_SMALL", [9] = "SUITE_UNSUPPORTED", [10] = "REPLACED", [11] = "KEY_EXHAUSTED",
-    [12] = "IN_USE", [13] = "TAKEN_OVER", [19] = "PATH_CLOSED", [20] = "PATH_LIMIT",
-    [21] = "ROLE_CONFLICT", [22] = "RENDEZVOUS_FULL",
+    [12] = "IN_USE", [13] = "TAKEN_OVER", [14] = "EVICTED", [15] = "RESTARTING",
+    [19] = "PATH_CLOSED", [20] = "PATH_LIMIT", [21] = "ROLE_CONFLICT", [22] = "RENDEZVOUS_FULL",
 }
 local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknowledgement" }
 
@@ -53,11 +53,14 @@ local PN = 2
 local TAG = 16
 local VERSION = 4
 local RESET_ECHO = 16
+-- MESSAGE: code, the master's nonce, seq, ack before the message; MESSAGE_ACK: code, nonce, ack.
+local MESSAGE_PREFIX = 21
+local MESSAGE_ACK = 19
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
     [8] = { 22 }, [9] = { 38 }, [23] = { 38 }, [24] = { 38 },
-    [17] = { 31, 49 }, [18] = { 39, 57 }, [19] = { 20, 38 }, [20] = { 24, 42 },
+    [17] = { 31, 49 }, [18] = { 39, 57 }, [19] = { 36, 54 }, [20] = { 24, 42 },
 }
 
 local f = tdtp.fields
@@ -544,14 +547,15 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
             return string.format("MP_ABANDON path=%d %s", tvb(HEADER + 17, 1):uint(),
                 REASON_NAMES[reason] or tostring(reason))
         end
-        tree:add(f.path_id, tvb(HEADER + 1, 1))
-        tree:add(f.mp_seq, tvb(HEADER + 2, 2))
-        tree:add(f.mp_hold, tvb(HEADER + 4, 1))
-        tree:add(f.mp_received, tvb(HEADER + 5, 4))
-        tree:add(f.mp_first, tvb(HEADER + 9, 4))
-        tree:add(f.mp_lag, tvb(HEADER + 13, 2))
-        return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 1, 1):uint(),
-            tvb(HEADER + 5, 4):uint(), tvb(HEADER + 9, 4):uint())
+        tree:add(f.nonce, tvb(HEADER + 1, 16))
+        tree:add(f.path_id, tvb(HEADER + 17, 1))
+        tree:add(f.mp_seq, tvb(HEADER + 18, 2))
+        tree:add(f.mp_hold, tvb(HEADER + 20, 1))
+        tree:add(f.mp_received, tvb(HEADER + 21, 4))
+        tree:add(f.mp_first, tvb(HEADER + 25, 4))
+        tree:add(f.mp_lag, tvb(HEADER + 29, 2))
+        return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 17, 1):uint(),
+            tvb(HEADER + 21, 4):uint(), tvb(HEADER + 25, 4):uint())
     end
     -- The reliable control channel (section 5.10): session control, protected in a keyed session.
     if code == 10 or code == 11 then
@@ -561,29 +565,34 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
                 return name .. " (truncated)"
             end
             local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
-            if (code == 10 and sealed < 5) or (code == 11 and sealed ~= 2) then
+            -- Sealed: the nonce and the numbers (MESSAGE: and at least one message byte).
+            if (code == 10 and sealed < MESSAGE_PREFIX) or (code == 11 and sealed ~= MESSAGE_ACK - 1) then
                 tree:add_proto_expert_info(e.bad_control)
             end
             return string.format("%s pn=%d", name, pn)
         end
+        -- Both carry the master's nonce after the code byte (version 4), then the numbers.
         if code == 11 then
-            if length ~= HEADER + 3 then
+            if length ~= HEADER + MESSAGE_ACK then
                 tree:add_proto_expert_info(e.bad_control)
                 return name .. " (wrong length)"
             end
-            tree:add(f.msg_ack, tvb(HEADER + 1, 2))
-            return string.format("MESSAGE_ACK next=%d", tvb(HEADER + 1, 2):uint())
+            tree:add(f.nonce, tvb(HEADER + 1, 16))
+            tree:add(f.msg_ack, tvb(HEADER + 17, 2))
+            return string.format("MESSAGE_ACK next=%d", tvb(HEADER + 17, 2):uint())
         end
-        if length < HEADER + 6 then
+        if length < HEADER + MESSAGE_PREFIX + 1 then
             tree:add_proto_expert_info(e.bad_control)
             return name .. " (no message)"
         end
-        tree:add(f.msg_seq, tvb(HEADER + 1, 2))
-        tree:add(f.msg_ack, tvb(HEADER + 3, 2))
-        tree:add(f.message_len, length - HEADER - 5):set_generated()
-        tree:add(f.message, tvb(HEADER + 5, length - HEADER - 5))
-        return string.format("MESSAGE seq=%d next=%d len=%d", tvb(HEADER + 1, 2):uint(),
-            tvb(HEADER + 3, 2):uint(), length - HEADER - 5)
+        local data = length - HEADER - MESSAGE_PREFIX
+        tree:add(f.nonce, tvb(HEADER + 1, 16))
+        tree:add(f.msg_seq, tvb(HEADER + 17, 2))
+        tree:add(f.msg_ack, tvb(HEADER + 19, 2))
+        tree:add(f.message_len, data):set_generated()
+        tree:add(f.message, tvb(HEADER + MESSAGE_PREFIX, data))
+        return string.format("MESSAGE seq=%d next=%d len=%d", tvb(HEADER + 17, 2):uint(),
+            tvb(HEADER + 19, 2):uint(), data)
     end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then

@@ -229,6 +229,11 @@ class Path:
             self._min_rtt_next = sample
 
     @property
+    def reported_copies(self) -> int:
+        """Copies sent on the path up to the one the peer's latest report names."""
+        return self._reported_expected
+
+    @property
     def min_rtt(self) -> float:
         return self._min_rtt if self._min_rtt < math.inf else 0.0
 

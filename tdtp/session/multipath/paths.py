@@ -4,17 +4,21 @@ each datagram leaves (docs/PROTOCOL.md 5.11).
 :class:`Multipath` is the one object a :class:`~tdtp.session.connection.Connection` talks to once a
 session opened with the MULTIPATH flag is established. The seam is narrow:
 
-* ``admits(data, addr)``: which path a datagram came on (``rx_local`` names the local socket, set by
-  a driver with several); a datagram from no path of the session is dropped (``wrong_address``)
-  unless it is the challenge that opens a new one;
-* ``intercept(data, ptype, now)``: takes the multipath control packets (MP_CHALLENGE, MP_RESPONSE,
-  MP_REPORT, MP_ABANDON) and drops a copy of a sample already taken in, as ``duplicate``, before the
+* ``admits(data, addr)``: whether a datagram from another address than the first path's came on one
+  of the other paths (``rx_local`` names the local socket, set by a driver with several), or is the
+  challenge that opens a new one; otherwise the connection drops it (``wrong_address``);
+* ``intercept(data, addr, ptype, now)``: which path it came on; takes the multipath control packets
+  (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON) and drops a copy of a sample already taken
+  in, as ``duplicate``, before the
   packet protection sees it (a sample counts as taken in once the connection's receive window holds
   it, which the next datagram or flush checks: a forged datagram never shadows a real sample);
 * ``route(out, now)``: the connection's datagrams for the peer spread over the paths (a sample on
   the paths the scheduler names, the rest on the best path), with the paths' own control packets;
   what leaves through another local socket than the session's own goes to :attr:`routed`;
-* ``deadline()`` and ``on_timer(now)``: probes, reports, path failures.
+* ``deadline()`` and ``on_timer(now)``: probes, reports, path failures, the paths' controllers,
+  reached through the session's controller
+  (:class:`~tdtp.session.multipath.congestion.MultipathController`, which replaces the single-path
+  one), so that the connection's timer needs no hook of its own.
 
 Everything a peer can grow is bounded: ``max_paths`` paths (the session's first included), new paths
 at ``new_paths_per_second``, four outstanding tokens per path, fixed rings for copies; a learned path
@@ -32,6 +36,7 @@ from typing import Final, Protocol
 from tdtp.admission.rate_limit import TokenBucket
 from tdtp.config import ConnectionConfig, MultipathConfig, Role
 from tdtp.control.base import RateController
+from tdtp.control.registry import create_controller
 from tdtp.errors import InvalidArgumentError
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.protection.replay_window import WideReplayWindow
@@ -39,7 +44,7 @@ from tdtp.session.ack_scheduler import AckScheduler
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import Address, PathChanged
 from tdtp.session.handshake import Handshake
-from tdtp.session.multipath.congestion import Coupling, MultipathController, PathPacer
+from tdtp.session.multipath.congestion import Bottlenecks, MultipathController, PathPacer
 from tdtp.session.multipath.copies import CopyFilter, SentRing
 from tdtp.session.multipath.path import (
     ACTIVE,
@@ -159,6 +164,8 @@ class MultipathStats:
     """Samples sent on several paths."""
     breaches: int = 0
     """Adaptive: times the best path broke a bound and every path took the samples."""
+    bottleneck_skips: int = 0
+    """Copies not sent because another congested path of the sample shares its bottleneck."""
 
 
 class Multipath:
@@ -208,7 +215,8 @@ class Multipath:
             wide.highest = old.highest
             opener.window = wide
         self._peer: Address = (peer[0], peer[1])
-        self._coupling = Coupling()
+        self._bottlenecks = Bottlenecks()
+        self._controller = (config.controller, config.controller_config)
         self._copies = CopyFilter()
         self._ring = SentRing()
         self.scheduler = Scheduler(mp, recovery, self._ring)
@@ -256,7 +264,7 @@ class Multipath:
         # The single-path controller's round trips would mix the paths (CONTROL.md 11): the
         # session's pieces that drive a controller get one that asks the paths' pacers.
         old = session._controller
-        controller = MultipathController(paths.usable_pacers)
+        controller = MultipathController(paths.usable_pacers, paths.deadline, paths.on_timer)
         controller.feedback_delay = old.feedback_delay
         controller.sample_waiting = old.sample_waiting
         session._controller = controller
@@ -320,34 +328,33 @@ class Multipath:
     # ------------------------------------------------------------------ receiving
 
     def admits(self, data: bytes, addr: Address) -> bool:
-        """Which path ``data`` came on (remembered for the rest of its handling); False, counted
-        as ``wrong_address``, when it is none of ours and not a new path's challenge."""
+        """A datagram from another address than the session's first path's: whether it came on
+        one of the other paths, or is the challenge that opens a new one (False: the connection
+        drops it as ``wrong_address``)."""
+        if (self.rx_local, addr[0], addr[1]) in self._by_address:
+            return True
+        return (
+            len(data) >= HEADER_SIZE + MP_PROBE_PREFIX_SIZE
+            and data[0] >> 6 == _CONTROL
+            and data[HEADER_SIZE] == _CHALLENGE
+            and data[HEADER_SIZE + 1 : HEADER_SIZE + MP_PROBE_PREFIX_SIZE] == self._nonce
+        )
+
+    def intercept(self, data: bytes, addr: Address, ptype: int, now: float) -> bool:
+        """True when the datagram was taken here (a multipath control packet, taken or dropped, or
+        a copy of a sample already taken in, dropped as ``duplicate``). Notes which path it came
+        on for the rest of its handling."""
         self._hint.value = -math.inf
         path = self._by_address.get((self.rx_local, addr[0], addr[1]))
         self._rx = path
         self._rx_address = addr
         if path is not None:
             path.bytes_in += len(data)
-            return True
-        if (
-            len(data) >= HEADER_SIZE + MP_PROBE_PREFIX_SIZE
-            and data[0] >> 6 == _CONTROL
-            and data[HEADER_SIZE] == _CHALLENGE
-            and data[HEADER_SIZE + 1 : HEADER_SIZE + MP_PROBE_PREFIX_SIZE] == self._nonce
-        ):
-            return True
-        self._stats.count_drop(DropReason.WRONG_ADDRESS)
-        return False
-
-    def intercept(self, data: bytes, ptype: int, now: float) -> bool:
-        """True when the datagram was taken here (a multipath control packet, taken or dropped, or
-        a copy of a sample already taken in, dropped as ``duplicate``)."""
         if ptype == _CONTROL:
             if len(data) > HEADER_SIZE and data[HEADER_SIZE] in MULTIPATH_CODES:
                 self._on_control(data, now)
                 return True
             return False
-        path = self._rx
         if ptype != _DATA or path is None:
             return False
         window = self._acks.window
@@ -473,6 +480,9 @@ class Multipath:
             self._queue(self._seal(reply, MP_PROBE_PREFIX_SIZE), path, 0)
 
     def _on_report(self, body: MpReportBody, path: Path | None, size: int, now: float) -> None:
+        if body.nonce != self._nonce:
+            self._stats.count_drop(DropReason.NONCE_MISMATCH)  # forged blind, or another session's
+            return
         if path is None or body.path_id != path.path_id:
             self._stats.count_drop(DropReason.UNKNOWN_PATH)  # a report travels on its own path
             return
@@ -492,7 +502,9 @@ class Multipath:
             full, sent_here, hold, send_time, body.received, body.first, lag, now
         )
         rtt = path.rtt
-        path.pacer.on_feedback(now, got, lost, sample, rtt.srtt, path.min_rtt)
+        path.pacer.on_feedback(
+            now, got, lost, sample, rtt.srtt, rtt.rttvar, path.min_rtt, path.reported_copies
+        )
         self._judge(path, now)
 
     def _on_abandon(self, body: MpAbandonBody, size: int, now: float) -> None:
@@ -615,15 +627,17 @@ class Multipath:
                 ranked = sorted(self.paths.values(), key=_by_id)[:1]
         candidates = self.scheduler.candidates(ranked, now)
         chosen: list[Path] = []
-        congested = False
+        congested: list[PathPacer] = []
         for path in candidates:
             pacer = path.pacer
             if not pacer.allows(now):
                 continue
-            if pacer.congested(now):
-                if congested:
-                    continue  # at most one copy into congestion (CONTROL.md 11)
-                congested = True
+            if pacer.congested():
+                # At most one copy into each congested bottleneck (CONTROL.md 11).
+                if any(pacer.shares_bottleneck(other, now) for other in congested):
+                    self.stats.bottleneck_skips += 1
+                    continue
+                congested.append(pacer)
             chosen.append(path)
         if not chosen:
             # None of the scheduler's paths allows a copy now: a path that does, else the best.
@@ -636,7 +650,7 @@ class Multipath:
         mask = 0
         for path in chosen:
             mask |= 1 << path.path_id
-            path.pacer.on_sent(now)
+            path.pacer.on_sent(size, now)
             path.on_data_sent(seq)
             self._put(datagram, path, now, result)
         self._ring.record(seq, now, mask)
@@ -691,6 +705,7 @@ class Multipath:
         lag = int(path.rx_lag / MP_LAG_UNIT)
         body = encode_mp_report(
             MpReportBody(
+                self._nonce,
                 path.path_id,
                 path.rx_highest & 0xFFF,
                 encode_hold(now - path.rx_highest_at),
@@ -730,6 +745,9 @@ class Multipath:
                 due = path.last_challenge + config.failed_probe_interval
             if path.unreported:
                 due = min(due, path.last_report + config.report_interval)
+            pacing = path.pacer.get_timer()
+            if pacing is not None and pacing < due:
+                due = pacing
             if due < deadline:
                 deadline = due
         return deadline if deadline < math.inf else None
@@ -760,6 +778,9 @@ class Multipath:
                 self._challenge(path, now)  # ours, not answered yet: keep asking
             if path.unreported and now >= path.last_report + config.report_interval:
                 self._report(path, now)
+            pacing = path.pacer.get_timer()
+            if pacing is not None and now >= pacing:
+                path.pacer.on_timer(now)
 
     # ------------------------------------------------------------------ path states
 
@@ -773,7 +794,12 @@ class Multipath:
         validated: bool,
         now: float,
     ) -> Path:
-        pacer = PathPacer(self.config, self._coupling)
+        name, settings = self._controller
+        pacer = PathPacer(
+            lambda: create_controller(name, settings),
+            self.config.report_interval,
+            self._bottlenecks,
+        )
         return Path(
             path_id,
             local,

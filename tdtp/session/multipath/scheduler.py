@@ -9,10 +9,13 @@
   ``delay_bound`` of the lowest it has shown, and the samples it carried are acknowledged in time: the
   newest of the samples it carried alone that was acknowledged left no longer ago than such a
   sample's acknowledgement usually takes (a round trip and the peer's hold) plus the usual gap
-  between them (each a mean and four deviations) and 1 ms. That last test reacts within one round
+  between them (each a mean and four deviations) and 10 ms. That last test reacts within one round
   trip to a path that stalls (a radio's capacity outage), long before any report could say so. Once a
   bound is broken every path carries the samples for at least ``adaptive_hold``, and so they do
   while the best path has been usable for less than that (just validated, or back from a failure).
+  While the best path carries the samples alone, one sample per ``probe_interval`` goes on every
+  path anyway, so that each path's lag behind the first copy and its round trip stay measured and
+  its controller fed.
 
 Everything else (stand-alone ACKs, keep-alives, control messages) goes on the best path, and a control
 message sent again goes on the second best, so that one path's outage costs a retransmission, not the
@@ -31,11 +34,11 @@ from tdtp.session.recovery import LossRecovery
 
 STALL_MARGIN: Final = 0.001
 """The least margin beyond ``srtt + 4 rttvar`` and the feedback's usual gaps before an
-unacknowledged sample counts as stalled."""
-PROBE_EVERY: Final = 8
-"""Adaptive, while the best path carries the samples alone: every this many samples one goes on every
-path anyway, so that each path's lag behind the first copy (its one-way delay, compared) stays
-measured and the best path is chosen by what the receiver saw, not by a stale figure."""
+unacknowledged sample counts as stalled..."""
+STALL_SHARE: Final = 0.2
+"""... plus this share of the usual wait: a radio link's delivery comes in bursts, and with 1 ms
+alone the recorded cellular links of benchmarks/multipath.py (45 ms round trips) broke it twice a
+second, each a spell of copies, for no better p99 than with 10 ms (CONTROL.md 11)."""
 GAP_GAIN: Final = 0.125
 """Gain of the averages of acknowledgement ages and gaps (RFC 6298's alpha)."""
 AGE_GAIN: Final = 0.25
@@ -65,9 +68,10 @@ class Scheduler:
         "_gap_at",
         "_gap_dev",
         "_hold_until",
+        "_probe_at",
+        "_probe_every",
         "_recovery",
         "_ring",
-        "_since_probe",
         "adaptive",
         "breaches",
         "reason",
@@ -89,7 +93,8 @@ class Scheduler:
         self._gap_at = -math.inf
         self._age = 0.0
         self._age_dev = 0.0
-        self._since_probe = 0
+        self._probe_at = -math.inf
+        self._probe_every = config.probe_interval
         self._delivered: dict[int, float] = {}  # path id -> newest of its lone samples acknowledged
         self._alone_path = -1  # the path carrying the samples alone now (-1: none)
         self._alone_since = -math.inf
@@ -118,12 +123,11 @@ class Scheduler:
                 self._alone_path = best.path_id
                 self._alone_since = now
                 self._gap_at = -math.inf  # the gaps that count are those while alone
-            self._since_probe += 1
-            if self._since_probe < PROBE_EVERY:
+            if now < self._probe_at + self._probe_every:
                 return ranked[:1]
         else:
             self._alone_path = -1
-        self._since_probe = 0
+        self._probe_at = now
         return ranked
 
     def _alone(self, best: Path, now: float) -> bool:
@@ -189,7 +193,9 @@ class Scheduler:
 
     def _limit(self) -> float:
         """How long after its send the newest acknowledged lone sample may be before a stall."""
-        return self._age + 4.0 * self._age_dev + self._gap + 4.0 * self._gap_dev + STALL_MARGIN
+        age = self._age
+        margin = STALL_MARGIN + STALL_SHARE * age
+        return age + 4.0 * self._age_dev + self._gap + 4.0 * self._gap_dev + margin
 
     def deadline(self) -> float | None:
         """Adaptive: when the hold ends (the best path may carry the samples alone again)."""

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from tdtp.config import ConnectionConfig
-from tdtp.netem import OPPORTUNITY_BYTES, NetemSpec, parse_netem
+from tdtp.netem import OPPORTUNITY_BYTES, NetemSpec, Trace, parse_netem
 from tdtp.sim.endpoints import IP_HEADER, UDP_HEADER, CbrSource, TdtpSession
 from tdtp.sim.engine import Network
 from tdtp.sim.metrics import FlowRecorder
@@ -150,6 +150,13 @@ def _split(spec: str | NetemSpec) -> tuple[NetemSpec, float]:
     return parsed, parsed.delay.delay if parsed.delay is not None else 0.0
 
 
+def _trace_of(spec: str | NetemSpec) -> tuple[Trace, float, float]:
+    """The direction's trace, its offset in ms and its propagation delay in seconds."""
+    parsed, propagation = _split(spec)
+    assert parsed.trace is not None  # _split insists
+    return parsed.trace.trace, parsed.trace.offset * 1e3, propagation
+
+
 def ideal(
     spec: str | NetemSpec,
     *,
@@ -159,12 +166,10 @@ def ideal(
     ideal_wire: int = SAMPLE_SIZE + UDP_IP,
     origin: float = 0.0,
 ) -> Arrivals:
-    """What the direction's trace allowed (see the module's docstring): samples generated at ``rate``
-    from ``start`` for ``duration``, the trace's clock started at ``origin`` (at its offset)."""
-    parsed, propagation = _split(spec)
-    assert parsed.trace is not None
-    trace = parsed.trace.trace
-    offset_ms = parsed.trace.offset * 1e3
+    """What a sender that knew the link would deliver with nothing queued (see the module's
+    docstring): samples generated at ``rate`` from ``start`` for ``duration``, the trace's clock
+    started at ``origin`` (at its offset)."""
+    trace, offset_ms, propagation = _trace_of(spec)
     count = round(duration * rate)
     out = Arrivals(start, start + duration, count)
     index = trace.first_after(max(0.0, (start - origin) * 1e3 + offset_ms))
@@ -204,10 +209,7 @@ def allowed(
     """Samples the trace allowed in ``[start, start + duration)``: for each ``window``, the smaller of
     the samples generated in it and the samples its opportunities carry (``ideal_wire`` bytes each,
     fractions counted), summed. The trace's clock starts at ``origin``, at its offset."""
-    parsed, _ = _split(spec)
-    assert parsed.trace is not None
-    trace = parsed.trace.trace
-    offset_ms = parsed.trace.offset * 1e3
+    trace, offset_ms, _ = _trace_of(spec)
     total = 0.0
     for k in range(max(1, round(duration / window))):
         a = (start + k * window - origin) * 1e3 + offset_ms
@@ -247,6 +249,20 @@ def _arrivals(recorder: FlowRecorder, start: float, end: float, rate: float) -> 
             out.generated.append(generated)
             out.arrived.append(now)
     return out
+
+
+def _judged(
+    net: Network,
+    ms: tuple[Arrivals, float],
+    sm: tuple[Arrivals, float],
+    senders: dict[str, dict[str, Any]],
+) -> CellularRun:
+    """The run's arrivals (each with its direction's propagation delay) and their figures."""
+    figures = {
+        key: direction_figures(arrivals, propagation=delay)
+        for key, (arrivals, delay) in (("ms", ms), ("sm", sm))
+    }
+    return CellularRun(ms[0], sm[0], figures, _link_counts(net), senders)
 
 
 def _link_counts(net: Network) -> dict[str, dict[str, int]]:
@@ -312,16 +328,7 @@ def run_tdtp(
             "ack_packets": endpoint.ack_packets,
             "packets_lost": stats.packets_lost,
         }
-    return CellularRun(
-        ms_arrivals,
-        sm_arrivals,
-        {
-            "ms": direction_figures(ms_arrivals, propagation=ms_delay),
-            "sm": direction_figures(sm_arrivals, propagation=sm_delay),
-        },
-        _link_counts(net),
-        senders,
-    )
+    return _judged(net, (ms_arrivals, ms_delay), (sm_arrivals, sm_delay), senders)
 
 
 def run_udp(
@@ -359,12 +366,4 @@ def run_udp(
     net.run(total)
     ms_arrivals = _arrivals(streams["ms"].recorder, start, start + duration, rate)
     sm_arrivals = _arrivals(streams["sm"].recorder, start + phase, start + phase + duration, rate)
-    return CellularRun(
-        ms_arrivals,
-        sm_arrivals,
-        {
-            "ms": direction_figures(ms_arrivals, propagation=ms_delay),
-            "sm": direction_figures(sm_arrivals, propagation=sm_delay),
-        },
-        _link_counts(net),
-    )
+    return _judged(net, (ms_arrivals, ms_delay), (sm_arrivals, sm_delay), {})
