@@ -109,6 +109,11 @@ async def _dialing_slave(
                 await _with_display(
                     work, every_second(until, lambda _: _show_slave(display, [ep], sides))
                 )
+        except asyncio.CancelledError:
+            # Ctrl-C or SIGTERM: the master hears whether this robot comes back (--on-stop), as
+            # the masters of a listening slave do; the end of --duration closes it NORMAL.
+            await ep.close(restarting=args.on_stop == "restart")
+            raise
         finally:
             outcome.summary = {
                 "command": "slave",

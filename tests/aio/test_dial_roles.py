@@ -66,11 +66,12 @@ async def test_a_dialer_of_the_listeners_own_role_is_refused(listener: Role, dia
 @pytest.mark.asyncio
 async def test_a_listening_master_holds_keys_and_exclusive_control_as_a_slave_does() -> None:
     async with listen(role=Role.MASTER, keys=[KEY], exclusive=True) as operator:
-        with pytest.raises(ConnectError, match="does not hold this key"):
+        # The refusal names the roles as they are: the listener is the master here.
+        with pytest.raises(ConnectError, match="the master does not hold this key"):
             await connect("127.0.0.1", operator.port, role=Role.SLAVE, key=OTHER)
         async with connect("127.0.0.1", operator.port, role=Role.SLAVE, key=KEY):
             await operator.accept()
-            with pytest.raises(ConnectError, match="exclusive"):
+            with pytest.raises(ConnectError, match="the master is exclusive and another slave"):
                 await connect("127.0.0.1", operator.port, role=Role.SLAVE, key=KEY)
             assert operator.stats.peers_in_use == 1
 
