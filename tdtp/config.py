@@ -41,12 +41,14 @@ a slot is reclaimed from a master that is gone, never from one the watchdog saw 
 
 
 class Role(enum.Enum):
-    """Which end of a session a connection is: the master opens it, the slave accepts it."""
+    """Which end of a session a connection is: the master commands, the slave obeys. By default the
+    master dials (sends the OPEN) and the slave listens; either may dial (``dials=``,
+    ``tdtp.connect(role=...)``, ``tdtp.listen(role=...)``)."""
 
     MASTER = "master"
-    """Opens the connection (the operator's side: joystick, haptic device)."""
+    """The operator's side (joystick, haptic device)."""
     SLAVE = "slave"
-    """Accepts it (the remote robot or crane)."""
+    """The remote robot or crane."""
 
 
 class AckMode(enum.Enum):

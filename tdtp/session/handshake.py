@@ -96,6 +96,7 @@ class Handshake:
         role: Role,
         rng: random.Random,
         *,
+        dials: bool,
         key: OneKeyInput | None,
         keys: KeysInput | None,
         admission: Admission | None,
@@ -109,25 +110,31 @@ class Handshake:
         self._liveness = liveness
         self.key: PresharedKey | None = None
         self.admission: Admission | None = None
-        if role is Role.MASTER:
+        if dials:
             if keys is not None or admission is not None:
                 raise InvalidKeyError(
-                    "a master presents one key: pass key=, not keys= or admission="
+                    "the side that dials presents one key: pass key=, not keys= or admission="
                 )
             self.key = as_key(key) if key is not None else None
         else:
             if key is not None:
                 raise InvalidKeyError(
-                    "a slave accepts keys=: one key, several, or a KeyRing (key= is the master's)"
+                    "the side that listens accepts keys=: one key, several, or a KeyRing (key= is "
+                    "the dialer's)"
                 )
             if admission is not None and keys is not None:
                 raise InvalidKeyError("pass keys= or a shared admission=, not both")
             self.admission = (
                 admission
                 if admission is not None
-                else Admission(config, as_key_ring(keys) if keys is not None else None, rng=rng)
+                else Admission(
+                    config, as_key_ring(keys) if keys is not None else None, rng=rng, role=role
+                )
             )
-        self._master = role is Role.MASTER
+        # The protocol's "master" is the dialer (its nonce names the session, its direction is
+        # master-to-slave in the key schedule); SLAVE_DIALS says when it is the application's slave.
+        self._master = dials
+        self._slave_dials = dials == (role is Role.SLAVE)
         self.master_nonce = rng.randbytes(NONCE_SIZE)
         """The connection's identifier on control packets: the master's; a slave adopts it."""
         self.slave_nonce = rng.randbytes(NONCE_SIZE)
@@ -168,6 +175,8 @@ class Handshake:
 
     def open_flags(self, ack_mode: AckMode) -> int:
         flags = OpenFlags.SEPARATE_ACKS if ack_mode is AckMode.SEPARATE else OpenFlags.NONE
+        if self._slave_dials:
+            flags |= OpenFlags.SLAVE_DIALS
         if self.keyed:
             flags |= OpenFlags.KEYED
             if self.encrypt:
@@ -322,7 +331,8 @@ class Handshake:
         return Reaction.OPENED
 
     def reject_text(self, reason: int) -> str:
-        """Why the slave refused us, in words a user can act on."""
+        """Why the peer we dialed refused us, in words a user can act on (the roles named as they
+        are: a slave that dials a listening master hears of "the master")."""
         try:
             known = CloseReason(reason)
         except ValueError:
@@ -332,6 +342,8 @@ class Handshake:
             return known.name.lower()
         key = self.key
         return template.format(
+            listener="master" if self._slave_dials else "slave",
+            dialer="slave" if self._slave_dials else "master",
             key_id=key.key_id.hex() if key is not None else "-",
             max_payload=self._config.max_payload,
             suite=self._config.cipher_suite.name,
@@ -455,17 +467,20 @@ class Handshake:
 
 
 _REJECT_TEXT = {
-    CloseReason.BUSY: "the slave serves as many masters as it may (max_peers) or its accept "
+    CloseReason.BUSY: "the {listener} serves as many {dialer}s as it may (max_peers) or its accept "
     "backlog is full; try again later",
-    CloseReason.KEY_REQUIRED: "the slave accepts keyed sessions only; connect with key= "
-    "(--key-file) holding a key the slave knows",
-    CloseReason.KEY_UNKNOWN: "the slave does not hold this key (key id {key_id}), or accepts "
+    CloseReason.KEY_REQUIRED: "the {listener} accepts keyed sessions only; connect with key= "
+    "(--key-file) holding a key the {listener} knows",
+    CloseReason.KEY_UNKNOWN: "the {listener} does not hold this key (key id {key_id}), or accepts "
     "unkeyed sessions only",
-    CloseReason.VERSION_UNSUPPORTED: f"the slave does not speak TDTP version {PROTOCOL_VERSION}",
-    CloseReason.PAYLOAD_TOO_SMALL: "the slave sends payloads larger than this master's "
+    CloseReason.VERSION_UNSUPPORTED: "the {listener} does not speak TDTP version "
+    f"{PROTOCOL_VERSION}",
+    CloseReason.PAYLOAD_TOO_SMALL: "the {listener} sends payloads larger than this {dialer}'s "
     "max_payload ({max_payload}); raise max_payload",
-    CloseReason.SUITE_UNSUPPORTED: "the slave does not implement the cipher suite {suite}",
-    CloseReason.IN_USE: "the slave is exclusive and another master commands it; it hands over "
-    "once that master has been silent for its takeover period, or at once to a keyed master that "
-    "connects with takeover=True (--takeover)",
+    CloseReason.SUITE_UNSUPPORTED: "the {listener} does not implement the cipher suite {suite}",
+    CloseReason.ROLE_CONFLICT: "the peer plays the same role as this end (a master dialed a master, "
+    "or a slave a slave); start one end as master and the other as slave",
+    CloseReason.IN_USE: "the {listener} is exclusive and another {dialer} commands it; it hands "
+    "over once that {dialer} has been silent for its takeover period, or at once to a keyed "
+    "{dialer} that connects with takeover=True (--takeover)",
 }

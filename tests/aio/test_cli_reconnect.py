@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from test_cli import _free_udp_port, _wait_until_listening
 
 
@@ -81,3 +82,42 @@ def test_the_cli_master_reconnects_to_a_slave_restarted_with_ctrl_c(tmp_path: Pa
     served = json.loads(slave_out)
     assert served["masters_served"] >= 1
     assert served["sessions"][0]["master_to_slave"]["packets_received"] > 0
+
+
+@pytest.mark.parametrize(
+    ("on_stop", "word"), [("restart", "restarting"), ("shutdown", "by the application")]
+)
+def test_a_dialing_slave_stopped_with_ctrl_c_tells_its_master_whether_it_comes_back(
+    tmp_path: Path, on_stop: str, word: str
+) -> None:
+    """``tdtp slave --connect`` (the robot dials a listening master) closes as a listening slave
+    does on Ctrl-C: RESTARTING unless ``--on-stop shutdown``, and the master hears which."""
+    port = _free_udp_port()
+    master = subprocess.Popen(
+        [sys.executable, "-m", "tdtp", "master", "--listen", f"127.0.0.1:{port}", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    slave: subprocess.Popen[str] | None = None
+    try:
+        _wait_until_listening(port)
+        slave = subprocess.Popen(
+            [sys.executable, "-m", "tdtp", "slave", "--connect", f"127.0.0.1:{port}", "--json",
+             "--on-stop", on_stop, "--pcap", str(tmp_path / "robot.pcap")],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        _wait_for_traffic(tmp_path / "robot.pcap")
+        slave.send_signal(signal.SIGINT)
+        slave_out, slave_err = slave.communicate(timeout=30)
+        master.send_signal(signal.SIGINT)
+        master_out, master_err = master.communicate(timeout=60)
+    finally:
+        for process in (master, slave):
+            if process is not None and process.poll() is None:
+                process.kill()
+    assert slave.returncode == 130, slave_err
+    stopped = json.loads(slave_out)["sessions"][0]["close"]
+    assert stopped["cause"] == "local_close" and word in stopped["detail"].lower(), stopped
+    assert master.returncode in (0, 1, 130), master_err
+    heard = json.loads(master_out)["close"]
+    expected = "peer_restarting" if on_stop == "restart" else "peer_close"
+    assert heard["cause"] == expected, heard

@@ -247,7 +247,7 @@ async def test_a_keyed_session_over_real_sockets() -> None:
             # 18 bytes on every datagram after the OPEN, whose tag is 16.
             received = slave.stats.received
             assert received.protection_bytes == 18 * (received.datagrams - 1) + 16
-        with pytest.raises(ConnectError, match="does not hold this key"):
+        with pytest.raises(ConnectError, match="the slave does not hold this key"):
             await connect("127.0.0.1", server.port, key=PresharedKey.generate())
         with pytest.raises(ConnectError, match="keyed sessions only"):
             await connect("127.0.0.1", server.port)
