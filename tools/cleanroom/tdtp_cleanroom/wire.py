@@ -37,8 +37,8 @@ MP_CODES = (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON)  # row 6a
 
 # -- OPEN flags (section 4.3) ------------------------------------------------------------------
 FLAG_SEPARATE_ACKS, FLAG_KEYED, FLAG_ENCRYPTED, FLAG_TAKEOVER = 0x01, 0x02, 0x04, 0x08
-FLAG_MULTIPATH = 0x40
-MODE_FLAGS = 0x47  # bits 0..2 and 6: what an OPEN_ACK echoes
+FLAG_MULTIPATH, FLAG_SLAVE_DIALS = 0x40, 0x80
+MODE_FLAGS = 0xC7  # bits 0..2, 6 and 7: what an OPEN_ACK echoes
 
 # -- CLOSE / REJECT reasons (section 4.3) ------------------------------------------------------
 REASON_NAMES = [
@@ -63,6 +63,8 @@ REASON_NAMES = [
     "18",
     "PATH_CLOSED",
     "PATH_LIMIT",
+    "ROLE_CONFLICT",
+    "RENDEZVOUS_FULL",
 ]
 (
     NORMAL,
@@ -83,6 +85,7 @@ REASON_NAMES = [
     RESTARTING,
 ) = range(16)
 PATH_CLOSED, PATH_LIMIT = 19, 20  # MP_ABANDON reasons (section 4.3)
+ROLE_CONFLICT, RENDEZVOUS_FULL = 21, 22  # a REJECT's (5.1 rule 2.5), a REFERRAL's (5.12)
 
 
 def reason_name(reason: int) -> str:
