@@ -23,7 +23,7 @@ sys.path.insert(0, str(HERE))
 VECTORS = HERE.parent.parent / "tests" / "vectors"
 
 from scripts_runner import MismatchError, endpoint_suite, server_suite  # noqa: E402
-from tdtp_cleanroom import crypto, wire  # noqa: E402
+from tdtp_cleanroom import crypto, rendezvous, wire  # noqa: E402
 from tdtp_cleanroom.receiver import ReceiveWindow  # noqa: E402
 from tdtp_cleanroom.sender import SentLog  # noqa: E402
 
@@ -306,6 +306,72 @@ def sender_suite(d: Vec) -> Iterable[tuple[str, Callable[[], None]]]:
         yield c["name"], run
 
 
+# -- rendezvous (section 5.12) --------------------------------------------------------------------
+def _rendezvous_fields(msg: rendezvous.Message) -> Vec:
+    out: dict[str, Any] = {}
+    for k, val in vars(msg).items():
+        if isinstance(val, bytes):
+            out[k] = val.hex()
+        elif isinstance(val, tuple):
+            out[k] = list(val)
+        elif isinstance(val, list):
+            out[k] = [list(a) for a in val]
+        else:
+            out[k] = val
+    return out
+
+
+def rendezvous_suite(d: Vec) -> Iterable[tuple[str, Callable[[], None]]]:
+    for v in d["names"]:
+
+        def names(v: Vec = v) -> None:
+            psk = bytes.fromhex(v["psk_hex"]) if v["psk_hex"] else None
+            secret = rendezvous.rendezvous_secret(psk, v["rendezvous_name"])
+            check("id", rendezvous.rendezvous_id(secret).hex(), v["rendezvous_id_hex"])
+            check("probe key", rendezvous.probe_key(secret).hex(), v["probe_key_hex"])
+
+        yield f"names: {v['name']}", names
+    robot = rendezvous.probe_key(rendezvous.rendezvous_secret(None, "robot-7"))
+    for v in d["probes"]:
+
+        def probes(v: Vec = v) -> None:
+            dg = bytes.fromhex(v["datagram_hex"])
+            msg = rendezvous.decode(dg[5:])
+            assert isinstance(msg, rendezvous.Probe)
+            token = bytes.fromhex(v["token_hex"])
+            built = rendezvous.probe_datagram(robot, v["side"], token, msg.ack)
+            check("datagram", built.hex(), v["datagram_hex"])
+            other = rendezvous.probe_mac(robot, 1 - v["side"], token, msg.ack)
+            check("the other side's MAC differs", other != msg.mac, True)
+
+        yield f"probes: {v['name']}", probes
+    for v in d["valid"]:
+
+        def valid(v: Vec = v) -> None:
+            dg = bytes.fromhex(v["datagram_hex"])
+            msg = rendezvous.decode(dg[5:])
+            got = _rendezvous_fields(msg)
+            check("fields", {k: got.get(k) for k in v["fields"]}, v["fields"])
+            check("re-encoded", rendezvous.datagram(msg).hex(), v["datagram_hex"])
+
+        yield f"valid: {v['name']}", valid
+    for v in d["relay_answers"]:
+
+        def answers(v: Vec = v) -> None:
+            relay = rendezvous.Relay()
+            dg = bytes.fromhex(v["datagram_hex"])
+            sent = relay.receive(dg, ("198.51.100.7", 666), 0.0)
+            kind = sent[0].label.removeprefix("REFERRAL ") if sent else None
+            check(
+                "answer",
+                [kind, sum(len(s.data) for s in sent)],
+                [v["answer_kind"], v["answer_size"]],
+            )
+            check("no larger than the datagram", all(len(s.data) <= len(dg) for s in sent), True)
+
+        yield f"relay: {v['name']}", answers
+
+
 SUITES: dict[str, Callable[[Vec], Iterable[tuple[str, Callable[[], None]]]]] = {
     "header": header_suite,
     "hold": hold_suite,
@@ -316,6 +382,7 @@ SUITES: dict[str, Callable[[Vec], Iterable[tuple[str, Callable[[], None]]]]] = {
     "sender": sender_suite,
     "endpoint": endpoint_suite,
     "server": server_suite,
+    "rendezvous": rendezvous_suite,
 }
 
 

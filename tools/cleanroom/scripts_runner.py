@@ -15,6 +15,7 @@ ADDRS: dict[str, Addr] = {
     "master": ("192.0.2.1", 40001),
     "slave": ("192.0.2.2", 40002),
     "stranger": ("198.51.100.7", 666),
+    "master_socket2": ("192.0.2.1", 40003),  # the master's second socket: a second path
     "master_moved": ("192.0.2.1", 50001),
     "master2": ("203.0.113.9", 40009),
     "master3": ("203.0.113.10", 40010),
@@ -53,6 +54,12 @@ def make_config(c: Vec, role: str) -> Config:
             cfg.psks = [bytes.fromhex(c["psk"])]
     if "psks" in c:
         cfg.psks = [bytes.fromhex(k) for k in c["psks"]]
+    if "multipath" in c:  # the parameters of section 5.11, by name
+        cfg.multipath = True
+        for k, v in c["multipath"].items():
+            if not hasattr(cfg, k):
+                raise ValueError(f"unknown multipath parameter {k!r}")
+            setattr(cfg, k, v)
     if "reclaim_after" in c:  # at least 10 x silence_timeout (5.1 rule 2.7)
         cfg.reclaim_after = max(c["reclaim_after"], 10 * cfg.silence_timeout)
     return cfg
@@ -76,12 +83,15 @@ COOKIE_OFFSET = 23  # header 5, code 1, version 1, nonce 16
 TOKEN_OFFSET = 6
 
 
-def substitute(text: str, history: list[Sent]) -> bytes:
+def substitute(text: str, history: list[Sent], mp_token: bytes | None = None) -> bytes:
+    """`{cookie}`; `{token}`: an endpoint's last multipath token (`mp_token`, 8 bytes: it may be
+    sealed on the wire, so the endpoint says which it was), else a server's last PATH_CHALLENGE
+    token (16 bytes)."""
     if "{cookie}" in text:
         cookie = last_token(history, wire.COOKIE, COOKIE_OFFSET)
         text = text.replace("{cookie}", cookie.hex() if cookie else "00" * 16)
     if "{token}" in text:
-        token = last_token(history, wire.PATH_CHALLENGE, TOKEN_OFFSET)
+        token = mp_token or last_token(history, wire.PATH_CHALLENGE, TOKEN_OFFSET)
         text = text.replace("{token}", token.hex() if token else "00" * 16)
     return bytes.fromhex(text)
 
@@ -124,7 +134,9 @@ def run_endpoint_script(script: Vec) -> None:
         elif action == "advance":
             pass
         elif "datagram" in step:
-            ep.receive(substitute(step["datagram"], history), ADDRS[step["from"]], now)
+            mp = ep.conn.mp if ep.conn is not None else None
+            token = mp.last_token if mp is not None else None
+            ep.receive(substitute(step["datagram"], history, token), ADDRS[step["from"]], now)
         else:
             raise ValueError(f"unknown step {step}")
         ep.tick(now)

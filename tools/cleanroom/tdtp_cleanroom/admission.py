@@ -130,7 +130,9 @@ class Admission:
             return Verdict(
                 "unvalidated", wire.control_datagram(cookie, wire.plain_header()), "COOKIE"
             )
-        # 5. Keys.
+        # 5. Role: this slave listens, so the dialer must be a master (no SLAVE_DIALS); then keys.
+        if op.flags & wire.FLAG_SLAVE_DIALS:
+            return Verdict("refused", *self._reject(op.nonce, wire.ROLE_CONFLICT))
         psk: bytes | None = None
         if self.ring and not keyed:
             return Verdict("refused", *self._reject(op.nonce, wire.KEY_REQUIRED))

@@ -52,6 +52,16 @@ class Config:
     challenges_per_second: float = 10.0
     challenge_burst: float = 3.0
     path_response_interval: float = 0.005
+    # multipath (section 5.11): a master with `multipath` sets the OPEN flag; a slave always takes
+    # part in a multipath session its master asks for
+    multipath: bool = False
+    max_paths: int = 4
+    new_paths_per_second: float = 10.0
+    validation_timeout: float = 3.0
+    failed_probe_interval: float = 0.2
+    probe_interval: float = 0.020
+    path_timeout: float = 0.060
+    report_interval: float = 0.010
 
     @property
     def keepalive(self) -> float:

@@ -1,5 +1,6 @@
-"""One session, master or slave side (sections 5.1 to 5.10): the table of section 5.5, the
-handshake, keep-alives, silences, closing, RESET, PATH_CHALLENGE, the control channel."""
+"""One session, master or slave side (sections 5.1 to 5.11): the table of section 5.5, the
+handshake, keep-alives, silences, closing, RESET, PATH_CHALLENGE, the control channel, the
+multipath rows (the path table itself is multipath.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from .admission import Admission, Verdict
 from .bucket import TokenBucket
 from .config import Addr, Config
 from .control_channel import ControlChannel
+from .multipath import NO_TOKEN, Multipath, Path
 from .receiver import OwedAck, ReceiveWindow
 from .sender import SentLog
 
@@ -107,6 +109,9 @@ class Connection:
         self.moved_by_response = False
         self.path_first_seq = 0
         self.challenges = TokenBucket(cfg.challenges_per_second, cfg.challenge_burst, now)
+        # multipath (section 5.11): the session's paths, when it was opened with MULTIPATH
+        self.mp: Multipath | None = None
+        self.rx_path: Path | None = None  # the path the datagram being read came on
 
     # -- helpers --------------------------------------------------------------------------------
     def drop(self, reason: str) -> None:
@@ -133,8 +138,20 @@ class Connection:
             self.last_traffic = now
 
     def _emit(self, s: Sent, now: float) -> None:
+        if s.addr is None and self.mp is not None and s.label.startswith("CLOSE"):
+            for p in self.mp.usable()[1:]:  # CLOSE goes on every usable path (section 5.11)
+                self._emit(Sent(s.data, p.addr, s.label), now)
+            usable = self.mp.usable()
+            s.addr = usable[0].addr if usable else self.peer
         if s.addr is None:
-            s.addr = self.peer
+            best = self.mp.best() if self.mp is not None else None
+            s.addr = best.addr if best is not None else self.peer
+        if self.mp is not None and s.addr is not None:
+            path = self.mp.path_at(s.addr)
+            if path is not None:
+                if not self.mp.may_send(path, len(s.data)):
+                    return  # the 3x limit of a path not validated yet (section 5.11)
+                self.mp.sent(path, len(s.data), now)
         if not self.validated:
             self.bytes_out += len(s.data)
         self.sink.sent.append(s)
@@ -230,6 +247,8 @@ class Connection:
         if self.keyed:
             self.flags |= wire.FLAG_KEYED | (wire.FLAG_ENCRYPTED if self.cfg.encrypt else 0)
             self.flags |= wire.FLAG_TAKEOVER if self.cfg.takeover else 0
+        if self.cfg.multipath:
+            self.flags |= wire.FLAG_MULTIPATH
         self.state = OPENING
         self.opened_at = now
         self.last_life = now
@@ -283,17 +302,30 @@ class Connection:
             peer_isn, self.cfg.silence_timeout, far_ahead_check=not self.keyed
         )
         self.channel = ControlChannel(self.cfg, self.isn, peer_isn, now)
+        if self.flags & wire.FLAG_MULTIPATH and self.peer is not None:
+            self.mp = Multipath(self.cfg, self.role, self.nonce, self.peer, now)
+            if self.opener is not None:
+                self.opener.window = crypto.MULTIPATH_REPLAY_WINDOW
 
     # -- receiving: the table of section 5.5 ----------------------------------------------------
     def receive(self, data: bytes, addr: Addr, now: float) -> None:
         if self.state == CLOSED:
             return self.drop("closed")
-        if self.peer is not None and addr != self.peer:
+        path: Path | None = None
+        if self.mp is not None:
+            # Row 2 in a multipath session: from one of its paths, or an MP_CHALLENGE carrying
+            # the session's nonce (a new path, section 5.11).
+            path = self.mp.path_at(addr)
+            if path is None and not self._new_path_claim(data):
+                return self.drop("wrong_address")
+        elif self.peer is not None and addr != self.peer:
             return self.drop("wrong_address")
         if len(data) < wire.HEADER_SIZE:
             return self.drop("truncated")
         if len(data) > self.cfg.largest_datagram:
             return self.drop("oversized")
+        if self.mp is not None and path is not None:
+            self.mp.arrived(path, len(data), now)
         if not self.validated:
             self.bytes_in += len(data)  # section 5.8: past rows 3 and 4, taken in or not
         hdr = wire.Header.decode(data)
@@ -307,6 +339,14 @@ class Connection:
                 return self._path(data, now)
         if hdr.type == wire.RESERVED:
             return self.drop("unknown_type")
+        if self.mp is not None:  # row 6a
+            if hdr.type == wire.CONTROL and len(data) >= 6 and data[5] in wire.MP_CODES:
+                return self._multipath(data, addr, path, now)
+            if hdr.type == wire.DATA and path is not None and self.window is not None:
+                reason = self._copy_drop(hdr.seq, path, now)
+                if reason is not None:
+                    return self.drop(reason)
+        self.rx_path = path
         if self.state == IDLE or (self.keyed and self.opener is None):
             return self.drop("not_established")  # row 7
         plain = data
@@ -357,6 +397,8 @@ class Connection:
         if arr.kind == "far_ahead":
             return self.drop("far_ahead")  # no sign of life, its acknowledgement not read
         self.life(now)
+        if self.mp is not None and self.rx_path is not None and arr.kind in ("new", "late"):
+            self.mp.on_data(self.rx_path, arr.full, now, first=True)  # a sample taken in
         self.owed_acks.extend(arr.acks)
         self._read_ack(hdr, now)  # an optimistic acknowledgement is ignored, not a drop (3.1)
         if arr.kind == "new":
@@ -541,6 +583,112 @@ class Connection:
         self.peer, self.moved_from = self.moved_from, None
         self.validated = True
 
+    # -- row 6a: multipath (section 5.11) ---------------------------------------------------------
+    def _new_path_claim(self, data: bytes) -> bool:
+        """An MP_CHALLENGE (long enough for its nonce) carrying the session's nonce."""
+        return (
+            len(data) >= 22
+            and data[0] >> 6 == wire.CONTROL
+            and data[5] == wire.MP_CHALLENGE
+            and data[6:22] == self.nonce
+        )
+
+    def _copy_drop(self, seq12: int, path: Path, now: float) -> str | None:
+        """A DATA copy of a sample taken in (`duplicate`), or one far below a live flow (`stale`),
+        before the packet protection; the copy still counts in its path's report."""
+        assert self.mp is not None and self.window is not None
+        full = self.window.decode(seq12)
+        h = self.window.highest
+        h_at = self.window.arrivals[h] if h is not None else 0.0
+        reason = self.mp.copy_drop(full, h, h_at, now)
+        if reason == "duplicate":
+            self.mp.on_data(path, full, now, first=False)
+        return reason
+
+    def _mp_datagram(self, msg: wire.ControlBody) -> bytes:
+        """A multipath CONTROL datagram; keyed, MP_CHALLENGE and MP_RESPONSE keep the nonce in
+        the clear before the packet number (section 4.4)."""
+        body = wire.encode_control(msg)
+        head = self._plain_header().encode()
+        if self.sealer is None:
+            return head + body
+        clear = 17 if msg.code in (wire.MP_CHALLENGE, wire.MP_RESPONSE) else 1
+        return self.sealer.seal(head + body[:clear], body[clear:])
+
+    def _send_mp(self, msg: wire.ControlBody, addr: Addr, now: float, queue: bool) -> None:
+        s = Sent(self._mp_datagram(msg), addr, wire.CODE_NAMES[msg.code])
+        self.last_traffic = now  # session traffic (FINDINGS.md: open)
+        if queue:
+            self.queue.append(s)  # an answer: it leaves with the queued control datagrams
+        else:
+            self._emit(s, now)
+
+    def _multipath(self, data: bytes, addr: Addr, path: Path | None, now: float) -> None:
+        """Row 6a for the four multipath codes, in its order."""
+        mp = self.mp
+        assert mp is not None
+        code = data[5]
+        plain = data
+        if self.keyed:
+            if self.opener is None:
+                return self.drop("not_established")
+            prefix = 22 if code in (wire.MP_CHALLENGE, wire.MP_RESPONSE) else 6
+            if len(data) < prefix + 18:
+                return self.drop("truncated")
+            verdict, body, _ = self.opener.open(data, prefix, now)
+            if body is None:
+                return self.drop(verdict)
+            plain = data[:prefix] + body
+        try:
+            msg = wire.decode_control(plain[5:])
+        except wire.BadControlError:
+            return self.drop("bad_control")
+        assert isinstance(msg, (wire.MpChallenge, wire.MpResponse, wire.MpReport, wire.MpAbandon))
+        if msg.nonce != self.nonce:
+            return self.drop("nonce_mismatch")
+        if isinstance(msg, wire.MpAbandon):
+            # sent on the path it names and on the best other one: it may come on any path
+            if not mp.abandon(msg.path_id):
+                return self.drop("unknown_path")
+            return self.life(now)
+        if path is None:  # row 2 lets only an MP_CHALLENGE with our nonce come from elsewhere
+            assert isinstance(msg, wire.MpChallenge)
+            if self.state != ESTABLISHED:
+                return self.drop("not_established")
+            path, reason, answer = mp.learn(msg.path_id, addr, now)
+            if path is None:
+                if answer:  # a full table: MP_ABANDON PATH_LIMIT, so that the opener stops asking
+                    refusal = wire.MpAbandon(self.nonce, msg.path_id, wire.PATH_LIMIT)
+                    self._send_mp(refusal, addr, now, queue=True)
+                assert reason is not None
+                return self.drop(reason)
+            mp.arrived(path, len(data), now)
+        elif msg.path_id != path.path_id:
+            return self.drop("unknown_path")
+        if isinstance(msg, wire.MpChallenge):
+            token = NO_TOKEN if path.validated else mp.new_token(path, now)
+            answer_ = wire.MpResponse(self.nonce, path.path_id, msg.token, token)
+            self._send_mp(answer_, path.addr, now, queue=True)
+        elif isinstance(msg, wire.MpResponse):
+            if not mp.validated_by(path, msg.echo, now):
+                return self.drop("bad_token")
+            if msg.token != NO_TOKEN:  # the peer's own challenge: echo it, with no token
+                echo = wire.MpResponse(self.nonce, path.path_id, msg.token, NO_TOKEN)
+                self._send_mp(echo, path.addr, now, queue=True)
+        # an MP_REPORT is taken in: this implementation has no scheduler to feed
+        self.life(now)  # a sign of life (FINDINGS.md: open)
+        return None
+
+    def _flush_multipath(self, now: float) -> None:
+        """The reports due and the probes (section 5.11), after the control channel."""
+        mp = self.mp
+        assert mp is not None
+        for path, report in mp.reports_due(now):
+            self._send_mp(report, path.addr, now, queue=False)
+        for path in mp.probes_due(now):
+            probe = wire.MpChallenge(self.nonce, path.path_id, mp.new_token(path, now))
+            self._send_mp(probe, path.addr, now, queue=False)
+
     # -- row 5a: RESET (section 5.7) --------------------------------------------------------------
     def _reset(self, data: bytes, now: float) -> None:
         if self.role == "slave" or self.state != ESTABLISHED:
@@ -610,6 +758,8 @@ class Connection:
                 self.log.on_timer(now)
             if self.channel is not None:
                 self.channel.expire(now)
+            if self.mp is not None:
+                self.mp.expire(now)
             if (
                 self.role == "slave"
                 and not self.validated
@@ -651,6 +801,9 @@ class Connection:
         # 5. the control channel
         if self.validated:
             self._flush_channel(now)
+        # 5a. multipath reports and probes (FINDINGS.md: their place in this order is open)
+        if self.mp is not None:
+            self._flush_multipath(now)
         # 6. the KEEPALIVE check comes last
         if self.last_traffic is None or now >= self.last_traffic + self.cfg.keepalive:
             self._send_keepalive(now)
@@ -676,7 +829,7 @@ class Connection:
         self.last_traffic = now
         if self.role == "master" and label in ("DATA", "ACK", "KEEPALIVE"):
             self.echoes.append(dg[:16])  # what a RESET may echo (section 5.7)
-        self._emit(Sent(dg, self.peer, label), now)
+        self._emit(Sent(dg, None, label), now)
 
     def _flush_channel(self, now: float) -> None:
         ch = self.channel

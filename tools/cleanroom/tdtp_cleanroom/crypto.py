@@ -116,6 +116,7 @@ def unseal(
 
 
 REPLAY_WINDOW = 64
+MULTIPATH_REPLAY_WINDOW = 4096  # a multipath session's (sections 5.6, 5.11)
 SEARCH_MAX = 4096
 
 
@@ -144,6 +145,7 @@ class Opener:
         self.aead = make_aead(suite, key)
         self.iv = iv
         self.encrypt = encrypt
+        self.window = REPLAY_WINDOW
         self.highest: int | None = None
         self.mask = 0  # bit i: highest - i accepted
         self.search_budget = TokenBucket(50, 50, now)  # at most 50 searches a second
@@ -156,18 +158,18 @@ class Opener:
 
     # -- the window --
     def seen(self, pn: int) -> bool:
-        """Accepted already, or 64 or more below the highest (too old to tell)."""
+        """Accepted already, or `window` (64) or more below the highest (too old to tell)."""
         if self.highest is None:
             return pn < 0
         if pn > self.highest:
             return False
         d = self.highest - pn
-        return d >= REPLAY_WINDOW or bool(self.mask >> d & 1)
+        return d >= self.window or bool(self.mask >> d & 1)
 
     def accept(self, pn: int, now: float) -> None:
         if self.highest is None or pn > self.highest:
-            shift = pn - self.highest if self.highest is not None else REPLAY_WINDOW
-            self.mask = ((self.mask << shift) | 1) & ((1 << REPLAY_WINDOW) - 1)
+            shift = pn - self.highest if self.highest is not None else self.window
+            self.mask = ((self.mask << shift) | 1) & ((1 << self.window) - 1)
             self.highest = pn
         else:
             self.mask |= 1 << (self.highest - pn)

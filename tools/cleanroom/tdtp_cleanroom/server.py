@@ -1,5 +1,5 @@
 """A slave serving several masters on one address (section 5.1, "A server with several masters";
-slots 5.1 rule 2.7; RESET 5.7; path migration 5.8; exclusive control 5.9)."""
+slots 5.1 rule 2.7; RESET 5.7; path migration 5.8; exclusive control 5.9; multipath paths 5.11)."""
 
 from __future__ import annotations
 
@@ -66,8 +66,21 @@ class Server:
                 del self.sessions[addr]  # replaced (rule 5): the OPEN goes on to step 2
                 self._open(data, addr, now)
             return
+        owner = self._path_owner(addr)
+        if owner is not None:  # step 1 too: a further path of a multipath session (5.11)
+            return owner.receive(data, addr, now)
         if is_open(data):  # step 2
             return self._open(data, addr, now)
+        if (
+            len(data) >= 22 and data[0] >> 6 == wire.CONTROL and data[5] == wire.MP_CHALLENGE
+        ):  # step 3.0: offered to the multipath session whose master's nonce it carries
+            owner = next(
+                (s for s in self.sessions.values() if s.mp is not None and s.nonce == data[6:22]),
+                None,
+            )
+            if owner is not None and self.trials.take(now):
+                owner.receive(data, addr, now)
+            return None  # else unclaimed: dropped unanswered (a counter, FINDINGS.md open 10)
         notice = self.notices.get(addr)  # step 3.1
         if notice is not None and now - notice.at < self.cfg.idle_timeout:
             if (
@@ -104,6 +117,14 @@ class Server:
         conn.accept_open(v, addr, wire.Header.decode(data).seq, now)
         self.sessions[addr] = conn
         self.notices.pop(addr, None)  # a new session for that address forgets its notice
+        return None
+
+    def _path_owner(self, addr: Addr) -> Connection | None:
+        """The multipath session that holds a path to this address (the server's table holds
+        a path's address once the session took the path)."""
+        for s in self.sessions.values():
+            if s.mp is not None and s.mp.path_at(addr) is not None:
+                return s
         return None
 
     def _refuse(self, nonce: bytes, reason: int, addr: Addr) -> None:

@@ -13,6 +13,7 @@ HEADER_SIZE = 5
 # -- CONTROL codes (section 4.3) ---------------------------------------------------------------
 OPEN, OPEN_ACK, KEEPALIVE, CLOSE, REJECT, COOKIE, RESET = 1, 2, 3, 4, 5, 6, 7
 PATH_CHALLENGE, PATH_RESPONSE, MESSAGE, MESSAGE_ACK = 8, 9, 10, 11
+MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON = 17, 18, 19, 20  # multipath (section 5.11)
 CODE_NAMES = {
     OPEN: "OPEN",
     OPEN_ACK: "OPEN_ACK",
@@ -25,13 +26,19 @@ CODE_NAMES = {
     PATH_RESPONSE: "PATH_RESPONSE",
     MESSAGE: "MESSAGE",
     MESSAGE_ACK: "MESSAGE_ACK",
+    MP_CHALLENGE: "MP_CHALLENGE",
+    MP_RESPONSE: "MP_RESPONSE",
+    MP_REPORT: "MP_REPORT",
+    MP_ABANDON: "MP_ABANDON",
 }
 HANDSHAKE_CODES = (OPEN, OPEN_ACK, COOKIE, REJECT)  # row 5 of section 5.5
 PATH_CODES = (PATH_CHALLENGE, PATH_RESPONSE)  # row 5b
+MP_CODES = (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON)  # row 6a
 
 # -- OPEN flags (section 4.3) ------------------------------------------------------------------
 FLAG_SEPARATE_ACKS, FLAG_KEYED, FLAG_ENCRYPTED, FLAG_TAKEOVER = 0x01, 0x02, 0x04, 0x08
-MODE_FLAGS = 0x07  # bits 0..2: what an OPEN_ACK echoes
+FLAG_MULTIPATH, FLAG_SLAVE_DIALS = 0x40, 0x80
+MODE_FLAGS = 0xC7  # bits 0..2, 6 and 7: what an OPEN_ACK echoes
 
 # -- CLOSE / REJECT reasons (section 4.3) ------------------------------------------------------
 REASON_NAMES = [
@@ -51,6 +58,13 @@ REASON_NAMES = [
     "TAKEN_OVER",
     "EVICTED",
     "RESTARTING",
+    "16",
+    "17",
+    "18",
+    "PATH_CLOSED",
+    "PATH_LIMIT",
+    "ROLE_CONFLICT",
+    "RENDEZVOUS_FULL",
 ]
 (
     NORMAL,
@@ -70,6 +84,8 @@ REASON_NAMES = [
     EVICTED,
     RESTARTING,
 ) = range(16)
+PATH_CLOSED, PATH_LIMIT = 19, 20  # MP_ABANDON reasons (section 4.3)
+ROLE_CONFLICT, RENDEZVOUS_FULL = 21, 22  # a REJECT's (5.1 rule 2.5), a REFERRAL's (5.12)
 
 
 def reason_name(reason: int) -> str:
@@ -231,6 +247,43 @@ class PathResponse:
 
 
 @dataclass
+class MpChallenge:
+    nonce: bytes
+    path_id: int
+    token: bytes
+    code: int = field(default=MP_CHALLENGE, init=False)
+
+
+@dataclass
+class MpResponse:
+    nonce: bytes
+    path_id: int
+    echo: bytes
+    token: bytes  # zeros: none
+    code: int = field(default=MP_RESPONSE, init=False)
+
+
+@dataclass
+class MpReport:
+    nonce: bytes
+    path_id: int
+    seq: int  # 12 bits
+    hold: int  # a HOLD code; 255: nothing arrived on the path
+    received: int
+    first: int
+    lag: int  # 100-us units, saturating at 65535
+    code: int = field(default=MP_REPORT, init=False)
+
+
+@dataclass
+class MpAbandon:
+    nonce: bytes
+    path_id: int
+    reason: int
+    code: int = field(default=MP_ABANDON, init=False)
+
+
+@dataclass
 class Message:
     nonce: bytes
     seq: int
@@ -258,6 +311,10 @@ ControlBody = (
     | PathResponse
     | Message
     | MessageAck
+    | MpChallenge
+    | MpResponse
+    | MpReport
+    | MpAbandon
 )
 
 OPEN_SIZE, OPEN_ACK_SIZE, TAG_SIZE = 48, 40, 16  # body sizes including the code byte
@@ -337,6 +394,30 @@ def decode_control(body: bytes) -> ControlBody:
         if n != 19:
             raise BadControlError("MESSAGE_ACK length")
         return MessageAck(body[1:17], _u16(body, 17))
+    if code == MP_CHALLENGE:
+        if n != 26:
+            raise BadControlError("MP_CHALLENGE length")
+        return MpChallenge(body[1:17], body[17], body[18:26])
+    if code == MP_RESPONSE:
+        if n != 34:
+            raise BadControlError("MP_RESPONSE length")
+        return MpResponse(body[1:17], body[17], body[18:26], body[26:34])
+    if code == MP_REPORT:
+        if n != 31:
+            raise BadControlError("MP_REPORT length")
+        return MpReport(
+            body[1:17],
+            body[17],
+            _u16(body, 18) & 0xFFF,  # the top four bits are zero; receivers ignore them
+            body[20],
+            int.from_bytes(body[21:25], "big"),
+            int.from_bytes(body[25:29], "big"),
+            _u16(body, 29),
+        )
+    if code == MP_ABANDON:
+        if n != 19:
+            raise BadControlError("MP_ABANDON length")
+        return MpAbandon(body[1:17], body[17], body[18])
     raise BadControlError(f"unknown code {code}")
 
 
@@ -386,6 +467,23 @@ def encode_control(msg: ControlBody) -> bytes:
         )
     if isinstance(msg, MessageAck):
         return c + msg.nonce + (msg.ack & 0xFFFF).to_bytes(2, "big")
+    if isinstance(msg, MpChallenge):
+        return c + msg.nonce + bytes([msg.path_id]) + msg.token
+    if isinstance(msg, MpResponse):
+        return c + msg.nonce + bytes([msg.path_id]) + msg.echo + msg.token
+    if isinstance(msg, MpReport):
+        return (
+            c
+            + msg.nonce
+            + bytes([msg.path_id])
+            + (msg.seq & 0xFFF).to_bytes(2, "big")
+            + bytes([msg.hold])
+            + (msg.received & 0xFFFFFFFF).to_bytes(4, "big")
+            + (msg.first & 0xFFFFFFFF).to_bytes(4, "big")
+            + min(msg.lag, 0xFFFF).to_bytes(2, "big")
+        )
+    if isinstance(msg, MpAbandon):
+        return c + msg.nonce + bytes([msg.path_id, msg.reason])
     raise TypeError(msg)
 
 
