@@ -720,16 +720,8 @@ def slave_multipath() -> dict[str, Any]:
     slave validates it; copies, forged and refused multipath packets."""
     s = MASTER_ISN
     token = bytes.fromhex("0102030405060708")
-    flags = 0x40  # MULTIPATH
     steps = [
-        _step(0.0, "master", _open(flags=flags)),
-        _step(0.010, "master", _open(cookie=True, attempt=1, flags=flags)),
-        _step(
-            0.020,
-            "master",
-            _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(MASTER_NONCE)),
-            note="the master's first packet of the session",
-        ),
+        *_mp_opening(),
         _step(0.021, "master", _data(s, b"s1")),
         _step(
             0.022,
