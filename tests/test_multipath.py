@@ -542,6 +542,29 @@ def test_keyed_replays_of_copies_are_never_accepted() -> None:
     assert replayed == 0  # the copies of the run itself never counted as replays
 
 
+@pytest.mark.parametrize("keyed", [False, True])
+def test_replayed_copies_keep_a_silent_peer_alive_only_unkeyed(keyed: bool) -> None:
+    """A copy dropped as a duplicate never met the packet protection: keyed, an attacker replaying
+    captured copies from the master's address must not hide the master's silence from the slave's
+    watchdog (PROTOCOL.md 5.2). Unkeyed, anyone at that address can forge DATA anyway, and a
+    duplicate counts as it does on one path."""
+    links = two_paths()
+    links[0].ms.keep_wire = True
+    pair = running(links, keyed=keyed, warmup=0.5)
+    copies = [d for d in links[0].ms.wire if d[0] >> 6 == PacketType.DATA][-60:]
+    for link in links:
+        link.up = False  # the master is gone
+    pair.run_for(0.05)  # what was in flight arrives
+    slave = pair.slave.conn
+    duplicates = slave.stats.drops.get("duplicate", 0)
+    for datagram in copies:
+        pair.run_for(0.005)
+        pair.inject(datagram, to_slave=True, local=0)
+    assert slave.stats.drops.get("duplicate", 0) - duplicates == len(copies)
+    assert silences(pair.slave.events) == (1 if keyed else 0)
+    assert_conserved(pair)
+
+
 def test_a_slow_paths_keyed_datagrams_are_not_taken_for_replays() -> None:
     """Path 1 is 300 ms slower: its reports and probes arrive hundreds of packet numbers behind
     path 0's, inside the wide replay window."""

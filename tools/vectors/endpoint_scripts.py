@@ -720,16 +720,8 @@ def slave_multipath() -> dict[str, Any]:
     slave validates it; copies, forged and refused multipath packets."""
     s = MASTER_ISN
     token = bytes.fromhex("0102030405060708")
-    flags = 0x40  # MULTIPATH
     steps = [
-        _step(0.0, "master", _open(flags=flags)),
-        _step(0.010, "master", _open(cookie=True, attempt=1, flags=flags)),
-        _step(
-            0.020,
-            "master",
-            _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(MASTER_NONCE)),
-            note="the master's first packet of the session",
-        ),
+        *_mp_opening(),
         _step(0.021, "master", _data(s, b"s1")),
         _step(
             0.022,
@@ -800,6 +792,159 @@ def slave_multipath() -> dict[str, Any]:
         "config": {"max_payload": 1200, "multipath": {"max_paths": 2}},
         "random": _slave_random(),
         "steps": steps,
+    }
+
+
+def _mp_opening(flags: int = 0x40) -> list[dict[str, Any]]:
+    """An unkeyed opening fed to a slave, the OPENs carrying ``flags`` (MULTIPATH unless given)."""
+    keepalive = _hex(encode_header(2, MASTER_ISN, 0, 0, 255) + encode_keepalive(MASTER_NONCE))
+    return [
+        _step(0.0, "master", _open(flags=flags)),
+        _step(0.010, "master", _open(cookie=True, attempt=1, flags=flags)),
+        _step(0.020, "master", keepalive, note="the master's first packet of the session"),
+    ]
+
+
+def _mp_slave(name: str, steps: list[dict[str, Any]], **multipath: Any) -> dict[str, Any]:
+    config: dict[str, Any] = {"max_payload": 1200}
+    if multipath:
+        config["multipath"] = multipath
+    return {
+        "name": name,
+        "role": "slave",
+        "config": config,
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
+def slave_multipath_limits() -> dict[str, Any]:
+    """Section 5.11, learning a path: the rate is checked before the table, and a refused challenge
+    spends a token too; an MP_ABANDON naming no path of the table is ``unknown_path``."""
+    token = bytes.fromhex("0102030405060708")
+    steps = [
+        *_mp_opening(),
+        _step(
+            0.021,
+            "master_socket2",
+            _mp(encode_mp_challenge(MASTER_NONCE, 1, token)),
+            note="path 1: the table's second path, one of the rate's two tokens",
+        ),
+        _step(
+            0.022,
+            "stranger",
+            _mp(encode_mp_challenge(MASTER_NONCE, 2, token)),
+            note="the table is full: refused with MP_ABANDON PATH_LIMIT, the second token spent",
+        ),
+        _step(
+            0.023,
+            "stranger",
+            _mp(encode_mp_challenge(MASTER_NONCE, 2, token)),
+            note="again: over the rate, checked first: refused without an answer",
+        ),
+        _step(
+            0.024,
+            "master",
+            _mp(encode_mp_abandon(MASTER_NONCE, 1, 19)),
+            note="the master abandons path 1 (on path 0)",
+        ),
+        _step(
+            0.025,
+            "master",
+            _mp(encode_mp_abandon(MASTER_NONCE, 1, 19)),
+            note="its copy: path 1 is no longer in the table",
+        ),
+    ]
+    return _mp_slave(
+        "slave: multipath limits, the rate before the table",
+        steps,
+        max_paths=2,
+        new_paths_per_second=1.0,
+    )
+
+
+def slave_multipath_probes() -> dict[str, Any]:
+    """Sections 5.2 and 5.11: an idle multipath slave probes path 0 every ``probe_interval`` from
+    the instant it is established; a probe is session traffic, so while the probe interval is
+    shorter than the keep-alive interval no KEEPALIVE leaves."""
+    advance = [_action(round(0.02 + 0.01 * i, 3), "advance") for i in range(1, 9)]
+    return _mp_slave(
+        "slave: an idle multipath session probes instead of keeping alive",
+        [*_mp_opening(), *advance],
+    )
+
+
+def slave_multipath_slow_probes() -> dict[str, Any]:
+    """As above with a probe interval longer than the keep-alive interval: the probe leaves first
+    and the KEEPALIVE check of the same instant does not count it."""
+    advance = [_action(round(0.02 + 0.01 * i, 3), "advance") for i in range(1, 9)]
+    return _mp_slave(
+        "slave: a multipath probe and a KEEPALIVE leave together, the probe first",
+        [*_mp_opening(), *advance],
+        probe_interval=0.04,
+    )
+
+
+def slave_multipath_codes_elsewhere() -> dict[str, Any]:
+    """Sections 5.5 (row 13) and 5.11: the multipath codes outside an established multipath
+    session, and a multipath packet as the master's first packet of the session."""
+    token = bytes.fromhex("0102030405060708")
+    report = encode_mp_report(MpReportBody(MASTER_NONCE, 0, SLAVE_ISN, 255, 0, 0, 0))
+    steps = [
+        *_mp_opening(flags=0),
+        _step(
+            0.021,
+            "master",
+            _mp(encode_mp_challenge(MASTER_NONCE, 1, token)),
+            note="a session opened without MULTIPATH: well formed, unexpected_control",
+        ),
+        _step(0.022, "master", _mp(encode_mp_response(MASTER_NONCE, 0, token, bytes(8)))),
+        _step(0.023, "master", _mp(report)),
+        _step(0.024, "master", _mp(encode_mp_abandon(MASTER_NONCE, 0, 19))),
+        _step(
+            0.025,
+            "master",
+            _mp(encode_mp_abandon(MASTER_NONCE, 0, 19) + b"\x00"),
+            note="one byte long: bad_control",
+        ),
+    ]
+    return _mp_slave("slave: multipath codes in a session without MULTIPATH", steps)
+
+
+def slave_multipath_first_packet() -> dict[str, Any]:
+    """Section 5.11: before the session is established an MP code is a session CONTROL; at a slave
+    in OPENING, from the master's address, it is the master's first packet (section 5.1 rule 3)."""
+    report = encode_mp_report(MpReportBody(MASTER_NONCE, 0, SLAVE_ISN, 255, 0, 0, 0))
+    token = bytes.fromhex("0102030405060708")
+    steps = [
+        _step(0.0, "master", _mp(report), note="a LISTENING slave: not_established"),
+        *_mp_opening()[:2],
+        _step(
+            0.015,
+            "master_socket2",
+            _mp(encode_mp_challenge(MASTER_NONCE, 1, token)),
+            note="a new path before the session is established: wrong_address",
+        ),
+        _step(
+            0.020,
+            "master",
+            _mp(report),
+            note="the master's first packet: the session is established, the report dropped",
+        ),
+    ]
+    return _mp_slave(
+        "slave: a multipath packet before the session is established", steps, max_paths=2
+    )
+
+
+def master_multipath_flag() -> dict[str, Any]:
+    """Section 5.11: a master given multipath parameters sets MULTIPATH (bit 6) in its OPENs."""
+    return {
+        "name": "master: multipath parameters set the MULTIPATH flag",
+        "role": "master",
+        "config": {"max_payload": 1200, "multipath": {"max_paths": 3}},
+        "random": _master_random(),
+        "steps": [_action(0.0, "connect", exact=True)],
     }
 
 
@@ -992,4 +1137,10 @@ def all_scripts() -> list[dict[str, Any]]:
         slave_keepalive_and_idle(),
         slave_opened_by_a_message(),
         slave_multipath(),
+        slave_multipath_limits(),
+        slave_multipath_probes(),
+        slave_multipath_slow_probes(),
+        slave_multipath_codes_elsewhere(),
+        slave_multipath_first_packet(),
+        master_multipath_flag(),
     ]

@@ -69,10 +69,12 @@ from tdtp.wire import (  # noqa: E402
     expand_seq,
 )
 from tdtp.wire.errors import MalformedPacketError  # noqa: E402
+from tdtp.wire.header import HEADER_SIZE  # noqa: E402
 from tdtp.wire.rendezvous import (  # noqa: E402
     PROBE,
     PROBE_ACK,
     ReferralBody,
+    ReferralKind,
     RegisterBody,
     decode_referral,
     decode_register,
@@ -478,7 +480,8 @@ def control_vectors() -> dict[str, Any]:
         ),
         ("CLOSE without its reason", encode_close(ControlCode.CLOSE, MASTER_NONCE, 0)[:-1]),
         ("code 16 (unassigned)", b"\x10" + bytes(20)),
-        ("code 21 (unassigned)", b"\x15" + bytes(20)),
+        ("code 21 (REGISTER: never a session's, and too short)", b"\x15" + bytes(20)),
+        ("code 25 (unassigned)", b"\x19" + bytes(20)),
         ("MP_CHALLENGE one byte short", encode_mp_challenge(MASTER_NONCE, 1, MP_TOKEN)[:-1]),
         (
             "MP_RESPONSE without its own token",
@@ -1216,6 +1219,39 @@ def rendezvous_vectors() -> dict[str, Any]:
         },
     ]
     _check(relay.receive(bytes(24), ("198.51.100.1", 2), 0.0) == [], "no answer to 24 bytes")
+    odd = bytearray(first)
+    odd[HEADER_SIZE + 2] |= 0x80  # a flag bit no version-4 relay knows
+    odd[HEADER_SIZE + 3] = 1  # the reserved byte
+    other_version = bytearray(first)
+    other_version[HEADER_SIZE + 1] = 3
+    for index, (name, datagram) in enumerate(
+        [
+            (
+                "a REGISTER with an unknown flag bit and a non-zero reserved byte: both ignored, "
+                "a COOKIE referral",
+                bytes(odd),
+            ),
+            ("a REGISTER of version 3: dropped, nothing", bytes(other_version)),
+            ("a REGISTER one byte long: malformed, nothing", first + b"\x00"),
+            (
+                "a REGISTER naming 5 local addresses: malformed, nothing",
+                encode_register(RegisterBody(0, nonce, rid, bytes(16), ()))[:-1]
+                + b"\x05"
+                + bytes((4, 0, 1, 10, 0, 0, 1)) * 5,
+            ),
+        ]
+    ):
+        answers = relay.receive(datagram, ("198.51.100.2", 3000 + index), 0.0)
+        relay_answers.append(
+            {
+                "name": name,
+                "datagram_hex": datagram.hex(),
+                "answer_kind": (
+                    ReferralKind(decode_referral(answers[0][0]).kind).name if answers else None
+                ),
+                "answer_size": len(answers[0][0]) if answers else 0,
+            }
+        )
     return _file(
         "rendezvous",
         "Rendezvous (section 5.12): the ids and probe keys a pair meets under (HKDF-SHA256), "

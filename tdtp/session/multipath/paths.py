@@ -375,15 +375,19 @@ class Multipath:
                 # the receive window's re-anchoring (PROTOCOL.md 3.1) never takes it for one.
                 path.on_data_received(seq, False, 0.0, now)
                 self._stats.count_drop(DropReason.STALE)
-                self._heard(now)
+                if self._opener is None:
+                    self._heard(now)  # unkeyed: as any stale DATA (keyed: not authenticated)
                 return True
             self._candidate = (seq, path, now)
             return False
         path.on_data_received(seq, False, now - first_at, now)
         self.stats.duplicates += 1
         self._stats.count_drop(DropReason.DUPLICATE)
-        self._heard(now)  # a duplicate is a sign of life (PROTOCOL.md 5.2)
-        self._path_heard(path, now)
+        if self._opener is None:
+            # Unkeyed, a duplicate is a sign of life (PROTOCOL.md 5.2). Keyed, this copy never met
+            # the packet protection: a replayed or forged one must not hide a silent peer.
+            self._heard(now)
+            self._path_heard(path, now)
         return True
 
     def _confirm(self) -> None:
