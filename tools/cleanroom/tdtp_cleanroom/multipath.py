@@ -61,7 +61,8 @@ class Multipath:
         self.role = role
         self.nonce = nonce  # the session's (the master's)
         self.paths: dict[int, Path] = {0: Path(0, addr, now, learned=False, validated=True)}
-        self.paths[0].last_arrival = now  # the handshake that proved the path
+        # created when the session becomes established: path 0's probe interval runs from then
+        self.paths[0].last_arrival = now
         self.paths[0].last_sent = now
         self.new_paths = TokenBucket(cfg.new_paths_per_second, cfg.max_paths, now)
         self.taken: dict[int, float] = {}  # full sequence number -> when its first copy arrived
@@ -96,18 +97,20 @@ class Multipath:
         "Learning a path"): (the path, None, False), or (None, a drop reason, whether to answer
         it with MP_ABANDON PATH_LIMIT: only when the table is full)."""
         moved = self.paths.get(path_id)
+        if moved is None and not peer_may_open(self.role, path_id):
+            return None, "unknown_path", False
+        # Every challenge past the id check spends one of the rate's tokens, a refused one too;
+        # the rate is checked first, silently (the endpoint vectors: "the rate before the table").
+        if not self.new_paths.take(now):
+            return None, "path_limit", False
         if moved is not None:  # the same path id from a new address: the path moved
             moved.addr = addr
             moved.learned = True
             moved.validated = False
             moved.bytes_in = moved.bytes_out = 0
             return moved, None, False
-        if not peer_may_open(self.role, path_id):
-            return None, "unknown_path", False
         if len(self.paths) >= self.cfg.max_paths:
-            return None, "path_limit", True
-        if not self.new_paths.take(now):
-            return None, "path_limit", False
+            return None, "path_limit", True  # a full table: answered with MP_ABANDON PATH_LIMIT
         path = Path(path_id, addr, now, learned=True)
         path.last_arrival = now
         self.paths[path_id] = path
@@ -190,11 +193,13 @@ class Multipath:
 
     def expire(self, now: float) -> None:
         for p in list(self.paths.values()):
-            if p.learned and not p.validated and now - p.created_at >= self.cfg.validation_timeout:
+            if p.learned and not p.validated and now >= p.created_at + self.cfg.validation_timeout:
                 del self.paths[p.path_id]  # a path the peer opened, never validated: forgotten
                 continue
-            timeout = max(self.cfg.path_timeout, 2 * self.cfg.probe_interval + 3 * (p.rtt or 0.0))
-            if p.validated and now - p.last_arrival >= timeout:
+            # a path with no round-trip sample yet counts initial_rtt (FINDINGS.md: open)
+            rtt = p.rtt if p.rtt is not None else self.cfg.initial_rtt
+            timeout = max(self.cfg.path_timeout, 2 * self.cfg.probe_interval + 3 * rtt)
+            if p.validated and now >= p.last_arrival + timeout:
                 p.failed = True
 
     def probes_due(self, now: float) -> list[Path]:
@@ -202,10 +207,11 @@ class Multipath:
         probe_interval; a failed or not yet validated one every failed_probe_interval."""
         due: list[Path] = []
         for p in self.paths.values():
+            # deadlines as sums (last + interval), as the vectors' times were computed
             if p.validated and not p.failed:
-                if now - p.last_sent >= self.cfg.probe_interval:
+                if now >= p.last_sent + self.cfg.probe_interval:
                     due.append(p)
-            elif now - p.last_challenge >= self.cfg.failed_probe_interval:
+            elif now >= p.last_challenge + self.cfg.failed_probe_interval:
                 due.append(p)
         return due
 
