@@ -146,7 +146,7 @@ class Connection:
             usable = self.mp.usable()
             s.addr = usable[0].addr if usable else self.peer
         if s.addr is None:
-            best = self.mp.best() if self.mp is not None else None
+            best = self.mp.best(now) if self.mp is not None else None
             s.addr = best.addr if best is not None else self.peer
         if self.mp is not None and s.addr is not None:
             path = self.mp.path_at(s.addr)
@@ -618,7 +618,7 @@ class Connection:
         h = self.window.highest
         h_at = self.window.arrivals[h] if h is not None else 0.0
         reason = self.mp.copy_drop(full, h, h_at, now)
-        if reason == "duplicate":
+        if reason is not None:  # both count in the path's `received` (4.3)
             self.mp.on_data(path, full, now, first=False)
         return reason
 
@@ -694,7 +694,8 @@ class Connection:
             if msg.token != NO_TOKEN:  # the peer's own challenge: echo it, with no token
                 echo = wire.MpResponse(self.nonce, path.path_id, msg.token, NO_TOKEN)
                 self._send_mp(echo, path.addr, now, queue=True)
-        # an MP_REPORT is taken in: this implementation has no scheduler to feed
+        elif isinstance(msg, wire.MpReport):
+            mp.on_report(path, msg, now)  # its lag, for the best path; no scheduler to feed
         self.life(now)  # a sign of life (FINDINGS.md: open)
         return None
 
