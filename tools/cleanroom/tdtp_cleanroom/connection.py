@@ -112,6 +112,8 @@ class Connection:
         # multipath (section 5.11): the session's paths, when it was opened with MULTIPATH
         self.mp: Multipath | None = None
         self.rx_path: Path | None = None  # the path the datagram being read came on
+        self.mp_queue: list[Sent] = []  # MP_RESPONSEs and refusals, for the next flush
+        self.mp_traffic = False  # a multipath packet of ours since the last KEEPALIVE check
 
     # -- helpers --------------------------------------------------------------------------------
     def drop(self, reason: str) -> None:
@@ -144,7 +146,7 @@ class Connection:
             usable = self.mp.usable()
             s.addr = usable[0].addr if usable else self.peer
         if s.addr is None:
-            best = self.mp.best() if self.mp is not None else None
+            best = self.mp.best(now) if self.mp is not None else None
             s.addr = best.addr if best is not None else self.peer
         if self.mp is not None and s.addr is not None:
             path = self.mp.path_at(s.addr)
@@ -302,10 +304,16 @@ class Connection:
             peer_isn, self.cfg.silence_timeout, far_ahead_check=not self.keyed
         )
         self.channel = ControlChannel(self.cfg, self.isn, peer_isn, now)
+        if self.flags & wire.FLAG_MULTIPATH and self.opener is not None:
+            self.opener.window = crypto.MULTIPATH_REPLAY_WINDOW
+
+    def _establish(self, now: float) -> None:
+        """The session becomes ESTABLISHED (a master on its OPEN_ACK, a slave on the master's first
+        packet). A multipath session's paths exist only from now (section 5.11, Negotiation):
+        before, an MP code is any session CONTROL and a new address is `wrong_address`."""
+        self.state = ESTABLISHED
         if self.flags & wire.FLAG_MULTIPATH and self.peer is not None:
             self.mp = Multipath(self.cfg, self.role, self.nonce, self.peer, now)
-            if self.opener is not None:
-                self.opener.window = crypto.MULTIPATH_REPLAY_WINDOW
 
     # -- receiving: the table of section 5.5 ----------------------------------------------------
     def receive(self, data: bytes, addr: Addr, now: float) -> None:
@@ -353,6 +361,8 @@ class Connection:
         if self.keyed:
             assert self.opener is not None
             prefix = 6 if hdr.type == wire.CONTROL else 5
+            if hdr.type == wire.CONTROL and data[5] in (wire.MP_CHALLENGE, wire.MP_RESPONSE):
+                prefix = 22  # their own layout (section 4.4), in any session (FINDINGS.md: open)
             if len(data) < prefix + 18:
                 return self.drop("truncated")  # row 8
             verdict, body, _ = self.opener.open(data, prefix, now)
@@ -362,8 +372,12 @@ class Connection:
         if self.role == "slave" and self.state == OPENING:
             # Rule 3: the master's first packet of the session establishes the slave before the
             # row that judges it, whatever it decides; it is a sign of life.
-            self.state = ESTABLISHED
+            self._establish(now)
             self.life(now)
+            # section 5.2: the keep-alive interval runs from here (the OPEN_ACK went before)
+            self.last_traffic = now
+            if self.mp is not None:
+                self.rx_path = self.mp.paths[0]  # the first packet arrived on path 0
         if hdr.type == wire.DATA:
             return self._data(plain, hdr, now)
         if hdr.type == wire.ACK:
@@ -422,6 +436,9 @@ class Connection:
             msg = wire.decode_control(plain[5:])
         except wire.BadControlError:
             return self.drop("bad_control")
+        if isinstance(msg, (wire.MpChallenge, wire.MpResponse, wire.MpReport, wire.MpAbandon)):
+            # row 13: well formed, but row 6a did not take it (no MULTIPATH, or not established)
+            return self.drop("unexpected_control")
         if not isinstance(msg, (wire.Close, wire.Keepalive)):
             return self.drop("bad_control")
         if msg.nonce != self.nonce:
@@ -529,8 +546,8 @@ class Connection:
             self._send_close(wire.PAYLOAD_TOO_SMALL, now)
             return self._close("rejected", wire.PAYLOAD_TOO_SMALL)
         self.peer_max_payload = msg.max_payload
-        self.state = ESTABLISHED
         self._start_session(peer_isn=hdr.seq, now=now)
+        self._establish(now)
         self.last_traffic = None  # its first packet leaves at once (rule 6): a KEEPALIVE at least
 
     def _slave_open(self, data: bytes, addr: Addr, now: float) -> None:
@@ -601,7 +618,7 @@ class Connection:
         h = self.window.highest
         h_at = self.window.arrivals[h] if h is not None else 0.0
         reason = self.mp.copy_drop(full, h, h_at, now)
-        if reason == "duplicate":
+        if reason is not None:  # both count in the path's `received` (4.3)
             self.mp.on_data(path, full, now, first=False)
         return reason
 
@@ -617,11 +634,13 @@ class Connection:
 
     def _send_mp(self, msg: wire.ControlBody, addr: Addr, now: float, queue: bool) -> None:
         s = Sent(self._mp_datagram(msg), addr, wire.CODE_NAMES[msg.code])
-        self.last_traffic = now  # session traffic (FINDINGS.md: open)
         if queue:
-            self.queue.append(s)  # an answer: it leaves with the queued control datagrams
+            self.mp_queue.append(s)  # an answer: it leaves first in the next flush
         else:
             self._emit(s, now)
+        # Session traffic, but unseen by this instant's KEEPALIVE check (section 5.2): it holds
+        # back the next KEEPALIVE, not this one (the flush applies it after the check).
+        self.mp_traffic = True
 
     def _multipath(self, data: bytes, addr: Addr, path: Path | None, now: float) -> None:
         """Row 6a for the four multipath codes, in its order."""
@@ -675,7 +694,8 @@ class Connection:
             if msg.token != NO_TOKEN:  # the peer's own challenge: echo it, with no token
                 echo = wire.MpResponse(self.nonce, path.path_id, msg.token, NO_TOKEN)
                 self._send_mp(echo, path.addr, now, queue=True)
-        # an MP_REPORT is taken in: this implementation has no scheduler to feed
+        elif isinstance(msg, wire.MpReport):
+            mp.on_report(path, msg, now)  # its lag, for the best path; no scheduler to feed
         self.life(now)  # a sign of life (FINDINGS.md: open)
         return None
 
@@ -780,12 +800,20 @@ class Connection:
     def _flush(self, now: float) -> None:
         if not self.validated and 3 * self.bytes_in - self.bytes_out < self._flush_need():
             return  # the amplification limit delays everything (section 5.8)
+        # 0. a multipath session's own packets first (section 5.2): the answers queued, then
+        #    the reports due and the probes
+        for s in self.mp_queue:
+            self._emit(s, now)
+        self.mp_queue.clear()
+        if self.mp is not None and self.state == ESTABLISHED:
+            self._flush_multipath(now)
         # 1. the control datagrams queued
         for s in self.queue:
             self._emit(s, now)
         self.queue.clear()
         if self.state != ESTABLISHED:
             self.owed_acks.clear()
+            self.mp_traffic = False
             return
         # 2. jump-rule and late-rule ACKs, then full-rule ACKs (section 3.2), in order owed
         for owed in self.owed_acks:
@@ -801,12 +829,12 @@ class Connection:
         # 5. the control channel
         if self.validated:
             self._flush_channel(now)
-        # 5a. multipath reports and probes (FINDINGS.md: their place in this order is open)
-        if self.mp is not None:
-            self._flush_multipath(now)
-        # 6. the KEEPALIVE check comes last
+        # 6. the KEEPALIVE check comes last, blind to step 0's multipath packets
         if self.last_traffic is None or now >= self.last_traffic + self.cfg.keepalive:
             self._send_keepalive(now)
+        if self.mp_traffic:
+            self.mp_traffic = False
+            self.last_traffic = now
 
     def _send_ack(self, owed: OwedAck, now: float) -> None:
         hdr = wire.Header(

@@ -42,13 +42,15 @@ class Path:
     last_sent: float = -INF  # the last datagram of ours on it
     last_arrival: float = -INF
     last_challenge: float = -INF
-    rtt: float | None = None
+    rtt: float | None = None  # moving average, gain 1/4 (section 5.11, Sending)
+    peer_lag: float = 0.0  # the lag the peer's last report of this path gave
+    peer_lag_at: float = -INF
     # what arrived on it, for its MP_REPORT
     received: int = 0
     first: int = 0
     newest: int | None = None
     newest_at: float = 0.0
-    lag: float = 0.0  # the largest lag of a copy since the last report
+    lag: float = 0.0  # moving average, gain 1/8, of every datagram counted (4.3, lag)
     unreported_since: float | None = None
     last_report: float = -INF
 
@@ -61,7 +63,8 @@ class Multipath:
         self.role = role
         self.nonce = nonce  # the session's (the master's)
         self.paths: dict[int, Path] = {0: Path(0, addr, now, learned=False, validated=True)}
-        self.paths[0].last_arrival = now  # the handshake that proved the path
+        # created when the session becomes established: path 0's probe interval runs from then
+        self.paths[0].last_arrival = now
         self.paths[0].last_sent = now
         self.new_paths = TokenBucket(cfg.new_paths_per_second, cfg.max_paths, now)
         self.taken: dict[int, float] = {}  # full sequence number -> when its first copy arrived
@@ -77,12 +80,26 @@ class Multipath:
     def usable(self) -> list[Path]:
         return [p for p in self.paths.values() if p.validated and not p.failed]
 
-    def best(self) -> Path | None:
+    def best(self, now: float) -> Path | None:
         """The best usable path: the lowest round trip measured (no estimate: the lowest id)."""
         paths = self.usable()
         if not paths:
             return None
-        return min(paths, key=lambda p: (p.rtt if p.rtt is not None else INF, p.path_id))
+        return min(paths, key=lambda p: (self.one_way(p, now), p.path_id))
+
+    def one_way(self, path: Path, now: float) -> float:
+        """Section 5.11, Sending: half the path's round trip, plus the lag the peer's last report
+        gave if that came within 1 s; a path with no sample yet comes last."""
+        if path.rtt is None:
+            return INF
+        lag = path.peer_lag if now - path.peer_lag_at <= 1.0 else 0.0
+        return path.rtt / 2 + lag
+
+    def rtt_sample(self, path: Path, sample: float) -> None:
+        path.rtt = sample if path.rtt is None else path.rtt + (sample - path.rtt) / 4
+
+    def on_report(self, path: Path, report: wire.MpReport, now: float) -> None:
+        path.peer_lag, path.peer_lag_at = report.lag * LAG_UNIT, now
 
     def new_token(self, path: Path, now: float) -> bytes:
         token = os.urandom(8)
@@ -96,18 +113,20 @@ class Multipath:
         "Learning a path"): (the path, None, False), or (None, a drop reason, whether to answer
         it with MP_ABANDON PATH_LIMIT: only when the table is full)."""
         moved = self.paths.get(path_id)
+        if moved is None and not peer_may_open(self.role, path_id):
+            return None, "unknown_path", False
+        # Every challenge past the id check spends one of the rate's tokens, a refused one too;
+        # the rate is checked first, silently (the endpoint vectors: "the rate before the table").
+        if not self.new_paths.take(now):
+            return None, "path_limit", False
         if moved is not None:  # the same path id from a new address: the path moved
             moved.addr = addr
             moved.learned = True
             moved.validated = False
             moved.bytes_in = moved.bytes_out = 0
             return moved, None, False
-        if not peer_may_open(self.role, path_id):
-            return None, "unknown_path", False
         if len(self.paths) >= self.cfg.max_paths:
-            return None, "path_limit", True
-        if not self.new_paths.take(now):
-            return None, "path_limit", False
+            return None, "path_limit", True  # a full table: answered with MP_ABANDON PATH_LIMIT
         path = Path(path_id, addr, now, learned=True)
         path.last_arrival = now
         self.paths[path_id] = path
@@ -150,15 +169,16 @@ class Multipath:
         return None
 
     def on_data(self, path: Path, full: int, now: float, first: bool) -> None:
-        """A DATA datagram on this path: a sample's first copy taken in, or a later copy."""
+        """A DATA datagram counted on this path (4.3, received): a sample's first copy taken in,
+        or a copy dropped before the packet protection as `duplicate` or `stale`."""
         path.received += 1
         if first:
             path.first += 1
             self.taken[full] = now
             for old in [n for n in self.taken if n <= full - COPY_SPAN]:
                 del self.taken[old]
-        else:
-            path.lag = max(path.lag, now - self.taken.get(full, now))
+        d = now - self.taken.get(full, now)  # 0 for a first copy and a stale one
+        path.lag += (d - path.lag) / 8
         if path.newest is None or full > path.newest:
             path.newest, path.newest_at = full, now
         if path.unreported_since is None:
@@ -184,17 +204,18 @@ class Multipath:
             )
             p.unreported_since = None
             p.last_report = now
-            p.lag = 0.0
             out.append((p, report))
         return out
 
     def expire(self, now: float) -> None:
         for p in list(self.paths.values()):
-            if p.learned and not p.validated and now - p.created_at >= self.cfg.validation_timeout:
+            if p.learned and not p.validated and now >= p.created_at + self.cfg.validation_timeout:
                 del self.paths[p.path_id]  # a path the peer opened, never validated: forgotten
                 continue
-            timeout = max(self.cfg.path_timeout, 2 * self.cfg.probe_interval + 3 * (p.rtt or 0.0))
-            if p.validated and now - p.last_arrival >= timeout:
+            # a path with no round-trip sample yet counts initial_rtt (FINDINGS.md: open)
+            rtt = p.rtt if p.rtt is not None else self.cfg.initial_rtt
+            timeout = max(self.cfg.path_timeout, 2 * self.cfg.probe_interval + 3 * rtt)
+            if p.validated and now >= p.last_arrival + timeout:
                 p.failed = True
 
     def probes_due(self, now: float) -> list[Path]:
@@ -202,10 +223,11 @@ class Multipath:
         probe_interval; a failed or not yet validated one every failed_probe_interval."""
         due: list[Path] = []
         for p in self.paths.values():
+            # deadlines as sums (last + interval), as the vectors' times were computed
             if p.validated and not p.failed:
-                if now - p.last_sent >= self.cfg.probe_interval:
+                if now >= p.last_sent + self.cfg.probe_interval:
                     due.append(p)
-            elif now - p.last_challenge >= self.cfg.failed_probe_interval:
+            elif now >= p.last_challenge + self.cfg.failed_probe_interval:
                 due.append(p)
         return due
 
@@ -215,6 +237,6 @@ class Multipath:
             if token == echo:
                 path.validated = True
                 path.failed = False
-                path.rtt = now - sent_at
+                self.rtt_sample(path, now - sent_at)
                 return True
         return False
