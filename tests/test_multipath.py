@@ -244,6 +244,27 @@ def test_adaptive_spreads_while_the_best_path_stalls() -> None:
     assert len(late) < 40  # the stall was noticed within about a round trip and a margin
 
 
+def test_adaptive_copies_through_a_short_stall_without_a_breach() -> None:
+    links = two_paths(0.010, 0.020)
+    pair = running(links, "adaptive", warmup=2.0)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    # A 50 ms capacity outage on path 0 towards the slave, shorter than the adaptive hold: the
+    # samples sent into it arrive late, and the acknowledgements of those it carried alone too.
+    start = links[0].ms.datagrams
+    links[0].ms.extra_delay = lambda i: max(0.0, 0.05 - 0.001 * (i - start)) if i >= start else 0
+    breaches, stalled = paths.stats.breaches, paths.scheduler.stall_samples
+    spread = paths.stats.spread_samples
+    pair.run_for(0.07)
+    copies = paths.scheduler.stall_samples - stalled
+    # Once the acknowledgements are overdue every sample goes on both paths, each one copied for
+    # the stall itself: no breach, no hold (the late reports degrade the path afterwards, which
+    # is the loss and delay bounds' business).
+    assert copies > 20
+    assert paths.stats.breaches == breaches
+    assert paths.stats.spread_samples - spread <= copies + 5  # (the probes' copies)
+
+
 # --------------------------------------------------------------------------- ACKs and control
 
 
