@@ -17,6 +17,7 @@ from tdtp import (
     PeerResumed,
     PeerSilent,
 )
+from tdtp.session.multipath.paths import Multipath
 from tdtp.wire import (
     HEADER_SIZE,
     ControlCode,
@@ -248,14 +249,20 @@ def test_adaptive_uses_the_best_path_alone_while_it_behaves() -> None:
     assert extra[1] < 0.3 * extra[0]
 
 
-def test_adaptive_spreads_while_the_best_path_stalls() -> None:
+def stalling(outage: float) -> tuple[MultipathPair, Multipath]:
+    """An adaptive pair whose path 0 (the better) has from now a capacity outage of ``outage``
+    towards the slave: its samples queue, then arrive late, all at the end of it."""
     links = two_paths(0.010, 0.020)
     pair = running(links, "adaptive", warmup=2.0)
     paths = pair.master.conn.multipath
     assert paths is not None
-    # A 300 ms capacity outage on path 0 towards the slave: its samples queue, then arrive late.
     start = links[0].ms.datagrams
-    links[0].ms.extra_delay = lambda i: max(0.0, 0.3 - 0.001 * (i - start)) if i >= start else 0
+    links[0].ms.extra_delay = lambda i: max(0.0, outage - 0.001 * (i - start)) if i >= start else 0
+    return pair, paths
+
+
+def test_adaptive_spreads_while_the_best_path_stalls() -> None:
+    pair, paths = stalling(0.3)
     before = paths.stats.spread_samples
     latency_from = len(pair.slave.latency)
     pair.run_for(1.5)
@@ -266,14 +273,9 @@ def test_adaptive_spreads_while_the_best_path_stalls() -> None:
 
 
 def test_adaptive_copies_through_a_short_stall_without_a_breach() -> None:
-    links = two_paths(0.010, 0.020)
-    pair = running(links, "adaptive", warmup=2.0)
-    paths = pair.master.conn.multipath
-    assert paths is not None
-    # A 50 ms capacity outage on path 0 towards the slave, shorter than the adaptive hold: the
-    # samples sent into it arrive late, and the acknowledgements of those it carried alone too.
-    start = links[0].ms.datagrams
-    links[0].ms.extra_delay = lambda i: max(0.0, 0.05 - 0.001 * (i - start)) if i >= start else 0
+    # A 50 ms outage: the acknowledgements of the samples path 0 carried alone come late, but
+    # overdue by less than the adaptive hold.
+    pair, paths = stalling(0.05)
     breaches, stalled = paths.stats.breaches, paths.scheduler.stall_samples
     spread = paths.stats.spread_samples
     pair.run_for(0.07)
