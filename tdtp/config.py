@@ -181,9 +181,10 @@ class MultipathConfig:
     within this of the lowest it has shown (seconds)."""
     loss_bound: float = 0.01
     """Adaptive: ... and its recent loss stays at or below this fraction."""
-    adaptive_hold: float = 0.1
-    """Adaptive: once the best path broke a bound, every live path carries the samples until it
-    has kept within them this long (seconds)."""
+    adaptive_hold: float = 0.05
+    """Adaptive: once the best path broke a bound (or its acknowledgements have been overdue this
+    much longer than usual), every live path carries the samples until it has kept within them
+    this long (seconds)."""
 
     def __post_init__(self) -> None:
         _require(

@@ -17,6 +17,7 @@ from tdtp import (
     PeerResumed,
     PeerSilent,
 )
+from tdtp.session.multipath.paths import Multipath
 from tdtp.wire import (
     HEADER_SIZE,
     ControlCode,
@@ -189,6 +190,27 @@ def test_a_path_cut_costs_at_most_five_samples(scheduler: str, cut: int, outage:
     assert_conserved(pair)
 
 
+def test_a_path_silent_only_on_the_way_back_keeps_carrying_copies_for_a_while() -> None:
+    links = two_paths(0.010, 0.020)
+    pair = running(links)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    links[1].sm.drop = lambda _index: True  # path 1 carries nothing towards the master
+    pair.run_for(0.3)
+    assert paths.paths[1].state == "failed"
+    # Its silence proves the way back out, not the way there: the master's copies still reach
+    # the slave on it for a second after it failed (as many as its controller allows without
+    # feedback), then only its probes do.
+    carried = links[1].carried_ms
+    pair.run_for(0.7)
+    assert links[1].carried_ms - carried > 150
+    pair.run_for(0.5)
+    carried = links[1].carried_ms
+    pair.run_for(1.0)
+    assert links[1].carried_ms - carried < 10
+    assert paths.paths[1].state == "failed"
+
+
 def test_both_paths_down_is_an_outage_the_session_survives() -> None:
     links = two_paths(0.005, 0.008)
     pair = running(links)
@@ -227,14 +249,20 @@ def test_adaptive_uses_the_best_path_alone_while_it_behaves() -> None:
     assert extra[1] < 0.3 * extra[0]
 
 
-def test_adaptive_spreads_while_the_best_path_stalls() -> None:
+def stalling(outage: float) -> tuple[MultipathPair, Multipath]:
+    """An adaptive pair whose path 0 (the better) has from now a capacity outage of ``outage``
+    towards the slave: its samples queue, then arrive late, all at the end of it."""
     links = two_paths(0.010, 0.020)
     pair = running(links, "adaptive", warmup=2.0)
     paths = pair.master.conn.multipath
     assert paths is not None
-    # A 300 ms capacity outage on path 0 towards the slave: its samples queue, then arrive late.
     start = links[0].ms.datagrams
-    links[0].ms.extra_delay = lambda i: max(0.0, 0.3 - 0.001 * (i - start)) if i >= start else 0
+    links[0].ms.extra_delay = lambda i: max(0.0, outage - 0.001 * (i - start)) if i >= start else 0
+    return pair, paths
+
+
+def test_adaptive_spreads_while_the_best_path_stalls() -> None:
+    pair, paths = stalling(0.3)
     before = paths.stats.spread_samples
     latency_from = len(pair.slave.latency)
     pair.run_for(1.5)
@@ -242,6 +270,22 @@ def test_adaptive_spreads_while_the_best_path_stalls() -> None:
     assert paths.stats.spread_samples - before > 100
     late = [x for x in pair.slave.latency[latency_from:] if x > 0.05]
     assert len(late) < 40  # the stall was noticed within about a round trip and a margin
+
+
+def test_adaptive_copies_through_a_short_stall_without_a_breach() -> None:
+    # A 50 ms outage: the acknowledgements of the samples path 0 carried alone come late, but
+    # overdue by less than the adaptive hold.
+    pair, paths = stalling(0.05)
+    breaches, stalled = paths.stats.breaches, paths.scheduler.stall_samples
+    spread = paths.stats.spread_samples
+    pair.run_for(0.07)
+    copies = paths.scheduler.stall_samples - stalled
+    # Once the acknowledgements are overdue every sample goes on both paths, each one copied for
+    # the stall itself: no breach, no hold (the late reports degrade the path afterwards, which
+    # is the loss and delay bounds' business).
+    assert copies > 20
+    assert paths.stats.breaches == breaches
+    assert paths.stats.spread_samples - spread <= copies + 5  # (the probes' copies)
 
 
 # --------------------------------------------------------------------------- ACKs and control

@@ -10,9 +10,13 @@
   newest of the samples it carried alone that was acknowledged left no longer ago than such a
   sample's acknowledgement usually takes (a round trip and the peer's hold) plus the usual gap
   between them (each a mean and four deviations) and 10 ms. That last test reacts within one round
-  trip to a path that stalls (a radio's capacity outage), long before any report could say so. Once a
-  bound is broken every path carries the samples for at least ``adaptive_hold``, and so they do
-  while the best path has been usable for less than that (just validated, or back from a failure).
+  trip to a path that stalls (a radio's capacity outage), long before any report could say so. A
+  stall is not a breach until it has lasted ``adaptive_hold`` beyond that limit: until then each
+  sample goes on every path while the acknowledgements are overdue, and the first late one ends the
+  copies (no hold: most stalls of a radio link are shorter than a round trip, and a hold after each
+  cost 3-6 % of the bytes of one path for no better p99, CONTROL.md 11.3). Once a bound is broken
+  every path carries the samples for at least ``adaptive_hold``, and so they do while the best path
+  has been usable for less than that (just validated, or back from a failure).
   While the best path carries the samples alone, one sample per ``probe_interval`` goes on every
   path anyway, so that each path's lag behind the first copy and its round trip stay measured and
   its controller fed.
@@ -77,6 +81,7 @@ class Scheduler:
         "reason",
         "single_samples",
         "spread_samples",
+        "stall_samples",
     )
 
     def __init__(
@@ -110,6 +115,9 @@ class Scheduler:
         """Samples sent on one path only."""
         self.spread_samples = 0
         """Samples sent on several paths."""
+        self.stall_samples = 0
+        """Adaptive: samples sent on every path because the best path's acknowledgements were
+        overdue (a short stall: no breach, no hold)."""
 
     def candidates(self, ranked: list[Path], now: float) -> list[Path]:
         """The paths a sample should go on now (``ranked``: the usable paths, best first)."""
@@ -125,8 +133,8 @@ class Scheduler:
                 self._gap_at = -math.inf  # the gaps that count are those while alone
             if now < self._probe_at + self._probe_every:
                 return ranked[:1]
-        else:
-            self._alone_path = -1
+        elif self._hold_until > now or self.reason != "stall":
+            self._alone_path = -1  # (a short stall keeps the path's evidence: it ends the stall)
         self._probe_at = now
         return ranked
 
@@ -140,8 +148,16 @@ class Scheduler:
             reason = "loss"
         elif best.queue_delay / 2.0 > config.delay_bound:
             reason = "delay"
-        elif self._stalled(best, now):
-            reason = "stall"
+        else:
+            overdue = self._overdue(best, now)
+            if overdue > config.adaptive_hold:
+                reason = "stall"  # a long stall: a breach, as a broken bound
+            elif overdue > 0.0:
+                # A short stall: this sample goes on every path, no hold. Its end (the late
+                # acknowledgement of a sample the best path carried alone) ends the copies.
+                self.reason = "stall"
+                self.stall_samples += 1
+                return False
         if reason:
             if now >= self._hold_until:
                 self.breaches += 1
@@ -150,14 +166,15 @@ class Scheduler:
             return False
         return now >= self._hold_until
 
-    def _stalled(self, best: Path, now: float) -> bool:
-        """No sample the best path carried alone has been acknowledged for longer than the usual
-        wait for an acknowledgement and the usual gap between them can explain (the samples every
-        path carried prove nothing about it: their acknowledgements may have come the other way)."""
+    def _overdue(self, best: Path, now: float) -> float:
+        """How long ago the newest sample the best path carried alone that was acknowledged
+        should have been followed by another, given the usual wait for an acknowledgement and the
+        usual gap between them (<= 0: not overdue). The samples every path carried prove nothing
+        about the best one: their acknowledgements may have come the other way."""
         if self._alone_path != best.path_id:
-            return False  # not alone on it yet
+            return 0.0  # not alone on it yet
         evidence = max(self._delivered.get(best.path_id, -math.inf), self._alone_since)
-        return now - evidence > self._limit()
+        return now - evidence - self._limit()
 
     def _feedback(self, now: float) -> None:
         """A new largest acknowledged sample that one path carried alone: evidence that the path
