@@ -104,11 +104,6 @@ _SESSION_CODES: Final = frozenset(
 )
 """Session control the router may put on any path (the handshake's answers go where they were
 addressed)."""
-FAILED_GRACE: Final = 1.0
-"""Seconds a failed path still takes copies of the samples: a path fails when nothing arrives on it,
-which proves only that the way back is out; the way there may work, and a single-path session would
-keep sending through it (on the recorded LTE pairs of benchmarks/multipath.py this alone left
-redundant with a 100 ms dropout the per-sample minimum of the two networks did not have)."""
 REPLAY_WIDTH: Final = 4096
 """A keyed multipath session's replay window, in packet numbers: seconds of one path's datagrams
 behind another's at a kilohertz."""
@@ -634,12 +629,6 @@ class Multipath:
             ranked = sorted((p for p in self.paths.values() if p.validated), key=_by_id)
             if not ranked:
                 ranked = sorted(self.paths.values(), key=_by_id)[:1]
-        elif len(ranked) < len(self.paths):
-            ranked = ranked + [
-                path
-                for path in sorted(self.paths.values(), key=_by_id)
-                if path.validated and path.state is FAILED and now - path.state_since < FAILED_GRACE
-            ]
         candidates = self.scheduler.candidates(ranked, now)
         chosen: list[Path] = []
         congested: list[PathPacer] = []
