@@ -31,6 +31,9 @@ from tdtp.control.fixed import FixedConfig
 
 STAMP = struct.Struct(">I")
 SIZE = 100
+STALL = 0.05
+"""A tick this much later than the one before: the process was not scheduled (recorded, so that the
+test tells a peer that fell silent from a process that did not run)."""
 
 
 async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> None:
@@ -53,8 +56,13 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
     record["start"] = start
     sent = 0
     copies: list[tuple[float, dict[int, int]]] = []
+    stalls: list[tuple[float, float]] = []  # this process did not run (a loaded machine)
+    last = start
     async for _ in tdtp.Ticker(1000):
         now = time.monotonic()
+        if now - last > STALL:
+            stalls.append((last, now))
+        last = now
         if now - start >= duration or ep.is_closed:
             break
         ep.send(STAMP.pack(sent) + bytes(SIZE - STAMP.size))
@@ -67,6 +75,7 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
         received=sorted(set(received)),
         duplicates_delivered=len(received) - len(set(received)),
         silences=silences,
+        stalls=stalls,
         closed=ep.is_closed,
         copies=copies,
         events=[(e.at, e.path_id, e.state) for e in ep.paths.events],

@@ -4,7 +4,7 @@ Two network namespaces this test creates, master and slave, joined by two veth p
 and 10.201.2.0/24), each end with its own tbf. The master opens the session on the first and a path
 on the second; both ends send 1 kHz. One second in, the first link goes down (``ip link set ...
 down``) for 0.7 s. What the run itself recorded is checked, never a rate: no PeerSilent on either
-side, at most 5 samples lost each way (redundant), and the restored path is active again within a
+side (but in the wake of a spell in which a process was not scheduled, which each records), at most 5 samples lost each way (redundant), and the restored path is active again within a
 second and carries copies. The sessions' controller is ``fixed`` at no limit (see multipath_peer.py:
 on a loaded machine each path's own controller reads late turns as queueing and holds copies back);
 ``TDTP_NETNS_CONTROLLER=teleop`` runs it with the default.
@@ -29,6 +29,9 @@ PEER = Path(__file__).resolve().parent / "multipath_peer.py"
 PORT = 47033
 DURATION = 2.6
 CUT_AT, RESTORE_AT = 0.8, 1.5
+AFTERMATH = 0.25
+"""Seconds after a process's stall in which a receiver's PeerSilent is put down to it (the silence
+timeout, 0.1 s, and both processes' wake-up)."""
 LOST_AT_MOST = {"redundant": 5, "adaptive": 50}
 """Samples a direction may lose. Redundant: every sample is on the other path too (the issue's
 figure, 5). Adaptive: the samples sent on the cut path alone before the stall is noticed (a round
@@ -151,11 +154,28 @@ def test_one_of_two_veth_paths_cut_and_restored_at_1khz(scheduler: str) -> None:
                 process.communicate(timeout=5)
         net.close()
     assert slave_record["paths_learned"] >= 1
+    # Spells in which either process was not scheduled (a loaded machine): a silence that falls in
+    # one (or within its aftermath: the watchdog's timeout and the wake-up) is the machine's, not
+    # the path's. What the run recorded decides, never the wall clock.
+    stalls = [tuple(s) for record in (master_record, slave_record) for s in record["stalls"]]
     for sender, receiver in ((master_record, slave_record), (slave_record, master_record)):
         # No silence on either side; every sample but the last few in flight arrived.
-        silent = [round(at - cut, 3) for at in receiver["silences"]]
+        silent = [
+            round(at - cut, 3)
+            for at in receiver["silences"]
+            if not any(a <= at <= b + AFTERMATH for a, b in stalls)
+        ]
         gaps = [(round(gap, 3), round(at - cut, 3)) for gap, at in receiver["longest_gaps"]]
-        assert silent == [], (receiver["role"], "silences after the cut", silent, "gaps", gaps)
+        assert silent == [], (
+            receiver["role"],
+            "silences after the cut",
+            silent,
+            "gaps",
+            gaps,
+            sender["send_errors"],
+            sender["drops"],
+            receiver["drops"],
+        )
         assert receiver["duplicates_delivered"] == 0
         # What the run recorded adds up: every sample offered left or was superseded (a loaded
         # machine's late ticks), and of those that left, at most a few never arrived.
