@@ -50,6 +50,7 @@ COMPILED = [
     "tdtp/session/state.py",
     "tdtp/session/view.py",
     "tdtp/session/sample_age.py",
+    "tdtp/session/one_way.py",
     "tdtp/protection/replay_window.py",
     "tdtp/protection/packet_protection.py",
     "tdtp/control/base.py",

@@ -62,6 +62,7 @@ COMPILED_MODULES: Final = (
     "tdtp.session.state",
     "tdtp.session.view",
     "tdtp.session.sample_age",
+    "tdtp.session.one_way",
     "tdtp.protection.replay_window",
     "tdtp.protection.packet_protection",
     "tdtp.control.base",

@@ -40,6 +40,7 @@ from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
 from tdtp.control.equations import padhye_rate
+from tdtp.control.one_way_signal import OneWaySignal
 from tdtp.control.send_meter import GAP_GAIN, SendMeter
 
 __all__ = [
@@ -49,6 +50,7 @@ __all__ = [
     "LIMIT_LOSS",
     "LIMIT_PROBING",
     "LIMIT_QUEUE_DELAY",
+    "LIMIT_STALLED",
     "LIMIT_TCP_FRIENDLY",
     "TeleopConfig",
     "TeleopController",
@@ -58,6 +60,31 @@ __all__ = [
 MIN_SAMPLES: Final = 16
 """RTT samples a control interval needs before it judges the queue: the smallest of fewer would
 read jitter as queue. An interval without them is stretched, up to ``MAX_STRETCH`` times its length."""
+MIN_ONE_WAY_SAMPLES: Final = 4
+"""The same for one-way samples, which come one per peer stamp (every few ms) and carry the jitter
+of one direction only."""
+DRAIN_FLOOR: Final = 0.25
+"""A drain sends at least this fraction of the delivered rate (a deeper queue drains for longer)."""
+DRAIN_LONGEST: Final = 4.0
+"""A drain lasts at most this many base round trips (it ends earlier when the queue is gone)."""
+CRUISE: Final = 0.95
+"""After a drain the rate is this fraction of what the link delivered while the queue built."""
+STALL_MIN: Final = 0.03
+"""Seconds the peer may hear nothing new from a sending flow before its direction counts as stalled
+(and at least four of the flow's packet gaps)."""
+OWD_PROBE: Final = 0.01
+"""With one-way delays: the first probe step above what the link carried, as a fraction of the rate
+(at least ``initial_rate``); it doubles with each interval the queue stays short."""
+SLOPE_WINDOW: Final = 0.05
+"""Seconds of send time over which the one-way delay's growth is fitted."""
+GROWING: Final = 0.05
+"""A one-way delay growing faster than this (s per s: sending 5 % above what the link delivers)
+stops the probe and holds the rate at what the link delivers."""
+BLIND_SHARE: Final = 0.5
+"""A direction whose peer went silent holds this share of what its receiver last received (one
+halving, as a loss would cost, then no more for ``blind_hold``)."""
+STALL_RATE: Final = 20.0
+"""Packets/s a stalled direction still carries: enough to see the link return within 50 ms."""
 MAX_STRETCH: Final = 8.0
 NOISE_GAIN: Final = 0.125
 """Gain of the moving average of the standing RTT's interval-to-interval change."""
@@ -89,6 +116,11 @@ LIMIT_BLACKOUT: Final = "no feedback"
 """No acknowledgement for several RTTs: the rate backs off until feedback returns."""
 LIMIT_PROBING: Final = "probing"
 """The pacer holds the sender and the rate is still growing towards what the path carries."""
+LIMIT_STALLED: Final = "link stalled"
+"""Our direction stopped delivering while the way back still works: a trickle until it returns."""
+LIMIT_HOLDING: Final = "no feedback, holding"
+"""Nothing arrives from the peer (the way back is out): the rate its receiver last reported holds,
+for ``blind_hold`` seconds."""
 
 
 def _check(ok: bool, message: str) -> None:
@@ -149,6 +181,10 @@ class TeleopConfig:
     """Blackout: halve the rate after ``max(this * srtt, 2 / rate)`` without feedback (RFC 5348)."""
     initial_rtt: float = 0.5
     """srtt assumed before the first feedback."""
+    blind_hold: float = 2.0
+    """With one-way delays (a session with timestamps): seconds a direction whose peer has gone
+    silent keeps the rate its receiver last reported, before the no-feedback back-off resumes (the
+    way back may be what failed: docs/CONTROL.md 9.8). ``0``: back off at once, as without stamps."""
 
     def __post_init__(self) -> None:
         need = _check
@@ -241,6 +277,10 @@ class TeleopConfig:
             _positive_finite(self.initial_rtt),
             f"initial_rtt must be a positive, finite number of seconds, got {self.initial_rtt!r}",
         )
+        need(
+            0.0 <= self.blind_hold < math.inf,
+            f"blind_hold must be a finite number of seconds, at least 0, got {self.blind_hold!r}",
+        )
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)
@@ -248,6 +288,7 @@ class TeleopController(RateController):
     """Delay- and loss-based rate control for teleoperation; see the module docstring."""
 
     name: ClassVar[str] = "teleop"
+    judges_one_way_delay: ClassVar[bool] = True
 
     def __init__(self, config: TeleopConfig | None = None) -> None:
         cfg = config if config is not None else TeleopConfig()
@@ -272,6 +313,7 @@ class TeleopController(RateController):
         self._iv_start = 0.0
         self._iv_end = 0.0
         self._iv_min_rtt = math.inf
+        self._iv_min_sent = 0.0  # (one-way samples) when the interval's smallest was sent
         self._iv_samples = 0
         self._iv_acked = 0
         self._last_sample = math.nan  # the previous RTT sample, for the jitter
@@ -295,6 +337,22 @@ class TeleopController(RateController):
         self._blackout = False
         self._rate_before_blackout = self._rate
         self._resume_rate: float | None = None
+        # One-way delays (docs/CONTROL.md 9.7): once the peer's stamps time our direction, its queue
+        # alone is judged; the round trip then only sets the interval and the drain's horizon.
+        self._owd = False
+        self._signal = OneWaySignal()
+        self._min_rtt = math.inf  # the smallest RTT sample (the drain's horizon)
+        self._drain_until = -math.inf  # a drain under way sends less until then
+        self._drain_from = -math.inf  # ...since then
+        self._drain_queue = 0.0  # ...to empty this queue
+        self._drain_peak = 0.0  # ...the link delivering this meanwhile, at the most
+        self._cruise = 0.0  # ...and what it delivered when the drain began
+        self._stalled = False
+        self._stall_seq = -1
+        self._rate_before_stall = 0.0
+        self._blind_until = -math.inf
+        self._holding = False
+        self._ups = 0  # increases in a row (one-way delays: the probe's step doubles with them)
         # Counters, for tests and statistics.
         self._delay_decreases = 0
         self._loss_decreases = 0
@@ -332,6 +390,10 @@ class TeleopController(RateController):
         (``"queue delay 7.2 ms"``)."""
         if self._cfg.min_rate > 0.0 and self._rate <= self._cfg.min_rate:
             return LIMIT_FLOOR
+        if self._stalled:
+            return LIMIT_STALLED
+        if self._holding:
+            return LIMIT_HOLDING
         if self._blackout:
             return LIMIT_BLACKOUT
         if self._rate >= self._ceiling() * (1.0 - 1e-9):
@@ -339,7 +401,8 @@ class TeleopController(RateController):
         if self._sending.app_limited:
             return LIMIT_APPLICATION
         if self._reason == LIMIT_QUEUE_DELAY:
-            return f"{LIMIT_QUEUE_DELAY} {self._queue_delay * 1e3:.1f} ms"
+            way = "one way" if self._owd else "round trip"
+            return f"{LIMIT_QUEUE_DELAY} {self._queue_delay * 1e3:.1f} ms {way}"
         return self._reason
 
     @property
@@ -450,10 +513,25 @@ class TeleopController(RateController):
         self._advance(now)
         before = self._rate_before_blackout if self._blackout else self._rate
         self._resume_rate = max(before, self._resume_rate or 0.0)
+        if self._owd and self._cfg.blind_hold > 0.0 and not self._stalled:
+            # Nothing at all arrives: the way back may be what failed, and our direction was
+            # delivering when last heard of. Hold what it delivered (docs/CONTROL.md 9.8).
+            self._holding = True
+            self._blind_until = now + self._cfg.blind_hold
+            delivered = self._signal.rate
+            hold = BLIND_SHARE * (min(before, delivered) if delivered > 0.0 else before)
+            self._blackout = False
+            self._set_rate(now, hold)
+            self._nf_deadline = self._blind_until
 
     def on_peer_resumed(self, *, now: float, silent_for: float) -> None:
         """After an outage, resume at half the rate from before it (as trinomial does)."""
         resume, self._resume_rate = self._resume_rate, None
+        if self._holding or self._owd:
+            # What was sent into the silence may still be queued: judge what is sent from now on.
+            self._holding = False
+            self._blind_until = -math.inf
+            self._signal.gate(now)
         if resume is None:
             return
         self._advance(now)
@@ -463,6 +541,131 @@ class TeleopController(RateController):
             self._blackout = False
             self._nf_deadline = None
             self._start_interval(now)
+
+    def on_one_way_delay(
+        self, *, now: float, delay: float, sent_at: float, seq: int, hold: float
+    ) -> None:
+        self._advance(now)
+        if not self._owd:
+            # From now on the queue is our direction's alone: the round trip's base and minima,
+            # which carry the way back's queue too, are dropped.
+            self._owd = True
+            self._base_now = self._base_old = math.inf
+            self._iv_min_rtt = math.inf
+            self._iv_samples = 0
+        signal = self._signal
+        if delay == delay:  # (not NaN: a stamp that timed one of our packets)
+            signal.add(delay, sent_at, seq, hold)
+        if sent_at >= signal.gate_time and delay == delay:
+            # (Packets sent before the last decision judge nothing.)
+            if delay < self._iv_min_rtt:
+                self._iv_min_rtt = delay
+                self._iv_min_sent = sent_at
+            self._iv_samples += 1
+        stall = self._stall_threshold()
+        if self._stalled:
+            if seq > self._stall_seq and hold < stall:
+                # Our packets arrive again: on at the rate from before the stall (a link that came
+                # back slower shows a queue within a round trip); what waited in its queue
+                # meanwhile is stale, and judges nothing.
+                self._stalled = False
+                self._set_rate(now, self._rate_before_stall)
+                signal.gate(now)
+                self._start_interval(now)
+            return
+        last = self._sending.last_send
+        if hold >= stall and last is not None and last - sent_at >= stall:
+            # The peer heard nothing new from us while we kept sending: our direction stopped
+            # delivering (the way back works: this stamp came). Stop feeding it.
+            self._stalled = True
+            self._stall_seq = seq
+            self._rate_before_stall = self._rate_in_use()
+            self._drain_until = -math.inf
+            self._cruise = 0.0
+            self._capped_from = None
+            self._set_rate(now, min(self._rate, STALL_RATE))
+            self._last_decrease = self._last_congestion = now
+            self._congested_once = True
+            return
+        base = self.base_rtt
+        if base == math.inf or delay != delay:
+            return
+        target = self._target()
+        floor = signal.queue_floor() - base
+        if floor == math.inf:
+            return  # fewer than RECENT samples since the last decision
+        if now < self._drain_until:
+            # A drain is under way, and this packet was sent since it began. A queue worse than
+            # the one it drains calls for another (the link slowed down again); a short one ends
+            # it (the link delivered faster than it did when the queue built).
+            if floor > self._drain_queue + target:
+                self._drain(now, floor, sent_at)
+                return
+            if floor > 0.5 * target:
+                # The queue still holds packets: what arrives now is the link's rate.
+                if signal.rate > self._drain_peak:
+                    self._drain_peak = signal.rate
+            else:
+                self._drain_until = now
+                self._end_drain(now)
+        elif floor > DEEP_QUEUE * target:
+            self._drain(now, floor, sent_at)
+
+    def _end_drain(self, now: float) -> None:
+        """The drain is over: on at ``CRUISE`` times what the link delivered, as it delivered
+        while the queue built or, if faster, while the drain emptied it."""
+        delivered = self._cruise if self._cruise > self._drain_peak else self._drain_peak
+        self._cruise = 0.0
+        self._rate_before_decrease = delivered
+        self._set_rate(now, min(CRUISE * delivered, self._cfg.max_rate, self._ceiling()))
+        self._signal.gate(now)
+        self._start_interval(now)
+
+    def _stall_threshold(self) -> float:
+        """How long the peer may hear nothing new from us before our direction counts as stalled:
+        ``STALL_MIN``, four of our packet gaps, or twice the link's usual gap between deliveries,
+        whichever is longest."""
+        use = self._rate_in_use()
+        threshold = 4.0 / use if use > 0.0 else math.inf
+        bursts = 2.0 * self._signal.gap
+        if bursts > threshold:
+            threshold = bursts
+        return threshold if threshold > STALL_MIN else STALL_MIN
+
+    def _drain(self, now: float, queue: float, sent_at: float) -> None:
+        """Empty a queue of ``queue`` seconds, seen by a packet sent at ``sent_at``, in about one
+        base round trip: send below what the link delivers for as long as that takes, then at
+        ``CRUISE`` times it (docs/CONTROL.md 9.7)."""
+        delivered = self._signal.rate
+        use = self._rate_in_use()
+        if delivered <= 0.0:
+            delivered = use
+        if use > delivered:
+            # What we sent since the sampled packet, faster than the link took it, queued too
+            # (counted up to what twice the link's rate would have queued).
+            queue += (now - sent_at) * min(use / delivered - 1.0, 1.0)
+        excess = queue - 0.5 * self._target()
+        if excess <= 0.0:
+            return
+        horizon = self._min_rtt if self._min_rtt < math.inf else self._srtt
+        if horizon < self._cfg.interval:
+            horizon = self._cfg.interval
+        fraction = max(1.0 - excess / horizon, DRAIN_FLOOR)
+        self._decrease(now, max(delivered * fraction, STALL_RATE), carried=delivered)
+        # The drain's length if the link keeps delivering what it did; it ends earlier when the
+        # packets sent since show the queue gone (a link that recovered empties it faster).
+        self._drain_until = now + min(excess / (1.0 - fraction), DRAIN_LONGEST * horizon)
+        self._drain_from = now
+        self._drain_queue = queue
+        self._drain_peak = 0.0
+        self._cruise = delivered
+        self._delay_decreases += 1
+        self._last_decrease = self._last_congestion = now
+        self._congested_once = True
+        self._reason = LIMIT_QUEUE_DELAY
+        self._queue_delay = queue
+        self._signal.gate(now)
+        self._start_interval(now)
 
     # ------------------------------------------------------------------ internals
 
@@ -478,6 +681,10 @@ class TeleopController(RateController):
             self._base_now = standing
 
     def _on_rtt_sample(self, now: float, sample: float) -> None:
+        if sample < self._min_rtt:
+            self._min_rtt = sample
+        if self._owd:
+            return  # the queue is judged on our direction's one-way delays
         if sample < self._iv_min_rtt:
             self._iv_min_rtt = sample
         self._iv_samples += 1
@@ -496,7 +703,10 @@ class TeleopController(RateController):
             self._start_interval(now)
             return
         deadline = self._nf_deadline
+        if deadline is not None and now >= deadline and now < self._blind_until:
+            deadline = self._nf_deadline = self._blind_until
         if deadline is not None and now >= deadline:
+            self._holding = False
             timeout = self._no_feedback_timeout()
             missed = min(1 + int((now - deadline) // timeout), 64)
             if not self._blackout:
@@ -506,6 +716,8 @@ class TeleopController(RateController):
             self._set_rate(now, self._rate * 0.5**missed)
             self._nf_deadline = now + self._no_feedback_timeout()
             self._start_interval(now)
+        if now >= self._drain_until and self._cruise > 0.0:
+            self._end_drain(now)
         if now >= self._iv_end:
             self._end_interval(now)
 
@@ -515,7 +727,7 @@ class TeleopController(RateController):
         jitter (at most ``JITTER_CAP``): on a jittery FIFO path a fast flow's standing RTT sits
         above a slow flow's by up to the jitter's range with no queue for capacity (docs/CONTROL.md
         9.2)."""
-        jitter = JITTER_SHARE * self._jitter
+        jitter = JITTER_SHARE * (self._signal.jitter if self._owd else self._jitter)
         return (
             self._cfg.target_queue_delay
             + 2.0 * self._noise
@@ -538,13 +750,14 @@ class TeleopController(RateController):
         self._iv_start = now
         self._iv_end = now + self._nominal_interval()
         self._iv_min_rtt = math.inf
+        self._iv_min_sent = now
         self._iv_samples = 0
         self._iv_acked = 0
 
     def _end_interval(self, now: float) -> None:
         cfg = self._cfg
         duration = now - self._iv_start
-        if self._iv_samples < MIN_SAMPLES:
+        if self._iv_samples < (MIN_ONE_WAY_SAMPLES if self._owd else MIN_SAMPLES):
             if self._blackout or not self._iv_samples:
                 self._start_interval(now)  # nothing to judge (the blackout timer acts)
                 return
@@ -575,6 +788,13 @@ class TeleopController(RateController):
         self._noise += NOISE_GAIN * (min(abs(queue - previous), NOISE_CAP) - self._noise)
         target = self._target()
         delivered = self._iv_acked / duration
+        if self._owd and self._signal.rate > 0.0:
+            delivered = self._signal.rate  # measured on the peer's clock
+        if now < self._drain_until or self._stalled:
+            self._start_interval(now)  # a drain (or a stall) sets the rate until it ends
+            return
+        ups = self._ups
+        self._ups = 0  # (kept by an increase)
         if queue > target:
             self._last_congestion = now
             self._congested_once = True
@@ -582,13 +802,21 @@ class TeleopController(RateController):
             # Two intervals in a row: not one jittery floor; or one so far above the target (a
             # start-up that overshot a bottleneck) that no jitter the margin allows explains it.
             sustained = previous > target or queue > DEEP_QUEUE * target
-            if sustained and not draining and now - self._last_decrease >= self._srtt:
+            if sustained and not draining and self._owd:
+                self._drain(now, queue, self._iv_min_sent)
+            elif sustained and not draining and now - self._last_decrease >= self._srtt:
                 base = self._rate_in_use()
                 if delivered > 0.0:
                     base = min(base, delivered)
                 self._decrease(now, base * cfg.delay_decrease, carried=base)
                 self._delay_decreases += 1
                 self._last_decrease = now
+                self._reason = LIMIT_QUEUE_DELAY
+        elif self._owd and self._signal.slope(SLOPE_WINDOW) > GROWING:
+            # The queue grows (still short): we send more than the link delivers. Hold at what it
+            # delivers, before the queue reaches the target (docs/CONTROL.md 9.7).
+            if delivered > 0.0 and self._rate > delivered:
+                self._set_rate(now, delivered)
                 self._reason = LIMIT_QUEUE_DELAY
         elif queue <= 0.5 * target or queue <= previous:
             if self._p > cfg.heavy_loss:
@@ -597,6 +825,7 @@ class TeleopController(RateController):
                 self._last_decrease = now
                 self._reason = LIMIT_LOSS
             else:
+                self._ups = ups
                 self._increase(now)
         self._start_interval(now)
         if (
@@ -627,9 +856,15 @@ class TeleopController(RateController):
             # The probe is additive below initial_rate (a fixed step for every flow, so that flows
             # sharing a queue converge to equal rates, as AIMD does) and proportional above it.
             grow = gain * rate if ramp else gain * max(rate, cfg.initial_rate)
+            if self._owd and not ramp:
+                # One-way delays show a queue early and exactly: probe in small steps that double
+                # while the queue stays short (Copa's velocity), from 1 % up to 32 %.
+                ups = self._ups
+                grow = OWD_PROBE * max(rate, cfg.initial_rate) * (1 << min(max(ups - 1, 0), 5))
             step = max(grow, 0.5 * (self._rate_before_decrease - rate))
             self._set_rate(now, min(rate + step, ceiling))
             self._increases += 1
+            self._ups += 1
             if not self._sending.app_limited:
                 self._reason = LIMIT_PROBING
 
@@ -705,4 +940,8 @@ class TeleopController(RateController):
         self._schedule.reschedule(now, rate)
 
     def _no_feedback_timeout(self) -> float:
-        return max(self._cfg.no_feedback_rtts * self._srtt, 2.0 / self._rate) + self.feedback_delay
+        timeout = max(self._cfg.no_feedback_rtts * self._srtt, 2.0 / self._rate)
+        if self._owd and timeout < self.silence_timeout:
+            # Silence first: whether the way back or ours failed decides what to do (9.8).
+            timeout = self.silence_timeout
+        return timeout + self.feedback_delay

@@ -45,6 +45,7 @@ from tdtp.session.events import (
 )
 from tdtp.session.handshake import Handshake, Reaction, close_reason_text
 from tdtp.session.liveness import Liveness
+from tdtp.session.one_way import OneWayDelay
 from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import LATE, NEW, STALE
@@ -60,6 +61,8 @@ from tdtp.wire.control import (
     MESSAGE_CODES,
     OPEN_BODY_SIZE,
     PATH_CODES,
+    STAMP_CODES,
+    STAMP_SIZE,
     CloseBody,
     CloseReason,
     ControlCode,
@@ -77,6 +80,7 @@ _DATA: Final = int(PacketType.DATA)
 _ACK: Final = int(PacketType.ACK)
 _CONTROL: Final = int(PacketType.CONTROL)
 _RESET: Final = int(ControlCode.RESET)
+_TIMED: Final = int(ControlCode.TIMED_DATA)
 _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 """The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
 ``max_payload`` is."""
@@ -135,13 +139,14 @@ class Connection(ConnectionView):
         self._opener: PacketOpener | None = None
         self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
         # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
-        body = max(config.max_payload, _LARGEST_CONTROL, largest_message_body(config))
+        body = max(config.max_payload + STAMP_SIZE, _LARGEST_CONTROL, largest_message_body(config))
         self._size_limit = HEADER_SIZE + body + PROTECTION_OVERHEAD
         self._controller = controller = create_controller(
             config.controller, config.controller_config
         )
         # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
         controller.feedback_delay = config.ack_delay
+        controller.silence_timeout = config.silence_timeout
         controller.sample_waiting = False  # kept up to date by the sender
         self._hint = hint = TimerHint(controller)
         self._recovery = recovery = LossRecovery(
@@ -153,6 +158,8 @@ class Connection(ConnectionView):
             hint=hint,
         )
         self._acks = acks = AckScheduler(config, stats=stats, hint=hint)
+        self._one_way = outbox.one_way = one_way = OneWayDelay(config, controller, recovery)
+        self._handshake.timestamps = role is Role.MASTER and one_way.wanted
         self._sender = SampleSender(
             config,
             controller=controller,
@@ -162,6 +169,7 @@ class Connection(ConnectionView):
             acks=acks,
             liveness=liveness,
             hint=hint,
+            one_way=one_way,
         )
         self._events = events = EventQueue(config.max_pending_events, stats)
         self._channel = ControlChannel(
@@ -174,7 +182,7 @@ class Connection(ConnectionView):
         self._close_event: ConnectionClosed | None = None
         # In order through the reorder wait, timed (PROTOCOL.md 3.6, 5.5).
         self._delivery = delivery = SampleDelivery(
-            config, events=self._events, stats=stats, rtt=recovery.rtt
+            config, events=self._events, stats=stats, rtt=recovery.rtt, one_way=one_way
         )
         self._ages = delivery.ages
 
@@ -320,8 +328,7 @@ class Connection(ConnectionView):
         if peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
             stats.count_drop(DropReason.WRONG_ADDRESS)
             return
-        if rx_time is not None:
-            self.last_rx_time = rx_time
+        self.last_rx_time = rx_time
         if ecn == 3:
             stats.ecn_ce += 1
         size = len(data)
@@ -397,6 +404,13 @@ class Connection(ConnectionView):
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
+        elif size > HEADER_SIZE and data[HEADER_SIZE] in STAMP_CODES:  # PROTOCOL.md 5.11
+            if self._one_way.take(data, self.last_rx_time, now, self._stats):
+                if data[HEADER_SIZE] == _TIMED:
+                    self._on_data(data[:5] + data[5 + STAMP_SIZE :], seq, ack, sack, hold, now)
+                else:
+                    self._on_ack_packet(size, ack, sack, hold, now)
+                self._one_way.pending = False  # (unread if the datagram was dropped)
         elif size > HEADER_SIZE and data[HEADER_SIZE] in MESSAGE_CODES:  # PROTOCOL.md 5.10
             verdict = self._channel.receive(data, self._state is ESTABLISHED, now)
             if verdict is TAKEN:
@@ -558,7 +572,7 @@ class Connection(ConnectionView):
         liveness.last_receive = now
         if liveness.silent_since is not None:
             self._on_peer_resumed(now)
-        sent_at = None if echo is None else now - echo / 2
+        sent_at = self._one_way.sent_at(echo, hold, now)  # PROTOCOL.md 3.6
         if not in_order:
             delivery.deliver(data[HEADER_SIZE:], window.last_seq, now, now, sent_at)
         elif delivery.arrive(data[HEADER_SIZE:], window.last_seq, now, sent_at):
@@ -574,6 +588,7 @@ class Connection(ConnectionView):
             return
         self._accept(size, 0, now)
         stats.received.ack_packets += 1
+        self._one_way.settle(None if hold == HOLD_NO_ACK else self._recovery.echo, hold, now)
 
     def _on_feedback(self, ack: int, sack: int, hold: int, now: float) -> bool:
         """Hand the acknowledgement in a header to loss recovery (False if it acknowledges a packet
@@ -726,6 +741,7 @@ class Connection(ConnectionView):
         self._state = State.ESTABLISHED
         self._hint.value = -math.inf
         self._handshake.confirming = False
+        self._one_way.start(now, self._handshake.timestamps)
         liveness = self._liveness
         liveness.last_receive = now
         liveness.last_send = now

@@ -151,6 +151,9 @@ class Handshake:
         """The largest payload the slave sends, from its OPEN_ACK (a master's)."""
         self.detail = ""
         """Why the slave refused us (:attr:`Reaction.REJECTED`)."""
+        self.timestamps = False
+        """The session stamps send times (the TIMESTAMPS flag): a master's choice (set by the
+        connection from its config), a slave's from the OPEN."""
         self._open_tagger: Direction | None = None  # a keyed master's OPEN key
         self._cookie = NO_COOKIE
         self._cookie_answered_at = -math.inf
@@ -162,6 +165,8 @@ class Handshake:
 
     def open_flags(self, ack_mode: AckMode) -> int:
         flags = OpenFlags.SEPARATE_ACKS if ack_mode is AckMode.SEPARATE else OpenFlags.NONE
+        if self.timestamps:
+            flags |= OpenFlags.TIMESTAMPS
         if self.keyed:
             flags |= OpenFlags.KEYED
             if self.encrypt:
@@ -379,6 +384,7 @@ class Handshake:
         the session's :attr:`keys`)."""
         body = admitted.body
         self.master_nonce = body.nonce
+        self.timestamps = bool(body.flags & OpenFlags.TIMESTAMPS)
         if admitted.key is not None:
             self.key = admitted.key
             self.keyed = True

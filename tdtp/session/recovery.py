@@ -63,6 +63,10 @@ class LossRecovery:
         """The round trip timed by the last acknowledgement handed in: from our send of the packet
         it names to its arrival here, less the peer's HOLD; ``None`` if it cannot tell (HOLD 254, or
         a packet no longer on record)."""
+        self.echo_sent = 0.0
+        """When the packet the last acknowledgement named was sent (when :attr:`echo_seq` >= 0)."""
+        self.echo_seq = -1
+        """Its sequence number, in full; -1 if the acknowledgement named none on record."""
         self.pending = False
         """An acknowledgement taken (:meth:`take_feedback`) and not yet settled."""
         self._taken_ack = first_seq - 1
@@ -102,9 +106,13 @@ class LossRecovery:
         # The round trip our packet and this datagram made together (PROTOCOL.md 3.6), before the
         # acknowledgement retires the packet's record.
         echo: float | None = None
-        if hold is not None:
-            send_time = sent.send_time(full)
-            if send_time is not None:
+        send_time = sent.send_time(full)
+        if send_time is None:
+            self.echo_seq = -1
+        else:
+            self.echo_sent = send_time
+            self.echo_seq = full
+            if hold is not None:
                 echo = now - send_time - hold
                 if echo < 0.0:  # (max(echo, 0.0) without the call)
                     echo = 0.0

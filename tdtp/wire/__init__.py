@@ -13,6 +13,7 @@ from tdtp.wire.control import (
     RESET_ECHO_SIZE,
     RESET_SIZE,
     RESET_TAG_SIZE,
+    STAMP_SIZE,
     CipherSuite,
     CloseBody,
     CloseReason,
@@ -27,6 +28,8 @@ from tdtp.wire.control import (
     PathChallengeBody,
     PathResponseBody,
     ResetBody,
+    TimedDataBody,
+    TimestampBody,
     decode_control,
     decode_reset,
     encode_close,
@@ -39,6 +42,7 @@ from tdtp.wire.control import (
     encode_path_challenge,
     encode_path_response,
     encode_reset,
+    encode_timestamp,
 )
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import (
@@ -73,6 +77,7 @@ __all__ = [
     "RESET_SIZE",
     "RESET_TAG_SIZE",
     "SEQ_MODULUS",
+    "STAMP_SIZE",
     "TAG_SIZE",
     "CipherSuite",
     "CloseBody",
@@ -91,6 +96,8 @@ __all__ = [
     "PathChallengeBody",
     "PathResponseBody",
     "ResetBody",
+    "TimedDataBody",
+    "TimestampBody",
     "decode_control",
     "decode_header",
     "decode_hold",
@@ -107,6 +114,7 @@ __all__ = [
     "encode_path_challenge",
     "encode_path_response",
     "encode_reset",
+    "encode_timestamp",
     "expand_seq",
     "serial_lt",
 ]

@@ -34,9 +34,10 @@ from typing import Final, NamedTuple
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.protected import TAG_SIZE
 
-PROTOCOL_VERSION: Final = 3
+PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
-had no RESET, no path validation, and its KEEPALIVE carried no nonce)."""
+had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 had no send
+timestamps, TIMESTAMP and TIMED_DATA)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -81,6 +82,13 @@ class ControlCode(enum.IntEnum):
     MESSAGE_ACK = 11
     """either way: the cumulative acknowledgement of the peer's control messages alone, when no
     MESSAGE of ours leaves to carry it."""
+    TIMESTAMP = 15
+    """either way, sessions with the TIMESTAMPS flag: a stand-alone acknowledgement (the header's
+    ACK fields, as an ACK's) with the sender's clock when it left, in microseconds."""
+    TIMED_DATA = 16
+    """either way, sessions with the TIMESTAMPS flag: a DATA packet (its header consumes a data
+    sequence number and carries the acknowledgement as DATA's does) with the sender's clock when it
+    left, in microseconds, before the payload."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -97,6 +105,11 @@ MESSAGE_CODES: Final = frozenset(
     int(code) for code in (ControlCode.MESSAGE, ControlCode.MESSAGE_ACK)
 )
 """The reliable control channel (docs/PROTOCOL.md section 5.10): session control, sealed when keyed."""
+STAMP_CODES: Final = frozenset(
+    int(code) for code in (ControlCode.TIMESTAMP, ControlCode.TIMED_DATA)
+)
+"""Packets that carry their sender's clock (docs/PROTOCOL.md section 5.11): session traffic, sealed
+when keyed."""
 
 
 class OpenFlags(enum.IntFlag):
@@ -110,10 +123,17 @@ class OpenFlags(enum.IntFlag):
     TAKEOVER = 0x08
     """OPEN only, keyed only: an exclusive slave hands control to this master at once, ending the
     session of the master that had it (docs/PROTOCOL.md 5.9). Never echoed in the OPEN_ACK."""
+    TIMESTAMPS = 0x20
+    """Both ends time a share of their packets (TIMESTAMP, TIMED_DATA: docs/PROTOCOL.md 5.11), so
+    that each learns the one-way delay of its own direction. Echoed in the OPEN_ACK."""
 
 
 KNOWN_FLAGS: Final = int(
-    OpenFlags.SEPARATE_ACKS | OpenFlags.KEYED | OpenFlags.ENCRYPTED | OpenFlags.TAKEOVER
+    OpenFlags.SEPARATE_ACKS
+    | OpenFlags.KEYED
+    | OpenFlags.ENCRYPTED
+    | OpenFlags.TAKEOVER
+    | OpenFlags.TIMESTAMPS
 )
 
 
@@ -284,6 +304,30 @@ class MessageAckBody(NamedTuple):
         return ControlCode.MESSAGE_ACK
 
 
+class TimestampBody(NamedTuple):
+    """TIMESTAMP (either way): the sender's clock when it left; the header carries an ACK's fields."""
+
+    time: int
+    """The sender's clock in microseconds, its low 32 bits (any origin: only differences count)."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.TIMESTAMP
+
+
+class TimedDataBody(NamedTuple):
+    """TIMED_DATA (either way): a sample with the sender's clock when it left."""
+
+    time: int
+    """As :attr:`TimestampBody.time`."""
+    payload: bytes
+    """The application's sample, at least one byte."""
+
+    @property
+    def code(self) -> ControlCode:
+        return ControlCode.TIMED_DATA
+
+
 ControlBody = (
     ResetBody
     | OpenBody
@@ -295,6 +339,8 @@ ControlBody = (
     | PathResponseBody
     | MessageBody
     | MessageAckBody
+    | TimestampBody
+    | TimedDataBody
 )
 
 # Layouts, byte offsets from the code byte (the first byte after the base header).
@@ -311,6 +357,7 @@ _PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
 _PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
 _MESSAGE: Final = struct.Struct(">BHH")  # code seq ack, then the message
 _MESSAGE_ACK: Final = struct.Struct(">BH")  # code ack
+_STAMP: Final = struct.Struct(">BI")  # code time (TIMESTAMP; TIMED_DATA's payload follows)
 
 OPEN_BODY_SIZE: Final = _OPEN.size
 """48 bytes: with the header an unkeyed OPEN is 53 bytes, a keyed one 69."""
@@ -340,6 +387,11 @@ MESSAGE_PREFIX_SIZE: Final = _MESSAGE.size
 """5 bytes before a MESSAGE's data (code, seq, ack): an unkeyed MESSAGE is 10 bytes + the message."""
 MESSAGE_ACK_BODY_SIZE: Final = _MESSAGE_ACK.size
 """3 bytes: an unkeyed MESSAGE_ACK is 8 bytes, a keyed one 26."""
+STAMP_SIZE: Final = _STAMP.size
+"""5 bytes: a TIMESTAMP body (code and time); TIMED_DATA puts them before the payload, so a timed
+sample's datagram is 5 bytes longer than its DATA packet would be."""
+STAMP_MODULUS: Final = 1 << 32
+"""Send times travel as their low 32 bits, in microseconds (they wrap every 71.6 minutes)."""
 MESSAGE_SEQ_MODULUS: Final = 1 << 16
 """Message numbers travel as their low 16 bits."""
 OPEN_NONCE_OFFSET: Final = struct.calcsize(">BBBBHH")
@@ -429,6 +481,12 @@ def encode_message_ack(ack: int) -> bytes:
     return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, ack & 0xFFFF)
 
 
+def encode_timestamp(code: ControlCode, time_us: int) -> bytes:
+    """A TIMESTAMP body, or the part of a TIMED_DATA body before its payload: the code and the low
+    32 bits of ``time_us``."""
+    return _STAMP.pack(code, time_us & 0xFFFFFFFF)
+
+
 def _tagged(body: bytes | memoryview, size: int, name: str) -> bytes | memoryview:
     """The fixed part of a handshake body whose KEYED flag (its third byte) says whether a tag
     follows."""
@@ -495,6 +553,18 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, ack = _MESSAGE_ACK.unpack(body)
         return MessageAckBody(ack)
+    if code is ControlCode.TIMESTAMP:
+        if len(body) != STAMP_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"TIMESTAMP body is {len(body)} bytes, not {STAMP_SIZE}"
+            )
+        return TimestampBody(_STAMP.unpack(body)[1])
+    if code is ControlCode.TIMED_DATA:
+        if len(body) <= STAMP_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"TIMED_DATA body of {len(body)} bytes carries no payload"
+            )
+        return TimedDataBody(_STAMP.unpack_from(body)[1], bytes(body[STAMP_SIZE:]))
     if code is ControlCode.PATH_CHALLENGE:
         if len(body) != PATH_CHALLENGE_BODY_SIZE:
             raise MalformedPacketError(

@@ -19,6 +19,7 @@ from construct import (
     If,
     Int8ub,
     Int16ub,
+    Int32ub,
     Struct,
     Switch,
     this,
@@ -87,6 +88,10 @@ MessageBody: Any = Struct("seq" / Int16ub, "ack" / Int16ub, "data" / GreedyBytes
 """MESSAGE (the reliable control channel): the message's number and the cumulative acknowledgement
 of the peer's messages (both their low 16 bits), then the message itself (at least one byte)."""
 MessageAckBody: Any = Struct("ack" / Int16ub)
+TimestampBody: Any = Struct("time" / Int32ub)
+"""TIMESTAMP: the sender's clock (microseconds, low 32 bits) when it left."""
+TimedDataBody: Any = Struct("time" / Int32ub, "payload" / GreedyBytes)
+"""TIMED_DATA: the sender's clock as TIMESTAMP's, then the sample (at least one byte)."""
 
 ControlBody: Any = Struct(
     "code" / Int8ub,
@@ -105,6 +110,8 @@ ControlBody: Any = Struct(
             int(ControlCode.PATH_RESPONSE): PathResponseBody,
             int(ControlCode.MESSAGE): MessageBody,
             int(ControlCode.MESSAGE_ACK): MessageAckBody,
+            int(ControlCode.TIMESTAMP): TimestampBody,
+            int(ControlCode.TIMED_DATA): TimedDataBody,
         },
     ),
 )
@@ -136,7 +143,7 @@ ProtectedControl: Any = Struct(
     "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
     "tag" / Bytes(TAG_SIZE),
 )
-"""A keyed session's KEEPALIVE, CLOSE, MESSAGE or MESSAGE_ACK: as ProtectedData, with the control code in the clear
+"""A keyed session's KEEPALIVE, CLOSE, MESSAGE, MESSAGE_ACK, TIMESTAMP or TIMED_DATA: as ProtectedData, with the control code in the clear
 after the header."""
 
 __all__ = [
@@ -154,4 +161,6 @@ __all__ = [
     "ProtectedControl",
     "ProtectedData",
     "ResetBody",
+    "TimedDataBody",
+    "TimestampBody",
 ]
