@@ -554,9 +554,10 @@ class TeleopController(RateController):
             self._iv_min_rtt = math.inf
             self._iv_samples = 0
         signal = self._signal
-        if delay == delay:  # (not NaN: a stamp that timed one of our packets)
+        timed = not math.isnan(delay)  # (NaN: the stamp timed none of our packets)
+        if timed:
             signal.add(delay, sent_at, seq, hold)
-        if sent_at >= signal.gate_time and delay == delay:
+        if sent_at >= signal.gate_time and timed:
             # (Packets sent before the last decision judge nothing.)
             if delay < self._iv_min_rtt:
                 self._iv_min_rtt = delay
@@ -588,7 +589,7 @@ class TeleopController(RateController):
             self._congested_once = True
             return
         base = self.base_rtt
-        if base == math.inf or delay != delay:
+        if base == math.inf or not timed:
             return
         target = self._target()
         floor = signal.queue_floor() - base

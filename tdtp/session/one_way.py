@@ -213,7 +213,7 @@ class OneWayDelay:
         the round trip while the bases are unknown."""
         base_in = self._base_in.value
         base_out = self._base_out.value
-        if base_in == math.inf or base_out == math.inf:
+        if base_in + base_out == math.inf:  # (either unknown)
             return 0.5 * echo
         half = 0.5 * (base_in + base_out)
         inbound = echo - half - self.queue_out
@@ -227,7 +227,7 @@ class OneWayDelay:
         """The inbound one-way delay now (base half plus the inbound queue), or ``None``."""
         base_in = self._base_in.value
         base_out = self._base_out.value
-        if base_in == math.inf or base_out == math.inf:
+        if base_in + base_out == math.inf:  # (either unknown)
             return None
         return 0.5 * (base_in + base_out) + self.queue_in
 
@@ -251,7 +251,7 @@ class OneWayDelay:
         fwd = math.nan if echo is None else echo - (now - clock)
         base_in = self._base_in.value
         base_out = self._base_out.value
-        if base_in != math.inf and base_out != math.inf:
+        if base_in + base_out < math.inf:  # (both known)
             span = base_in + base_out  # the smallest round trip, as the bases see it
             margin = (span if span > 0.0 else 0.0) + TOLERANCE
             bad = rev < base_in - margin or (
