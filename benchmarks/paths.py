@@ -57,7 +57,7 @@ import struct
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -376,7 +376,10 @@ def free_udp_port() -> int:
 class Relay:
     """``tdtp netem-relay`` in its own process: listen on a fresh port, forward to ``target``."""
 
-    def __init__(self, spec: str | None, target: int, seed: int) -> None:
+    def __init__(
+        self, spec: str | None, target: int, seed: int, return_spec: str | None = None
+    ) -> None:
+        """``spec`` forward (client -> target), ``return_spec`` back (default: ``spec``)."""
         self.port = free_udp_port()
         # "delay 0ms" impairs nothing: a relay with no impairment keeps the rows comparable.
         command = [
@@ -393,6 +396,12 @@ class Relay:
         ]
         if spec is not None:
             command += ["--seed", str(seed)]  # the way back: seed + 1, as tdtp's rows
+        if return_spec is not None:
+            command += ["--return-spec", return_spec]
+        if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+            # Started in the background by a shell, this process ignores SIGINT and so would the
+            # relay, which then never prints its summary when close() asks: give it the default.
+            signal.signal(signal.SIGINT, signal.default_int_handler)
         self.process = subprocess.Popen(
             command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
@@ -471,29 +480,71 @@ def zenoh_config(listen: list[str], connect: list[str]) -> Any:
     return config
 
 
-async def zenoh_cell(spec: str | None, duration: float, seed: int) -> Json:
+@dataclass
+class BaselinePair:
+    """A baseline's two ends talking through ``tdtp netem-relay``: what each sends with, when they
+    started opening (the relay's links start their traces at its first datagram, just after), and,
+    once closed, the relay's summary."""
+
+    senders: tuple[Callable[[bytes], None], Callable[[bytes], None]] = (print, print)
+    opened_at: float = math.nan
+    relay_summary: Json = field(default_factory=dict)
+
+
+@contextlib.asynccontextmanager
+async def baseline_pair(
+    kind: str,
+    spec: str | None,
+    seed: int,
+    on_slave: Callable[[bytes, float], None],
+    on_master: Callable[[bytes, float], None],
+    *,
+    return_spec: str | None = None,
+) -> AsyncIterator[BaselinePair]:
+    """``zenoh`` or ``udp``: the slave's end, the relay in front of it (``spec`` forward,
+    ``return_spec`` back, default the same), the master's end through the relay. Each arriving
+    payload goes to ``on_slave``/``on_master`` with its arrival time; ``pair.senders`` send from the
+    master and from the slave."""
+    pair = BaselinePair()
+    if kind == "zenoh":
+        async with _zenoh_ends(pair, spec, seed, on_slave, on_master, return_spec):
+            yield pair
+    else:
+        async with _udp_ends(pair, spec, seed, on_slave, on_master, return_spec):
+            yield pair
+
+
+@contextlib.asynccontextmanager
+async def _zenoh_ends(
+    pair: BaselinePair,
+    spec: str | None,
+    seed: int,
+    on_slave: Callable[[bytes, float], None],
+    on_master: Callable[[bytes, float], None],
+    return_spec: str | None,
+) -> AsyncIterator[None]:
     import zenoh  # noqa: PLC0415
 
     slave_port = free_udp_port()
-    relay = Relay(spec, slave_port, seed)
-    at_slave, at_master = Meter(), Meter()
+    relay = Relay(spec, slave_port, seed, return_spec)
     sessions: list[Any] = []
     try:
         await asyncio.sleep(0.5)  # the relay's interpreter starting
+        pair.opened_at = tdtp.monotonic()
         slave = zenoh.open(zenoh_config([f"udp/127.0.0.1:{slave_port}"], []))
         sessions.append(slave)
         master = zenoh.open(zenoh_config([], [f"udp/127.0.0.1:{relay.port}"]))
         sessions.append(master)
 
-        def on(meter: Meter) -> Callable[[Any], None]:
+        def on(arrived: Callable[[bytes, float], None]) -> Callable[[Any], None]:
             def callback(sample: Any) -> None:
-                meter.arrived(sample.payload.to_bytes(), tdtp.monotonic())
+                arrived(sample.payload.to_bytes(), tdtp.monotonic())
 
             return callback
 
         subscribers = [
-            slave.declare_subscriber("tdtp-bench/ms", on(at_slave)),
-            master.declare_subscriber("tdtp-bench/sm", on(at_master)),
+            slave.declare_subscriber("tdtp-bench/ms", on(on_slave)),
+            master.declare_subscriber("tdtp-bench/sm", on(on_master)),
         ]
         options: Json = {
             "congestion_control": zenoh.CongestionControl.DROP,
@@ -504,10 +555,8 @@ async def zenoh_cell(spec: str | None, duration: float, seed: int) -> Json:
             master.declare_publisher("tdtp-bench/ms", **options),
             slave.declare_publisher("tdtp-bench/sm", **options),
         )
-        meters = (at_slave, at_master)
-        senders = (pubs[0].put, pubs[1].put)
-        await wait_for_probes(meters, senders, "zenoh")
-        _, offered = await measure(meters, senders, duration, spec)
+        pair.senders = (pubs[0].put, pubs[1].put)
+        yield
         for s in subscribers:
             s.undeclare()
         for p in pubs:
@@ -515,9 +564,66 @@ async def zenoh_cell(spec: str | None, duration: float, seed: int) -> Json:
     finally:
         for s in reversed(sessions):
             s.close()
-        summary = relay.close()
-    result = relayed_result((at_slave, at_master), offered, duration, summary)
-    result["zenoh"] = importlib_version("eclipse-zenoh")
+        pair.relay_summary = relay.close()
+
+
+class UdpReceiver(asyncio.DatagramProtocol):
+    """A plain socket's end: each datagram to ``arrived(payload, now)``; remembers its last peer."""
+
+    def __init__(self, arrived: Callable[[bytes, float], None]) -> None:
+        self.arrived = arrived
+        self.peer: tuple[str, int] | None = None
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.peer = addr
+        self.arrived(data, tdtp.monotonic())
+
+
+@contextlib.asynccontextmanager
+async def _udp_ends(
+    pair: BaselinePair,
+    spec: str | None,
+    seed: int,
+    on_slave: Callable[[bytes, float], None],
+    on_master: Callable[[bytes, float], None],
+    return_spec: str | None,
+) -> AsyncIterator[None]:
+    loop = asyncio.get_running_loop()
+    slave_t, slave_p = await loop.create_datagram_endpoint(
+        lambda: UdpReceiver(on_slave), local_addr=("127.0.0.1", 0)
+    )
+    relay = Relay(spec, slave_t.get_extra_info("sockname")[1], seed, return_spec)
+    master_t = None
+    try:
+        await asyncio.sleep(0.5)
+        pair.opened_at = tdtp.monotonic()
+        master_t, _ = await loop.create_datagram_endpoint(
+            lambda: UdpReceiver(on_master), remote_addr=("127.0.0.1", relay.port)
+        )
+
+        def sender_s(data: bytes) -> None:
+            if slave_p.peer is not None:  # the relay's socket for this client
+                slave_t.sendto(data, slave_p.peer)
+
+        pair.senders = (master_t.sendto, sender_s)
+        yield
+    finally:
+        if master_t is not None:
+            master_t.close()
+        slave_t.close()
+        pair.relay_summary = relay.close()
+
+
+async def baseline_cell(kind: str, spec: str | None, duration: float, seed: int) -> Json:
+    """``zenoh`` or ``udp`` through the relay: both ways for ``duration`` once probes crossed."""
+    at_slave, at_master = Meter(), Meter()
+    meters = (at_slave, at_master)
+    async with baseline_pair(kind, spec, seed, at_slave.arrived, at_master.arrived) as pair:
+        await wait_for_probes(meters, pair.senders, kind)
+        _, offered = await measure(meters, pair.senders, duration, spec)
+    result = relayed_result(meters, offered, duration, pair.relay_summary)
+    if kind == "zenoh":
+        result["zenoh"] = importlib_version("eclipse-zenoh")
     return result
 
 
@@ -530,50 +636,6 @@ def importlib_version(name: str) -> str | None:
         return None
 
 
-# ---------------------------------------------------------------------------- raw UDP cells
-
-
-class _Udp(asyncio.DatagramProtocol):
-    def __init__(self, meter: Meter) -> None:
-        self.meter = meter
-        self.peer: tuple[str, int] | None = None
-
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.peer = addr
-        self.meter.arrived(data, tdtp.monotonic())
-
-
-async def udp_cell(spec: str | None, duration: float, seed: int) -> Json:
-    loop = asyncio.get_running_loop()
-    at_slave, at_master = Meter(), Meter()
-    slave_t, slave_p = await loop.create_datagram_endpoint(
-        lambda: _Udp(at_slave), local_addr=("127.0.0.1", 0)
-    )
-    slave_port = slave_t.get_extra_info("sockname")[1]
-    relay = Relay(spec, slave_port, seed)
-    master_t = None
-    try:
-        await asyncio.sleep(0.5)
-        master_t, _ = await loop.create_datagram_endpoint(
-            lambda: _Udp(at_master), remote_addr=("127.0.0.1", relay.port)
-        )
-        sender_m = master_t.sendto
-
-        def sender_s(data: bytes) -> None:
-            if slave_p.peer is not None:  # the relay's socket for this client
-                slave_t.sendto(data, slave_p.peer)
-
-        meters = (at_slave, at_master)
-        await wait_for_probes(meters, (sender_m, sender_s), "udp")
-        _, offered = await measure(meters, (sender_m, sender_s), duration, spec)
-    finally:
-        if master_t is not None:
-            master_t.close()
-        slave_t.close()
-        summary = relay.close()
-    return relayed_result((at_slave, at_master), offered, duration, summary)
-
-
 # ---------------------------------------------------------------------------- cells in workers
 
 
@@ -583,10 +645,8 @@ def cell_worker(
     loop = "uvloop" if common.have_uvloop() else "asyncio"
 
     async def run() -> Json:
-        if row == "zenoh":
-            return await zenoh_cell(spec, duration, seed)
-        if row == "udp":
-            return await udp_cell(spec, duration, seed)
+        if row in BASELINES:
+            return await baseline_cell(row, spec, duration, seed)
         return await tdtp_cell(row, spec, duration, seed, via_relay)
 
     t0 = time.monotonic()

@@ -5,7 +5,8 @@ Usage: ``python benchmarks/run_all.py [--quick] [--only NAME ...]``  (``make ben
 Each benchmark runs as its own process (``python benchmarks/NAME.py ... --json``), one after the other,
 with the settings below, chosen so that the suite takes under five minutes on two cores (plus one to
 two for scale.py's baseline slaves), plus about seven for paths.py (80 cells of 3 s: its README table
-uses 10 s cells, run on their own). pacing.py, which has no ``--repeat``, is run three times and its
+uses 10 s cells, run on their own) and two for cellular.py (--quick: its README table comes from its
+full mode). pacing.py, which has no ``--repeat``, is run three times and its
 repetitions are combined here. The table (every figure with its baseline from the same run, ratio,
 target, repetitions, median and spread) is printed and written to ``latest.md`` with each
 benchmark's detail; ``latest.json`` has every report in full.
@@ -118,6 +119,27 @@ SUITE = (
         ("--duration", "3"),
         ("--quick",),
         timeout=1800.0,
+    ),
+    Bench(
+        "cellular",
+        # Every controller and raw UDP on the recorded LTE traces in virtual time (5 s, one
+        # offset), Zenoh and raw UDP on real sockets (~2 minutes); the README's figures come from
+        # its full mode (python benchmarks/cellular.py, ~25 min).
+        ("--quick",),
+        (
+            "--quick",
+            "--duration",
+            "1",
+            "--trace",
+            "verizon",
+            "--queue",
+            "150kB",
+            "--controller",
+            "teleop",
+            "udp",
+            "--real",
+        ),
+        timeout=900.0,
     ),
     Bench(
         "scale-pure",

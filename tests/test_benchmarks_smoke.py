@@ -345,6 +345,89 @@ def test_paths_misuse_is_one_line_and_status_2(argv: list[str], option: str) -> 
     assert len(lines) == 1 and option in lines[0], done.stderr
 
 
+def _cellular(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    """benchmarks/cellular.py on synthetic traces named like the recorded ones (which stay out of
+    the repository and the tests): Verizon's down fast, its up with an outage."""
+    traces = tmp_path / "traces"
+    traces.mkdir(exist_ok=True)
+    down = [t for t in range(1, 2001) for _ in range(2)]
+    up = [*range(1, 1001), *range(1500, 2001)]
+    for name, times in (("Verizon-LTE-short.down", down), ("Verizon-LTE-short.up", up)):
+        (traces / name).write_text("".join(f"{t}\n" for t in times))
+    return subprocess.run(
+        [sys.executable, str(BENCHMARKS / "cellular.py"), "--traces", str(traces), *extra],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+
+
+def test_cellular_runs_every_kind_of_row_and_writes_its_results(tmp_path: Path) -> None:
+    """The plumbing, never the figures: the ideal, a controller and raw UDP in virtual time, raw
+    UDP on real sockets through the relay; each direction delivered no more than was offered; the
+    table, the JSON and the plot were written."""
+    out = tmp_path / "out"
+    done = _cellular(
+        tmp_path,
+        "--quick",
+        "--duration",
+        "2",
+        "--trace",
+        "verizon",
+        "--queue",
+        "15kB",
+        "--controller",
+        "fixed",
+        "udp",
+        "--real",
+        "udp-real",
+        "--out",
+        str(out),
+        "--json",
+    )
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report["benchmark"] == "cellular"
+    cells = report["details"]["summary"]["verizon"]["15kB"]
+    assert list(cells) == ["ideal", "fixed", "udp", "udp-real"]
+    assert [cells[r]["time"] for r in cells] == ["computed", "virtual", "virtual", "real"]
+    for run in report["details"]["runs"]:
+        for way in ("ms", "sm"):
+            figures = run[way]
+            assert 0 < figures["delivered"] <= figures["offered"], (run["row"], way)
+            assert 0 < figures["allowed"] <= 2000 + 1e-9  # at most what 1 kHz offers in 2 s
+            assert figures["delay_ms"]["p50"] >= 20.0  # never faster than the propagation
+    # The up trace's 500 ms outage: the ideal and every row see dropouts there.
+    assert all(run["sm"]["dropouts"] >= 3 for run in report["details"]["runs"])
+    assert "| verizon | 15kB | raw UDP, fixed 1 kHz | real" in (out / "cellular.md").read_text()
+    assert json.loads((out / "cellular.json").read_text())["summary"]
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (out / "cellular_verizon.png").stat().st_size > 0
+    assert "virtual" in done.stderr and "real sockets" in done.stderr  # progress lines
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["--trace", "moon"], "--trace"),
+        (["--queue", "1GB"], "--queue"),
+        (["--controller", "carrier-pigeon"], "--controller"),
+        (["--real", "telepathy"], "--real"),
+        (["--duration", "0"], "--duration"),
+        (["--offsets", "soon"], "--offsets"),
+        (["--trace", "att"], "--traces"),  # the synthetic folder has no AT&T trace
+    ],
+)
+def test_cellular_misuse_is_one_line_and_status_2(
+    tmp_path: Path, argv: list[str], option: str
+) -> None:
+    done = _cellular(tmp_path, *argv)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and option in lines[0], done.stderr
+
+
 @pytest.mark.skipif(
     importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("zenoh") is None,
     reason="mujoco or eclipse-zenoh not installed (the loop extra)",

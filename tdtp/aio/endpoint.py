@@ -43,6 +43,7 @@ from tdtp.aio.outbox import SocketOutbox
 from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
 from tdtp.errors import ConnectionClosedError, ConnectionStateError, EndpointClosedError
+from tdtp.netem import NetemLink
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
@@ -239,6 +240,13 @@ class Endpoint:
             return None
         stats: dict[str, int] = layer.stats
         return stats
+
+    @property
+    def netem_link(self) -> NetemLink | None:
+        """The emulated link this endpoint sends through (``netem=`` on connect or listen), or
+        ``None``: its ``stats``, and with a trace its ``trace_queue``."""
+        link: NetemLink | None = getattr(getattr(self._socket, "line", None), "link", None)
+        return link
 
     def _datagram_layer(self) -> Any:
         """The socket's datagram layer under any wrappers (a pcap capture, in-process impairment:

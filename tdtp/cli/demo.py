@@ -24,6 +24,7 @@ from tdtp.cli.live_stats import (
     DirectionMeter,
     LiveDisplay,
 )
+from tdtp.cli.netem_view import netem_lines, netem_report
 from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
 from tdtp.cli.outcome import Outcome, Side, header_line, settings_report
 from tdtp.cli.session_tasks import (
@@ -139,6 +140,7 @@ async def _demo(
             if mc is not None and sc is not None:
                 lines.append(control_line("M->S", mc, sc, master))
                 lines.append(control_line("S->M", sc, mc, slave))
+            lines += netem_lines(master, slave)
             display.update(lines)
 
         def summarize() -> None:
@@ -163,6 +165,9 @@ async def _demo(
                     latency=master_side.latency_counts(),
                 ),
             }
+            for key, ep in (("master_to_slave", master), ("slave_to_master", slave)):
+                if (link := netem_report(ep)) is not None:
+                    outcome.summary[key]["emulated_link"] = link
             if args.deadband is not None:
                 outcome.summary["master_to_slave"]["deadband"] = master_side.deadband_report("m")
                 outcome.summary["slave_to_master"]["deadband"] = slave_side.deadband_report("N")

@@ -4,6 +4,8 @@
   :class:`NetemSpec`; ``str(spec)`` writes them back.
 * :class:`NetemLink` is a sans-IO model of one direction: datagrams in with ``now``, out at their
   delivery time, with netem's order of operations and a seeded random generator.
+* ``trace FILE`` (a tdtp extension) replaces the rate with a recorded capacity in Mahimahi's format:
+  :func:`load_trace` reads one, :class:`TraceQueue` serves datagrams at its opportunities.
 
 See ``docs/NETEM.md`` for what is emulated and how it differs from the kernel's netem.
 """
@@ -24,11 +26,15 @@ from tdtp.netem.spec import (
     RateSpec,
     ReorderSpec,
     StateLoss,
+    TraceSpec,
 )
+from tdtp.netem.trace_file import OPPORTUNITY_BYTES, Trace, TraceFileError, load_trace
+from tdtp.netem.trace_queue import TraceQueue
 
 __all__ = [
     "DEFAULT_LIMIT",
     "DISTRIBUTIONS",
+    "OPPORTUNITY_BYTES",
     "CorruptSpec",
     "DelaySpec",
     "Distribution",
@@ -43,5 +49,10 @@ __all__ = [
     "RateSpec",
     "ReorderSpec",
     "StateLoss",
+    "Trace",
+    "TraceFileError",
+    "TraceQueue",
+    "TraceSpec",
+    "load_trace",
     "parse_netem",
 ]

@@ -23,6 +23,11 @@ Order of operations per datagram, as in the kernel's ``netem_enqueue``:
 7. a FIFO ordered by send time (equal times keep arrival order), so jitter larger than the spacing of
    packets reorders them when no rate is set, as in netem.
 
+With a ``trace`` (a tdtp extension) the rate's place is taken by a recorded capacity: after steps 1 to 3
+the datagram joins the trace's DropTail queue (:class:`~tdtp.netem.trace_queue.TraceQueue`: ``limit``
+or ``limit-bytes`` count the datagrams waiting there, not those being delayed), and steps 5 and 6 run
+from the moment it leaves, so the ``delay`` is propagation after the bottleneck.
+
 Randomness comes from one :class:`random.Random` owned by the link, drawn in the kernel's order.
 Correlated values use netem's approximation ``next = (1 - corr) * uniform + corr * last``: a weighted
 mix of uniform draws, not a true correlation (it also narrows the spread of the draws, which is why a
@@ -49,6 +54,7 @@ from tdtp.netem.spec import (
     RandomLoss,
     StateLoss,
 )
+from tdtp.netem.trace_queue import TraceQueue
 
 __all__ = ["NetemLink", "NetemStats"]
 
@@ -279,7 +285,9 @@ class NetemLink:
         self._seq = 0
         self._counter = 0  # netem's q->counter: packets delayed since the last reordered one
         self._last_send_time = -math.inf  # send time of the latest rate-scheduled packet
-        self._in_flight: list[tuple[float, int, bytes, object]] = []  # heap by (send time, seq)
+        # heap by (send time, seq) of (send time, seq, datagram, tag, bytes counted by limit-bytes)
+        self._in_flight: list[tuple[float, int, bytes, object, int]] = []
+        self._in_flight_bytes = 0
         self._due: deque[tuple[float, bytes, object]] = deque()  # due, not yet collected
 
     def change(self, spec: NetemSpec) -> None:
@@ -307,6 +315,17 @@ class NetemLink:
         self._reorder_draw = _CorrelatedUniform(rng, reorder.correlation if reorder else 0.0)
         self._rate = spec.rate
         self._limit = spec.limit
+        self._limit_bytes = spec.limit_bytes
+        old: TraceQueue | None = getattr(self, "_queue", None)
+        trace = spec.trace
+        if trace is None:
+            self._queue = None
+        elif old is not None and self.spec.trace == trace:
+            old.limit, old.limit_bytes = spec.limit, spec.limit_bytes  # same trace: same clock
+        else:
+            self._queue = TraceQueue.of(
+                spec, not_before=old.last_departure if old is not None else -math.inf
+            )
 
     # -- the sans-IO interface ---------------------------------------------------------------------
 
@@ -334,7 +353,7 @@ class NetemLink:
             return
         copy = data if copies > 1 else None  # taken before corruption, like the kernel's clone
         data = self._maybe_corrupt(data)
-        if len(self._in_flight) >= self._limit:
+        if self._queue is None and self._full(len(data)):
             stats.queue_dropped += copies
             return
         if copy is not None:
@@ -365,8 +384,14 @@ class NetemLink:
         return len(self._in_flight) + len(self._due)
 
     @property
+    def trace_queue(self) -> TraceQueue | None:
+        """With a ``trace``: its queue (``queued(now)`` gives the datagrams and bytes waiting)."""
+        return self._queue
+
+    @property
     def in_flight(self) -> int:
-        """Datagrams not yet due at the latest ``now``: what the queue ``limit`` counts.
+        """Datagrams not yet due at the latest ``now``: what the queue ``limit`` counts (without a
+        trace; with one, ``limit`` counts the trace's queue).
 
         At most ``limit``, or ``limit + 1`` right after a duplicated packet: as in netem, the copy is
         checked against the limit and queued before the original, which then joins without a second
@@ -387,9 +412,13 @@ class NetemLink:
                 f"now went backwards ({now!r} after {self._now!r}): pass times from a monotonic clock"
             )
         self._now = now
+        queue = self._queue
+        if queue is not None and queue.origin is None:
+            queue.origin = now  # the trace's clock starts with the first time the link sees
         heap, due = self._in_flight, self._due
         while heap and heap[0][0] <= now:
-            send_time, _, data, tag = heapq.heappop(heap)
+            send_time, _, data, tag, counted = heapq.heappop(heap)
+            self._in_flight_bytes -= counted
             due.append((send_time, data, tag))
 
     def _maybe_corrupt(self, data: bytes) -> bytes:
@@ -406,20 +435,40 @@ class NetemLink:
             self.stats.lost += 1
             return
         data = self._maybe_corrupt(data)
-        if len(self._in_flight) >= self._limit:
+        if self._queue is None and self._full(len(data)):
             self.stats.queue_dropped += 1
             return
         self._schedule(data, now, tag)
 
+    def _full(self, size: int) -> bool:
+        """netem's limit: the datagrams (or bytes) in flight leave no room for one more."""
+        if self._limit_bytes is None:
+            return len(self._in_flight) >= self._limit
+        return self._in_flight_bytes + self._wire_bytes(size) > self._limit_bytes
+
+    def _wire_bytes(self, size: int) -> int:
+        rate = self._rate
+        return rate.wire_bytes(size) if rate is not None else size
+
     def _schedule(self, data: bytes, now: float, tag: object) -> None:
-        """Reorder decision, then delay and rate; into the time-ordered FIFO."""
+        """Trace queue (if any), reorder decision, then delay and rate; into the time-ordered FIFO."""
+        start = now
+        counted = 0  # bytes the netem limit counts (none behind a trace: its queue counts)
+        if self._queue is not None:
+            departure = self._queue.offer(now, len(data))
+            if departure is None:
+                self.stats.queue_dropped += 1
+                return
+            start = departure
+        elif self._limit_bytes is not None:
+            counted = self._wire_bytes(len(data))
         gap = self._gap
         if gap and self._counter >= gap - 1 and self._reorder_draw() < self._reorder_p:
-            send_time = now  # sent at once, ahead of the delayed packets (and of the rate)
+            send_time = start  # sent at once, ahead of the delayed packets (and of the rate)
             self._counter = 0
             self.stats.reordered += 1
         else:
-            send_time = now + self._sample_delay()
+            send_time = start + self._sample_delay()
             rate = self._rate
             if rate is not None:
                 if self._last_send_time > now:  # a packet is still held: queue behind it
@@ -428,7 +477,8 @@ class NetemLink:
                 self._last_send_time = send_time
             self._counter += 1
         self._seq += 1
-        heapq.heappush(self._in_flight, (send_time, self._seq, data, tag))
+        heapq.heappush(self._in_flight, (send_time, self._seq, data, tag, counted))
+        self._in_flight_bytes += counted
         if send_time <= now:  # due at once: leaves before anything still in flight
             self._advance(now)
 

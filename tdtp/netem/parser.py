@@ -38,6 +38,7 @@ from tdtp.netem.spec import (
     DISTRIBUTIONS,
     EXACT,
     MAX_LIMIT,
+    MAX_LIMIT_BYTES,
     MAX_SEED,
     CorruptSpec,
     DelaySpec,
@@ -50,7 +51,9 @@ from tdtp.netem.spec import (
     RateSpec,
     ReorderSpec,
     StateLoss,
+    TraceSpec,
 )
+from tdtp.netem.trace_file import load_trace
 
 __all__ = ["NetemSyntaxError", "parse_netem"]
 
@@ -117,7 +120,9 @@ _KEYWORDS: Final = (
     "reorder",
     "gap",
     "rate",
+    "trace",
     "limit",
+    "limit-bytes",
     "seed",
 )
 _ALIASES: Final = {"latency": "delay", "drop": "loss"}
@@ -143,7 +148,9 @@ class _Draft:
     reorder: tuple[float, float] | None = None
     gap: int = 0
     rate: RateSpec | None = None
+    trace: TraceSpec | None = None
     limit: int = 1000
+    limit_bytes: int | None = None
     seed: int | None = None
 
 
@@ -288,7 +295,7 @@ class _Parser:
                     f"it already appeared at token {first + 1}; give each option once",
                 )
             draft.seen[keyword] = index
-            getattr(self, f"opt_{keyword}")(draft, index)
+            getattr(self, f"opt_{keyword.replace('-', '_')}")(draft, index)
         return self.finish(draft)
 
     def opt_delay(self, draft: _Draft, index: int) -> None:
@@ -400,8 +407,34 @@ class _Parser:
         except ValueError as error:
             raise self.fail("bad rate", index, str(error)) from None
 
+    def opt_trace(self, draft: _Draft, index: int) -> None:
+        path, at = self.take("trace file", "expected the path of a Mahimahi trace file")
+        try:
+            trace = load_trace(path)
+        except ValueError as error:  # TraceFileError, or a path netem syntax cannot carry
+            raise self.fail(f"bad trace {_q(path)}", at, str(error)) from None
+        offset, overhead = Decimal(0), 0
+        seen: set[str] = set()
+        while self.pos < len(self.tokens) and self.tokens[self.pos].lower() in (
+            "offset",
+            "overhead",
+        ):
+            word, at = self.tokens[self.pos].lower(), self.pos
+            if word in seen:
+                raise self.fail(f"trace {word} given twice", at, f"give the trace's {word} once")
+            seen.add(word)
+            self.pos += 1
+            if word == "offset":
+                offset = self.time("trace offset")
+            else:
+                overhead = self.integer("trace overhead", -(2**31), 2**31 - 1, signed=True)
+        draft.trace = TraceSpec(trace, float(offset), overhead)
+
     def opt_limit(self, draft: _Draft, index: int) -> None:
         draft.limit = self.integer("limit", 0, MAX_LIMIT)
+
+    def opt_limit_bytes(self, draft: _Draft, index: int) -> None:
+        draft.limit_bytes = self.integer("limit-bytes", 0, MAX_LIMIT_BYTES)
 
     def opt_seed(self, draft: _Draft, index: int) -> None:
         draft.seed = self.integer("seed", 0, MAX_SEED)
@@ -450,6 +483,18 @@ class _Parser:
                 draft.seen["gap"],
                 "gap is part of reordering: give a reorder probability, e.g. 'reorder 100% gap 5'",
             )
+        if "limit" in draft.seen and "limit-bytes" in draft.seen:
+            raise self.fail(
+                "'limit-bytes'",
+                draft.seen["limit-bytes"],
+                "the queue's size is in packets (limit) or in bytes (limit-bytes): give one",
+            )
+        if draft.trace is not None and draft.rate is not None:
+            raise self.fail(
+                "'trace'",
+                draft.seen["trace"],
+                "a trace and a rate both set the link's capacity: give one of them",
+            )
         try:
             return NetemSpec(
                 delay=delay_spec,
@@ -460,6 +505,8 @@ class _Parser:
                 rate=draft.rate,
                 limit=draft.limit,
                 seed=draft.seed,
+                trace=draft.trace,
+                limit_bytes=draft.limit_bytes,
             )
         except ValueError as error:  # not expected after the checks above; still name a place
             raise self.fail("invalid options", 0, str(error)) from None

@@ -22,6 +22,7 @@ from decimal import Context, Decimal
 from typing import Final, Literal, TypeAlias, get_args
 
 from tdtp.errors import InvalidArgumentError
+from tdtp.netem.trace_file import Trace
 
 __all__ = [
     "DEFAULT_LIMIT",
@@ -37,6 +38,7 @@ __all__ = [
     "RateSpec",
     "ReorderSpec",
     "StateLoss",
+    "TraceSpec",
 ]
 
 Distribution: TypeAlias = Literal["uniform", "normal", "pareto", "paretonormal"]
@@ -48,6 +50,7 @@ DEFAULT_LIMIT: Final = 1000
 """tc's default ``limit``: packets the queue may hold."""
 
 MAX_LIMIT: Final = 2**32 - 1
+MAX_LIMIT_BYTES: Final = 2**63 - 1
 MAX_SEED: Final = 2**64 - 1
 _S32_MIN: Final = -(2**31)
 _S32_MAX: Final = 2**31 - 1
@@ -459,6 +462,49 @@ class RateSpec:
         return " ".join(parts)
 
 
+# -- trace ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class TraceSpec:
+    """``trace FILE [offset TIME] [overhead N]`` (a tdtp extension): a link whose capacity follows a
+    recorded trace in Mahimahi's format (see :mod:`tdtp.netem.trace_file` and
+    :mod:`tdtp.netem.trace_queue`).
+
+    ``offset`` starts the trace that far in (it still loops at its end); ``overhead`` bytes are added
+    to every datagram when counting the trace's 1500-byte opportunities and the queue's
+    ``limit-bytes`` (28 for the IPv4 + UDP headers a real link would carry besides the payload).
+    """
+
+    trace: Trace
+    """The opportunities, read from the file by :func:`~tdtp.netem.trace_file.load_trace`."""
+    offset: float = 0.0
+    """Seconds into the trace at which the link starts."""
+    overhead: int = 0
+    """Bytes added to every datagram's size; may be negative (never below 0 in total)."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.trace, Trace):
+            raise InvalidArgumentError(
+                "TraceSpec.trace must be a Trace: load one with tdtp.netem.load_trace(path), "
+                f"got {self.trace!r}"
+            )
+        _check_time("TraceSpec", "offset", self.offset)
+        _check_int("TraceSpec", "overhead", self.overhead, _S32_MIN, _S32_MAX, "of bytes")
+
+    @property
+    def path(self) -> str:
+        return self.trace.path
+
+    def __str__(self) -> str:
+        parts = ["trace", self.trace.path]
+        if self.offset:
+            parts += ["offset", format_time(self.offset)]
+        if self.overhead:
+            parts += ["overhead", str(self.overhead)]
+        return " ".join(parts)
+
+
 # -- the whole direction --------------------------------------------------------------------------------
 
 
@@ -480,6 +526,12 @@ class NetemSpec:
     """Packets the queue may hold; a packet arriving when ``limit`` are held is dropped (DropTail)."""
     seed: int | None = None
     """Seed of the random generator (netem's ``seed``); ``None`` for a fresh one per link."""
+    trace: TraceSpec | None = None
+    """A recorded capacity instead of a ``rate`` (a tdtp extension): the queue and ``delay`` then
+    follow Mahimahi's link (docs/NETEM.md, "Recorded traces")."""
+    limit_bytes: int | None = None
+    """Bytes the queue may hold instead of packets (a tdtp extension); ``limit`` must then be left
+    at its default, which is not used."""
 
     def __post_init__(self) -> None:
         parts: tuple[tuple[str, object, type], ...] = (
@@ -488,6 +540,7 @@ class NetemSpec:
             ("corrupt", self.corrupt, CorruptSpec),
             ("reorder", self.reorder, ReorderSpec),
             ("rate", self.rate, RateSpec),
+            ("trace", self.trace, TraceSpec),
         )
         for name, value, kind in parts:
             if value is not None and not isinstance(value, kind):
@@ -502,6 +555,17 @@ class NetemSpec:
                 f"got {self.loss!r}"
             )
         _check_int("NetemSpec", "limit", self.limit, 0, MAX_LIMIT, "of packets")
+        if self.limit_bytes is not None:
+            _check_int("NetemSpec", "limit_bytes", self.limit_bytes, 0, MAX_LIMIT_BYTES, "of bytes")
+            if self.limit != DEFAULT_LIMIT:
+                raise InvalidArgumentError(
+                    "give the queue's size in packets (limit) or in bytes (limit-bytes), not both"
+                )
+        if self.trace is not None and self.rate is not None:
+            raise InvalidArgumentError(
+                "a trace and a rate both set the link's capacity: give one of them "
+                "(the trace's capacity is its recorded one)"
+            )
         if self.seed is not None:
             _check_int("NetemSpec", "seed", self.seed, 0, MAX_SEED, "from 0 to 2**64 - 1")
         if (
@@ -524,10 +588,13 @@ class NetemSpec:
                 self.corrupt,
                 self.reorder,
                 self.rate,
+                self.trace,
             )
             if part is not None
         ]
-        if self.limit != DEFAULT_LIMIT or not parts:
+        if self.limit_bytes is not None:
+            parts.append(f"limit-bytes {self.limit_bytes}")
+        elif self.limit != DEFAULT_LIMIT or not parts:
             parts.append(f"limit {self.limit}")
         if self.seed is not None:
             parts.append(f"seed {self.seed}")

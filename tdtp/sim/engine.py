@@ -9,6 +9,10 @@
   (``"rate 1mbit delay 10ms limit 15"``). :meth:`Network.connect` makes the two directions of a
   symmetric link. With ``byte_limit`` the queue counts bytes instead, as ns-2's ``Queue/DropTail``
   with ``queue_in_bytes_`` does.
+* A link can follow a recorded capacity instead of a rate: ``"delay 20ms trace FILE limit-bytes
+  150000"`` serves the queue at the trace's opportunities with Mahimahi's semantics
+  (:class:`~tdtp.netem.TraceQueue`, shared with :class:`~tdtp.netem.NetemLink`); its clock starts
+  with the link, at the trace's ``offset``.
 * :class:`Node` is a host or a router: packets addressed to it go to the agent bound to their
   destination port; others are forwarded on the static route to their destination
   (:meth:`Network.compute_routes`: fewest hops, ties broken by the order links were created).
@@ -43,7 +47,7 @@ from collections.abc import Callable, Iterable
 from typing import Any, Final, Protocol
 
 from tdtp.errors import InvalidArgumentError
-from tdtp.netem import NetemSpec, RateSpec, parse_netem
+from tdtp.netem import NetemSpec, RateSpec, TraceQueue, parse_netem
 from tdtp.netem.spec import RandomLoss
 
 __all__ = [
@@ -217,8 +221,9 @@ class LinkStats:
 def split_spec(spec: NetemSpec) -> tuple[NetemSpec, float]:
     """``spec`` without its delay (the queue and the serialisation) and the delay as a propagation time.
 
-    Only what a wired router link does is supported: a fixed delay, a rate, a limit and uncorrelated
-    random loss before the queue. Jitter, reordering, duplication, corruption and bursty or correlated
+    Only what a wired router link (or a recorded cellular one) does is supported: a fixed delay, a
+    rate or a trace, a limit (in packets, or bytes with ``limit-bytes``) and uncorrelated random loss
+    before the queue. Jitter, reordering, duplication, corruption and bursty or correlated
     loss raise :class:`ValueError`.
     """
     delay = spec.delay
@@ -234,9 +239,9 @@ def split_spec(spec: NetemSpec) -> tuple[NetemSpec, float]:
         raise InvalidArgumentError(
             f"simulated links support uncorrelated random loss only ({spec})"
         )
-    if spec.rate is None:
+    if spec.rate is None and spec.trace is None:
         raise InvalidArgumentError(
-            f"a simulated link needs a rate, e.g. 'rate 1mbit delay 10ms' ({spec})"
+            f"a simulated link needs a rate or a trace, e.g. 'rate 1mbit delay 10ms' ({spec})"
         )
     return dataclasses.replace(spec, delay=None), (delay.delay if delay is not None else 0.0)
 
@@ -262,6 +267,7 @@ class Link:
         "_on_wire",
         "_rng",
         "_sim",
+        "_trace",
         "_transmit",
         "_tx_times",
         "delay",
@@ -290,10 +296,30 @@ class Link:
         self.dst = dst
         self.name = f"{src.name}->{dst.name}"
         self.delay: Final = delay
-        rate = queue_spec.rate
-        assert rate is not None  # split_spec insists
-        self.rate_bps: Final = rate.rate_bps
-        self._transmit = rate.transmit_time
+        rate, trace = queue_spec.rate, queue_spec.trace
+        self._trace: TraceQueue | None = None
+        if trace is not None:
+            if byte_limit is not None:
+                raise InvalidArgumentError(
+                    "a trace link's queue takes its size from its spec: write 'limit-bytes N' "
+                    f"there instead of byte_limit ({spec})"
+                )
+            # The trace's clock starts with the link, so that an offset means the same in every run.
+            self._trace = TraceQueue.of(queue_spec, origin=sim.now)
+            rate_bps = trace.trace.mean_rate_bps
+            self._transmit = RateSpec(rate_bps).transmit_time  # not used: the trace serves
+        else:
+            assert rate is not None  # split_spec insists
+            if queue_spec.limit_bytes is not None:
+                if byte_limit is not None:
+                    raise InvalidArgumentError(
+                        f"give the queue's bytes once: limit-bytes or byte_limit ({spec})"
+                    )
+                byte_limit = queue_spec.limit_bytes
+            rate_bps = rate.rate_bps
+            self._transmit = rate.transmit_time
+        self.rate_bps: Final = rate_bps
+        """Bits per second: the rate, or a trace's mean capacity."""
         self._tx_times: dict[int, float] = {}  # serialisation time by packet size
         self._limit = queue_spec.limit
         self._byte_limit = byte_limit
@@ -335,8 +361,14 @@ class Link:
             if byte_limit is not None:
                 self._held_bytes -= self._held_sizes.popleft()
         held = len(departures)
+        trace = self._trace
+        departure = 0.0
         if self._loss and self._rng.random() < self._loss:
             dropped = True
+        elif trace is not None:
+            offered = trace.offer(now, size)
+            dropped = offered is None
+            departure = offered if offered is not None else 0.0
         elif byte_limit is None:
             dropped = held >= self._limit
         else:
@@ -348,10 +380,11 @@ class Link:
             if owner is not None:
                 owner.on_drop(packet, now)
             return
-        transmit = self._tx_times.get(size)
-        if transmit is None:
-            transmit = self._tx_times[size] = self._transmit(size)
-        departure = (departures[-1] if held else now) + transmit
+        if trace is None:
+            transmit = self._tx_times.get(size)
+            if transmit is None:
+                transmit = self._tx_times[size] = self._transmit(size)
+            departure = (departures[-1] if held else now) + transmit
         departures.append(departure)
         if byte_limit is not None:
             self._held_sizes.append(size)

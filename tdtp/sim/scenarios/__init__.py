@@ -2,7 +2,9 @@
 
 One module per scenario (``paper``, ``friendliness``, ``fairness``, ``best_effort``); ``schemes`` holds
 what they compare, ``dumbbell`` the topology and probes they share, ``results`` the JSON-safe result
-base. :data:`SCENARIOS` names them for ``tdtp simulate``.
+base. :data:`SCENARIOS` names them for ``tdtp simulate``. ``cellular`` (recorded LTE traces, the
+yardsticks of issue 32) is not among them: ``benchmarks/cellular.py`` runs it, beside Zenoh and raw UDP
+on real sockets.
 
 Each scenario is a function returning a result dataclass with ``to_dict()``/``to_json()``; a run is a
 pure function of its arguments (``seed`` included). Every scenario runs each *scheme*:
