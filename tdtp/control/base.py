@@ -164,14 +164,15 @@ class RateController(abc.ABC):
         path's capacity."""
 
     def on_one_way_delay(  # noqa: B027 -- optional hook, no-op default
-        self, *, now: float, delay: float, sent_at: float, seq: int, hold: float
+        self, *, now: float, delay: float, sent_at: float, seq: int, hold: float, unacked: int
     ) -> None:
         """The peer timed the arrival of our data packet ``seq``, sent at ``sent_at``: ``delay`` is
         its one-way delay plus a constant (the two clocks' offset; only differences and minima
         mean something), so a queue in the other direction does not show in it. ``hold`` is how
         long the packet had been the newest of ours at the peer when the peer's stamp left: the
         time the peer had heard nothing newer from us; ``math.inf`` (and ``delay`` NaN) when that
-        was longer than the header's HOLD can say (31.7 ms)."""
+        was longer than the header's HOLD can say (31.7 ms). ``unacked`` counts the data packets
+        we sent after ``seq``: on their way, queued or lost."""
 
     def on_peer_resumed(self, *, now: float, silent_for: float) -> None:  # noqa: B027
         """The peer is heard again after :meth:`on_peer_silent`, ``silent_for`` seconds after its

@@ -32,6 +32,8 @@ RATE_WINDOW: Final = 0.1
 to span a cellular link's bursts (a scheduler that delivers every few tens of ms)."""
 RATE_SAMPLES: Final = 64
 """Samples kept for it (the window is shorter when they come faster)."""
+PEAK_WINDOW: Final = 0.5
+"""Seconds of the peer's clock over which :attr:`OneWaySignal.peak` keeps the highest rate."""
 JITTER_GAIN: Final = 1.0 / 16.0
 
 
@@ -49,6 +51,10 @@ class OneWaySignal:
         "gate_time",
         "hold",
         "jitter",
+        "peak",
+        "_peak_at",
+        "_peak_now",
+        "_peak_prev",
         "newest_seq",
         "rate",
         "samples",
@@ -70,6 +76,11 @@ class OneWaySignal:
         peer's clock (s): how bursty the link delivers."""
         self.rate = 0.0
         """Our packets' rate of arrival at the peer, packets/s (0 until measured)."""
+        self.peak = 0.0
+        """The highest :attr:`rate` of the last ``PEAK_WINDOW`` or so (two half-windows)."""
+        self._peak_now = 0.0
+        self._peak_prev = 0.0
+        self._peak_at = -math.inf
         self.hold = 0.0
         """The last sample's hold: how long the peer had heard nothing newer from us (s)."""
         self.newest_seq = -1
@@ -120,7 +131,14 @@ class OneWaySignal:
             j = (count - back) % RATE_SAMPLES
             span = arrival - self._arrivals[j]
             if span > 0.0:
-                self.rate = (seq - self._seqs[j]) / span
+                rate = self.rate = (seq - self._seqs[j]) / span
+                if arrival - self._peak_at >= 0.5 * PEAK_WINDOW:
+                    self._peak_prev = self._peak_now
+                    self._peak_now = 0.0
+                    self._peak_at = arrival
+                if rate > self._peak_now:
+                    self._peak_now = rate
+                self.peak = max(self._peak_now, self._peak_prev)
 
     def slope(self, window: float) -> float:
         """How fast the one-way delay grows with send time (s per s: GCC's trendline, a least

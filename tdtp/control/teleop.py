@@ -75,14 +75,22 @@ STALL_MIN: Final = 0.03
 OWD_PROBE: Final = 0.01
 """With one-way delays: the first probe step above what the link carried, as a fraction of the rate
 (at least ``initial_rate``); it doubles with each interval the queue stays short."""
-SLOPE_WINDOW: Final = 0.05
-"""Seconds of send time over which the one-way delay's growth is fitted."""
-GROWING: Final = 0.05
-"""A one-way delay growing faster than this (s per s: sending 5 % above what the link delivers)
-stops the probe and holds the rate at what the link delivers."""
+GROWING: Final = 0.1
+"""With one-way delays: a standing queue that grew by this fraction of the target in each of two
+intervals in a row stops the probe (it holds the rate)."""
 BLIND_SHARE: Final = 0.5
 """A direction whose peer went silent holds this share of what its receiver last received (one
 halving, as a loss would cost, then no more for ``blind_hold``)."""
+LONG_STALL: Final = 0.1
+"""Seconds: a stall longer than this is an outage, after which the rate resumes at half."""
+WINDOW_QUEUE: Final = 0.03
+"""Seconds of queue (at the rate the link delivers) the window allows at least, above the lag of
+the feedback; more when the queue-delay target is higher (twice it)."""
+WINDOW_MIN: Final = 4.0
+"""Packets the window allows at least."""
+WINDOW_PROBE: Final = 0.05
+"""A full window still lets a packet go this often (or once per lag, if longer)."""
+LAG_GAIN: Final = 0.125
 STALL_RATE: Final = 20.0
 """Packets/s a stalled direction still carries: enough to see the link return within 50 ms."""
 MAX_STRETCH: Final = 8.0
@@ -349,6 +357,12 @@ class TeleopController(RateController):
         self._cruise = 0.0  # ...and what it delivered when the drain began
         self._stalled = False
         self._stall_seq = -1
+        self._stall_since = 0.0
+        # The window (one-way delays): our packets not known to have arrived, and their bound.
+        self._in_flight = 0
+        self._window = math.inf
+        self._blocked = False
+        self._lag = 0.0  # moving average of feedback's lag behind our sends, our queue excepted
         self._rate_before_stall = 0.0
         self._blind_until = -math.inf
         self._holding = False
@@ -430,7 +444,16 @@ class TeleopController(RateController):
     # ------------------------------------------------------------------ RateController
 
     def next_send_time(self) -> float:
-        return self._schedule.next_departure
+        departure = self._schedule.next_departure
+        if self._blocked:
+            # The window is full: wait for feedback, probing now and then (a link that lost what
+            # it held would otherwise never answer).
+            last = self._sending.last_send
+            if last is not None:
+                probe = last + (self._lag if self._lag > WINDOW_PROBE else WINDOW_PROBE)
+                if probe > departure:
+                    return probe
+        return departure
 
     def get_timer(self) -> float | None:
         if not self._started:
@@ -451,6 +474,9 @@ class TeleopController(RateController):
         if self._nf_deadline is None:
             self._nf_deadline = now + self._no_feedback_timeout()
         self._schedule.on_departure(now, self._rate)
+        self._in_flight += 1
+        if self._in_flight >= self._window and self._owd and not self._holding:
+            self._blocked = True
 
     def on_ack(
         self,
@@ -517,6 +543,7 @@ class TeleopController(RateController):
             # Nothing at all arrives: the way back may be what failed, and our direction was
             # delivering when last heard of. Hold what it delivered (docs/CONTROL.md 9.8).
             self._holding = True
+            self._blocked = False
             self._blind_until = now + self._cfg.blind_hold
             delivered = self._signal.rate
             hold = BLIND_SHARE * (min(before, delivered) if delivered > 0.0 else before)
@@ -543,9 +570,10 @@ class TeleopController(RateController):
             self._start_interval(now)
 
     def on_one_way_delay(
-        self, *, now: float, delay: float, sent_at: float, seq: int, hold: float
+        self, *, now: float, delay: float, sent_at: float, seq: int, hold: float, unacked: int
     ) -> None:
         self._advance(now)
+        self._in_flight = unacked
         if not self._owd:
             # From now on the queue is our direction's alone: the round trip's base and minima,
             # which carry the way back's queue too, are dropped.
@@ -566,11 +594,16 @@ class TeleopController(RateController):
         stall = self._stall_threshold()
         if self._stalled:
             if seq > self._stall_seq and hold < stall:
-                # Our packets arrive again: on at the rate from before the stall (a link that came
-                # back slower shows a queue within a round trip); what waited in its queue
+                # Our packets arrive again: on at the rate from before the stall after a short one
+                # (a scheduler's pause), at half of it after an outage (the link may come back
+                # slower: it then shows a queue within a round trip). What waited in its queue
                 # meanwhile is stale, and judges nothing.
                 self._stalled = False
-                self._set_rate(now, self._rate_before_stall)
+                resume = self._rate_before_stall
+                if now - self._stall_since > LONG_STALL:
+                    resume *= 0.5
+                    self._rate_before_decrease = self._rate_before_stall
+                self._set_rate(now, max(resume, STALL_RATE))
                 signal.gate(now)
                 self._start_interval(now)
             return
@@ -579,6 +612,7 @@ class TeleopController(RateController):
             # The peer heard nothing new from us while we kept sending: our direction stopped
             # delivering (the way back works: this stamp came). Stop feeding it.
             self._stalled = True
+            self._stall_since = now
             self._stall_seq = seq
             self._rate_before_stall = self._rate_in_use()
             self._drain_until = -math.inf
@@ -591,6 +625,20 @@ class TeleopController(RateController):
         base = self.base_rtt
         if base == math.inf or not timed:
             return
+        # The window: what the link delivers times the lag of our feedback (everything but our
+        # own queue) plus the queue we allow. Sending beyond it only queues (docs/CONTROL.md 9.7).
+        queue = delay - base
+        lag = now - sent_at - (queue if queue > 0.0 else 0.0)
+        self._lag = lag if self._lag == 0.0 else self._lag + LAG_GAIN * (lag - self._lag)
+        delivered = signal.peak  # (the highest of the last half second: a window sized by the
+        # current rate alone would shrink with every pause of a bursty link, and hold it there)
+        if delivered > 0.0:
+            allowance = 2.0 * self._target()
+            if allowance < WINDOW_QUEUE:
+                allowance = WINDOW_QUEUE
+            window = delivered * (self._lag + allowance)
+            self._window = window if window > WINDOW_MIN else WINDOW_MIN
+            self._blocked = unacked >= self._window and not self._holding
         target = self._target()
         floor = signal.queue_floor() - base
         if floor == math.inf:
@@ -813,12 +861,15 @@ class TeleopController(RateController):
                 self._delay_decreases += 1
                 self._last_decrease = now
                 self._reason = LIMIT_QUEUE_DELAY
-        elif self._owd and self._signal.slope(SLOPE_WINDOW) > GROWING:
-            # The queue grows (still short): we send more than the link delivers. Hold at what it
-            # delivers, before the queue reaches the target (docs/CONTROL.md 9.7).
-            if delivered > 0.0 and self._rate > delivered:
-                self._set_rate(now, delivered)
-                self._reason = LIMIT_QUEUE_DELAY
+        elif (
+            self._owd
+            and queue > 0.25 * target
+            and queue > previous + GROWING * target
+            and previous > self._prev2_queue_delay + GROWING * target
+        ):
+            # The standing queue grew in each of the last two intervals (still short): the probe
+            # went past what the link delivers. Hold, before the queue reaches the target.
+            pass
         elif queue <= 0.5 * target or queue <= previous:
             if self._p > cfg.heavy_loss:
                 self._capped_from = None

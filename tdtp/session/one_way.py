@@ -239,12 +239,14 @@ class OneWayDelay:
             # The peer had held our newest packet longer than HOLD can say: nothing new from us
             # reached it for over 31.7 ms. No delay to read, but news for the controller.
             recovery = self._recovery
+            seq = recovery.echo_seq
             self._controller.on_one_way_delay(
                 now=now,
                 delay=math.nan,
                 sent_at=recovery.echo_sent,
-                seq=recovery.echo_seq,
+                seq=seq,
                 hold=math.inf,
+                unacked=recovery.sent.next_seq - 1 - seq,
             )
         clock = self._stamp_clock
         rev = self._rx - clock
@@ -281,8 +283,14 @@ class OneWayDelay:
             self.samples += 1
             recovery = self._recovery
             sent = recovery.echo_sent
+            seq = recovery.echo_seq
             self._controller.on_one_way_delay(
-                now=now, delay=fwd, sent_at=sent, seq=recovery.echo_seq, hold=now - echo - sent
+                now=now,
+                delay=fwd,
+                sent_at=sent,
+                seq=seq,
+                hold=now - echo - sent,
+                unacked=recovery.sent.next_seq - 1 - seq,
             )
         if base_out == math.inf:
             return None
