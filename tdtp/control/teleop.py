@@ -33,15 +33,16 @@ the trinomial pacer spaces the packets. :attr:`TeleopController.rate_limit` says
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import ClassVar, Final
 
 from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
+from tdtp.control.competition import Competition
 from tdtp.control.equations import padhye_rate
 from tdtp.control.one_way_signal import OneWaySignal
 from tdtp.control.send_meter import GAP_GAIN, SendMeter
+from tdtp.control.teleop_config import TeleopConfig, positive_finite
 
 __all__ = [
     "LIMIT_APPLICATION",
@@ -69,9 +70,6 @@ DRAIN_LONGEST: Final = 4.0
 """A drain lasts at most this many base round trips (it ends earlier when the queue is gone)."""
 CRUISE: Final = 0.95
 """After a drain the rate is this fraction of what the link delivered while the queue built."""
-STALL_MIN: Final = 0.03
-"""Seconds the peer may hear nothing new from a sending flow before its direction counts as stalled
-(and at least four of the flow's packet gaps)."""
 OWD_PROBE: Final = 0.01
 """With one-way delays: the first probe step above what the link carried, as a fraction of the rate
 (at least ``initial_rate``); it doubles with each interval the queue stays short."""
@@ -81,8 +79,6 @@ intervals in a row stops the probe (it holds the rate)."""
 BLIND_SHARE: Final = 0.5
 """A direction whose peer went silent holds this share of what its receiver last received (one
 halving, as a loss would cost, then no more for ``blind_hold``)."""
-LONG_STALL: Final = 0.1
-"""Seconds: a stall longer than this is an outage, after which the rate resumes at half."""
 WINDOW_QUEUE: Final = 0.03
 """Seconds of queue (at the rate the link delivers) the window allows at least, above the lag of
 the feedback; more when the queue-delay target is higher (twice it)."""
@@ -91,8 +87,8 @@ WINDOW_MIN: Final = 4.0
 WINDOW_PROBE: Final = 0.05
 """A full window still lets a packet go this often (or once per lag, if longer)."""
 LAG_GAIN: Final = 0.125
-STALL_RATE: Final = 20.0
-"""Packets/s a stalled direction still carries: enough to see the link return within 50 ms."""
+DRAIN_RATE: Final = 20.0
+"""Packets/s a drain keeps sending at least (enough to see the queue go within 50 ms)."""
 MAX_STRETCH: Final = 8.0
 NOISE_GAIN: Final = 0.125
 """Gain of the moving average of the standing RTT's interval-to-interval change."""
@@ -124,171 +120,15 @@ LIMIT_BLACKOUT: Final = "no feedback"
 """No acknowledgement for several RTTs: the rate backs off until feedback returns."""
 LIMIT_PROBING: Final = "probing"
 """The pacer holds the sender and the rate is still growing towards what the path carries."""
-LIMIT_STALLED: Final = "link stalled"
-"""Our direction stopped delivering while the way back still works: a trickle until it returns."""
+LIMIT_STALLED: Final = "window full"
+"""Our packets in flight fill the window (the link delivers less than we send, or nothing): more
+would only queue; they leave as the peer reports arrivals, and a probe now and then."""
+LIMIT_COMPETING: Final = "competing (tcp-fair)"
+"""Another flow keeps the queue full whatever this one does (a loss-based TCP, BBR): the rate
+follows TCP's congestion avoidance in bytes (docs/CONTROL.md 9.9)."""
 LIMIT_HOLDING: Final = "no feedback, holding"
 """Nothing arrives from the peer (the way back is out): the rate its receiver last reported holds,
 for ``blind_hold`` seconds."""
-
-
-def _check(ok: bool, message: str) -> None:
-    if not ok:
-        raise ValueError(f"TeleopConfig.{message}")
-
-
-def _positive_finite(value: float) -> bool:
-    return 0.0 < value < math.inf
-
-
-@mypyc_attr(native_class=False)  # a plain class: __post_init__ judges the types
-@dataclass(frozen=True, slots=True)
-class TeleopConfig:
-    """Configuration of :class:`TeleopController`; docs/CONTROL.md section 9 argues every default."""
-
-    target_queue_delay: float = 0.005
-    """Seconds of queueing the flow tolerates before it slows down (a few ms: haptics)."""
-    min_rate: float = 0.0
-    """Opt-in floor, packets/s, held whatever the path signals (0 = off). Gives up fairness."""
-    initial_rate: float = 1000.0
-    """Packets/s before any feedback: a 1 kHz loop is not throttled at start."""
-    max_rate: float = 100_000.0
-    """Ceiling, packets/s."""
-    lowest_rate: float = 4.0
-    """Liveness floor, packets/s: one packet per 250 ms keeps feedback flowing in a blackout."""
-    interval: float = 0.025
-    """Shortest control interval, seconds (an interval is ``max(srtt, interval)``): long enough that a
-    1 kHz stream's RTT samples in one interval show the queue's floor through jitter."""
-    base_window: float = 10.0
-    """Seconds over which the smallest standing RTT is the path's base RTT."""
-    drain_every: float = 4.0
-    """At most every this many seconds, and only after a loss event (losses with no queue in sight
-    are what a hidden standing queue looks like), one control interval runs at ``drain_fraction`` of
-    the rate, so that a queue this flow keeps standing drains and the base RTT is measured without it
-    (BBR's ProbeRTT). Keep it below half of ``base_window``; ``math.inf`` never drains."""
-    drain_fraction: float = 0.5
-    """The rate during a drain interval, as a fraction of the rate in use."""
-    delay_decrease: float = 0.85
-    """A queue above the target sets the rate to this fraction of the rate the peer received."""
-    loss_decrease: float = 0.5
-    """A loss event with a growing queue multiplies the rate in use by this."""
-    probe_gain: float = 0.05
-    """Growth per interval once congestion has been seen (the search near the path's capacity)."""
-    ramp_gain: float = 1.0
-    """Growth per interval before congestion has been seen (1 = doubling, as slow start)."""
-    ramp_reset: float = 5.0
-    """Seconds without a congestion signal after which the ramp gain applies again."""
-    heavy_loss: float = 0.1
-    """Loss event rate above which loss alone cuts the rate by ``p / 2`` per interval (GCC's 10 %)."""
-    tcp_segment: int = 1460
-    """Segment size, bytes, of the TCP the byte-based ceiling compares the flow with."""
-    ip_overhead: int = 28
-    """Bytes below each datagram on the wire (IPv4 + UDP), counted against the flow."""
-    app_headroom: float = 2.0
-    """While the application sets the pace, the allowance grows to at most this multiple of its rate."""
-    no_feedback_rtts: float = 4.0
-    """Blackout: halve the rate after ``max(this * srtt, 2 / rate)`` without feedback (RFC 5348)."""
-    initial_rtt: float = 0.5
-    """srtt assumed before the first feedback."""
-    blind_hold: float = 2.0
-    """With one-way delays (a session with timestamps): seconds a direction whose peer has gone
-    silent keeps the rate its receiver last reported, before the no-feedback back-off resumes (the
-    way back may be what failed: docs/CONTROL.md 9.8). ``0``: back off at once, as without stamps."""
-
-    def __post_init__(self) -> None:
-        need = _check
-        need(
-            _positive_finite(self.target_queue_delay),
-            f"target_queue_delay must be a positive, finite number of seconds, "
-            f"got {self.target_queue_delay!r} (0.005 is 5 ms)",
-        )
-        need(
-            _positive_finite(self.lowest_rate),
-            f"lowest_rate must be a positive, finite rate in packets/s, got {self.lowest_rate!r}",
-        )
-        need(
-            _positive_finite(self.max_rate) and self.max_rate >= self.lowest_rate,
-            f"max_rate must be finite and at least lowest_rate ({self.lowest_rate!r}), "
-            f"got {self.max_rate!r}; use FixedConfig(rate=math.inf) for an unpaced sender",
-        )
-        need(
-            0.0 <= self.min_rate <= self.max_rate,
-            f"min_rate must be 0 (no floor) or a rate in packets/s up to max_rate "
-            f"({self.max_rate!r}), got {self.min_rate!r}",
-        )
-        need(
-            self.lowest_rate <= self.initial_rate <= self.max_rate,
-            f"initial_rate must lie between lowest_rate ({self.lowest_rate!r}) and max_rate "
-            f"({self.max_rate!r}), got {self.initial_rate!r}",
-        )
-        need(
-            _positive_finite(self.interval),
-            f"interval must be a positive, finite number of seconds, got {self.interval!r}",
-        )
-        need(
-            _positive_finite(self.base_window) and self.base_window >= self.interval,
-            f"base_window must be a finite number of seconds, at least interval "
-            f"({self.interval!r}), got {self.base_window!r}",
-        )
-        need(
-            self.drain_every > 0.0 and not math.isnan(self.drain_every),
-            f"drain_every must be a positive number of seconds (math.inf: never), "
-            f"got {self.drain_every!r}",
-        )
-        need(
-            0.0 < self.drain_fraction < 1.0,
-            f"drain_fraction must be strictly between 0 and 1, got {self.drain_fraction!r}",
-        )
-        need(
-            0.0 < self.delay_decrease < 1.0,
-            f"delay_decrease must be strictly between 0 and 1, got {self.delay_decrease!r}",
-        )
-        need(
-            0.0 < self.loss_decrease < 1.0,
-            f"loss_decrease must be strictly between 0 and 1, got {self.loss_decrease!r}",
-        )
-        need(
-            _positive_finite(self.probe_gain) and self.probe_gain <= self.ramp_gain,
-            f"probe_gain must be positive and at most ramp_gain ({self.ramp_gain!r}), "
-            f"got {self.probe_gain!r}",
-        )
-        need(
-            0.0 < self.ramp_gain <= 1.0,
-            f"ramp_gain must be in (0, 1] (1 doubles the rate per interval), got {self.ramp_gain!r}",
-        )
-        need(
-            self.ramp_reset >= 0.0,
-            f"ramp_reset must be a non-negative number of seconds, got {self.ramp_reset!r}",
-        )
-        need(
-            0.0 < self.heavy_loss <= 1.0,
-            f"heavy_loss must be a loss event rate in (0, 1], got {self.heavy_loss!r}",
-        )
-        need(
-            isinstance(self.tcp_segment, int) and 1 <= self.tcp_segment <= 65535,
-            f"tcp_segment must be a segment size in bytes (1..65535), got {self.tcp_segment!r}",
-        )
-        need(
-            isinstance(self.ip_overhead, int) and 0 <= self.ip_overhead <= 1024,
-            f"ip_overhead must be a number of bytes in 0..1024 (28 for IPv4 + UDP), "
-            f"got {self.ip_overhead!r}",
-        )
-        need(
-            self.app_headroom >= 1.0,
-            f"app_headroom must be at least 1 (math.inf disables it), got {self.app_headroom!r}",
-        )
-        need(
-            1.0 <= self.no_feedback_rtts < math.inf,
-            f"no_feedback_rtts must be a finite number of RTTs, at least 1, "
-            f"got {self.no_feedback_rtts!r}",
-        )
-        need(
-            _positive_finite(self.initial_rtt),
-            f"initial_rtt must be a positive, finite number of seconds, got {self.initial_rtt!r}",
-        )
-        need(
-            0.0 <= self.blind_hold < math.inf,
-            f"blind_hold must be a finite number of seconds, at least 0, got {self.blind_hold!r}",
-        )
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)
@@ -355,17 +195,14 @@ class TeleopController(RateController):
         self._drain_queue = 0.0  # ...to empty this queue
         self._drain_peak = 0.0  # ...the link delivering this meanwhile, at the most
         self._cruise = 0.0  # ...and what it delivered when the drain began
-        self._stalled = False
-        self._stall_seq = -1
-        self._stall_since = 0.0
         # The window (one-way delays): our packets not known to have arrived, and their bound.
         self._in_flight = 0
         self._window = math.inf
         self._blocked = False
         self._lag = 0.0  # moving average of feedback's lag behind our sends, our queue excepted
-        self._rate_before_stall = 0.0
         self._blind_until = -math.inf
         self._holding = False
+        self._competition = Competition()
         self._ups = 0  # increases in a row (one-way delays: the probe's step doubles with them)
         # Counters, for tests and statistics.
         self._delay_decreases = 0
@@ -404,10 +241,12 @@ class TeleopController(RateController):
         (``"queue delay 7.2 ms"``)."""
         if self._cfg.min_rate > 0.0 and self._rate <= self._cfg.min_rate:
             return LIMIT_FLOOR
-        if self._stalled:
+        if self._blocked:
             return LIMIT_STALLED
         if self._holding:
             return LIMIT_HOLDING
+        if self._competition.active and not self._sending.app_limited:
+            return LIMIT_COMPETING
         if self._blackout:
             return LIMIT_BLACKOUT
         if self._rate >= self._ceiling() * (1.0 - 1e-9):
@@ -475,7 +314,12 @@ class TeleopController(RateController):
             self._nf_deadline = now + self._no_feedback_timeout()
         self._schedule.on_departure(now, self._rate)
         self._in_flight += 1
-        if self._in_flight >= self._window and self._owd and not self._holding:
+        if (
+            self._in_flight >= self._window
+            and self._owd
+            and not self._holding
+            and not self._competition.active
+        ):
             self._blocked = True
 
     def on_ack(
@@ -489,7 +333,7 @@ class TeleopController(RateController):
         loss_event_rate: float,
     ) -> None:
         self._advance(now)
-        if _positive_finite(srtt):
+        if positive_finite(srtt):
             self._srtt = srtt
             # An interval lasts one current srtt: the first samples cut short the one begun under
             # initial_rtt.
@@ -509,7 +353,7 @@ class TeleopController(RateController):
 
     def on_loss_event(self, *, now: float, srtt: float, loss_event_rate: float) -> None:
         self._advance(now)
-        if _positive_finite(srtt):
+        if positive_finite(srtt):
             self._srtt = srtt
         if not math.isnan(loss_event_rate):
             self._set_p(loss_event_rate)
@@ -521,8 +365,14 @@ class TeleopController(RateController):
         queue = self._queue_delay
         previous = self._prev_queue_delay
         earlier = self._prev2_queue_delay
-        growing = queue > target or (
-            queue > 0.5 * target and queue > previous > earlier and queue - earlier > 0.5 * target
+        growing = (
+            queue > target
+            or (
+                queue > 0.5 * target
+                and queue > previous > earlier
+                and queue - earlier > 0.5 * target
+            )
+            or self._competition.active  # (competing: every loss is congestion, as for TCP)
         )
         if growing and now - self._last_decrease >= self._srtt:
             self._decrease(now, self._rate_in_use() * self._cfg.loss_decrease)
@@ -539,7 +389,7 @@ class TeleopController(RateController):
         self._advance(now)
         before = self._rate_before_blackout if self._blackout else self._rate
         self._resume_rate = max(before, self._resume_rate or 0.0)
-        if self._owd and self._cfg.blind_hold > 0.0 and not self._stalled:
+        if self._owd and self._cfg.blind_hold > 0.0:
             # Nothing at all arrives: the way back may be what failed, and our direction was
             # delivering when last heard of. Hold what it delivered (docs/CONTROL.md 9.8).
             self._holding = True
@@ -585,43 +435,10 @@ class TeleopController(RateController):
         timed = not math.isnan(delay)  # (NaN: the stamp timed none of our packets)
         if timed:
             signal.add(delay, sent_at, seq, hold)
-        if sent_at >= signal.gate_time and timed:
-            # (Packets sent before the last decision judge nothing.)
             if delay < self._iv_min_rtt:
                 self._iv_min_rtt = delay
                 self._iv_min_sent = sent_at
             self._iv_samples += 1
-        stall = self._stall_threshold()
-        if self._stalled:
-            if seq > self._stall_seq and hold < stall:
-                # Our packets arrive again: on at the rate from before the stall after a short one
-                # (a scheduler's pause), at half of it after an outage (the link may come back
-                # slower: it then shows a queue within a round trip). What waited in its queue
-                # meanwhile is stale, and judges nothing.
-                self._stalled = False
-                resume = self._rate_before_stall
-                if now - self._stall_since > LONG_STALL:
-                    resume *= 0.5
-                    self._rate_before_decrease = self._rate_before_stall
-                self._set_rate(now, max(resume, STALL_RATE))
-                signal.gate(now)
-                self._start_interval(now)
-            return
-        last = self._sending.last_send
-        if hold >= stall and last is not None and last - sent_at >= stall:
-            # The peer heard nothing new from us while we kept sending: our direction stopped
-            # delivering (the way back works: this stamp came). Stop feeding it.
-            self._stalled = True
-            self._stall_since = now
-            self._stall_seq = seq
-            self._rate_before_stall = self._rate_in_use()
-            self._drain_until = -math.inf
-            self._cruise = 0.0
-            self._capped_from = None
-            self._set_rate(now, min(self._rate, STALL_RATE))
-            self._last_decrease = self._last_congestion = now
-            self._congested_once = True
-            return
         base = self.base_rtt
         if base == math.inf or not timed:
             return
@@ -638,7 +455,9 @@ class TeleopController(RateController):
                 allowance = WINDOW_QUEUE
             window = delivered * (self._lag + allowance)
             self._window = window if window > WINDOW_MIN else WINDOW_MIN
-            self._blocked = unacked >= self._window and not self._holding
+            self._blocked = (
+                unacked >= self._window and not self._holding and not self._competition.active
+            )
         target = self._target()
         floor = signal.queue_floor() - base
         if floor == math.inf:
@@ -657,7 +476,7 @@ class TeleopController(RateController):
             else:
                 self._drain_until = now
                 self._end_drain(now)
-        elif floor > DEEP_QUEUE * target:
+        elif floor > DEEP_QUEUE * target and not self._competition.active:
             self._drain(now, floor, sent_at)
 
     def _end_drain(self, now: float) -> None:
@@ -669,17 +488,6 @@ class TeleopController(RateController):
         self._set_rate(now, min(CRUISE * delivered, self._cfg.max_rate, self._ceiling()))
         self._signal.gate(now)
         self._start_interval(now)
-
-    def _stall_threshold(self) -> float:
-        """How long the peer may hear nothing new from us before our direction counts as stalled:
-        ``STALL_MIN``, four of our packet gaps, or twice the link's usual gap between deliveries,
-        whichever is longest."""
-        use = self._rate_in_use()
-        threshold = 4.0 / use if use > 0.0 else math.inf
-        bursts = 2.0 * self._signal.gap
-        if bursts > threshold:
-            threshold = bursts
-        return threshold if threshold > STALL_MIN else STALL_MIN
 
     def _drain(self, now: float, queue: float, sent_at: float) -> None:
         """Empty a queue of ``queue`` seconds, seen by a packet sent at ``sent_at``, in about one
@@ -700,7 +508,7 @@ class TeleopController(RateController):
         if horizon < self._cfg.interval:
             horizon = self._cfg.interval
         fraction = max(1.0 - excess / horizon, DRAIN_FLOOR)
-        self._decrease(now, max(delivered * fraction, STALL_RATE), carried=delivered)
+        self._decrease(now, max(delivered * fraction, DRAIN_RATE), carried=delivered)
         # The drain's length if the link keeps delivering what it did; it ends earlier when the
         # packets sent since show the queue gone (a link that recovered empties it faster).
         self._drain_until = now + min(excess / (1.0 - fraction), DRAIN_LONGEST * horizon)
@@ -839,8 +647,23 @@ class TeleopController(RateController):
         delivered = self._iv_acked / duration
         if self._owd and self._signal.rate > 0.0:
             delivered = self._signal.rate  # measured on the peer's clock
-        if now < self._drain_until or self._stalled:
-            self._start_interval(now)  # a drain (or a stall) sets the rate until it ends
+        competition = self._competition
+        if competition.active:
+            self._compete(now, queue, target, duration)
+            self._start_interval(now)
+            return
+        compete_from = competition.observe(now, queue, target, self._rate, self._srtt)
+        if compete_from > 0.0:
+            # The queue stayed up whatever this flow did: another keeps it (docs/CONTROL.md 9.9).
+            self._drain_until = -math.inf
+            self._cruise = 0.0
+            self._blocked = False
+            self._capped_from = None
+            self._set_rate(now, max(compete_from, self._rate))
+            self._start_interval(now)
+            return
+        if now < self._drain_until:
+            self._start_interval(now)  # a drain sets the rate until it ends
             return
         ups = self._ups
         self._ups = 0  # (kept by an increase)
@@ -893,6 +716,37 @@ class TeleopController(RateController):
             self._capped_from = None
             self._set_rate(now, self._rate_in_use() * cfg.drain_fraction)
             self._iv_end = now + 2.0 * self._nominal_interval()
+
+    def _compete(self, now: float, queue: float, target: float, duration: float) -> None:
+        """An interval of the competitive mode: TCP's additive increase in bytes, or a check
+        whether the competitor is still there (the loss rule does the halving)."""
+        competition = self._competition
+        if competition.probing:
+            restore = competition.during_probe(now, queue, target)
+            if restore == 0.0:
+                self._ups = 0  # the queue was ours: back to the delay mode from here
+            elif restore > 0.0:
+                self._set_rate(now, restore)
+            return
+        probe = competition.probe_due(now, self._rate_in_use(), self._srtt)
+        if probe > 0.0:
+            self._capped_from = None
+            self._set_rate(now, probe)
+            return
+        if competition.full(queue):
+            if now - self._last_decrease >= self._srtt:
+                self._decrease(now, self._rate_in_use() * self._cfg.loss_decrease)
+                self._last_decrease = now
+            return
+        cfg = self._cfg
+        size = (self._mean_size if self._mean_size > 0.0 else 100.0) + cfg.ip_overhead
+        rate = self._rate
+        ceiling = min(cfg.max_rate, self._ceiling())
+        if self._sending.app_limited:
+            ceiling = min(ceiling, max(rate, cfg.app_headroom * self._sending.send_rate()))
+        step = competition.step(self._srtt, duration, size, cfg.tcp_segment)
+        if ceiling > rate:
+            self._set_rate(now, min(rate + step, ceiling))
 
     def _increase(self, now: float) -> None:
         cfg = self._cfg

@@ -50,6 +50,8 @@ from tdtp.wire.control import (
     PathChallengeBody,
     PathResponseBody,
     ResetBody,
+    TimedDataBody,
+    TimestampBody,
     decode_control,
     encode_open,
     encode_open_ack,
@@ -249,7 +251,9 @@ class Handshake:
             | PathChallengeBody
             | PathResponseBody
             | MessageBody
-            | MessageAckBody,
+            | MessageAckBody
+            | TimestampBody
+            | TimedDataBody,
         ):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
         elif body.nonce != self.master_nonce:
