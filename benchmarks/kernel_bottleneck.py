@@ -287,6 +287,7 @@ def tdtp_figures(master: Json, slave: Json) -> Json:
             "latency_p99_ms": latency.get("p99"),
             "srtt_ms": sent["srtt_ms"],
             "allowed_rate": sent["allowed_rate"],
+            "rate_limit": sent.get("rate_limit"),
             "losses": sent["losses"],
             "superseded": sent["samples_superseded"],
             # Data packets only: ACKs ride in them, handshakes are a few bytes more.

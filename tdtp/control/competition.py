@@ -33,12 +33,13 @@ ENTER_AFTER: Final = 1.0
 ENTER_RTTS: Final = 8.0
 """...and at least this many round trips (a long path's drains take longer to show)."""
 INCREASE: Final = 0.5
-"""Segments per round trip the competitive mode adds: half of TCP's one, so that the flow's
-long-run byte share stays at or below a Reno flow's (``sqrt(a)`` of it in the AIMD model) where a
-drop-tail buffer spares its small packets (a byte-counted one drops a full segment first)."""
+"""Segments per round trip the competitive mode adds (Reno adds one, CUBIC's TCP-friendly region
+0.53 with a decrease of 0.7; measured beside the kernel's cubic and bbr, docs/CONTROL.md 9.9)."""
+DECREASE: Final = 0.7
+"""The competitive mode's decrease per loss event (or full buffer): CUBIC's ``beta``."""
 FULL: Final = 0.8
 """Competitive mode: a standing queue this share of the highest seen counts as a full buffer."""
-PROBE_EVERY: Final = 5.0
+PROBE_EVERY: Final = 10.0
 """Seconds between the competitive mode's checks that the competitor is still there."""
 PROBE_SHARE: Final = 0.25
 """The rate during such a check, as a share of the rate in use."""
@@ -50,6 +51,7 @@ class Competition:
     """The congestion episode under way, the mode, and the competitive mode's checks."""
 
     __slots__ = (
+        "_armed",
         "_cleared",
         "_episode_rate",
         "_next_probe",
@@ -59,6 +61,7 @@ class Competition:
         "_top",
         "active",
         "entries",
+        "last_loss",
     )
 
     def __init__(self) -> None:
@@ -66,12 +69,15 @@ class Competition:
         """The flow competes (TCP's additive increase and halving, no queue-delay cuts)."""
         self.entries = 0
         """Times the flow turned competitive."""
+        self.last_loss = -math.inf
+        """When the flow last saw a loss event (the controller keeps it up to date)."""
         self._since = math.inf  # the standing queue above the target since then
         self._episode_rate = 0.0  # the rate when that began
         self._next_probe = math.inf
         self._probe_until = -math.inf
         self._restore = 0.0
         self._cleared = False
+        self._armed = True
         self._top = 0.0  # the highest standing queue seen while competing
 
     @property
@@ -100,14 +106,21 @@ class Competition:
         self._top = queue
         return 0.5 * self._episode_rate
 
-    def full(self, queue: float) -> bool:
+    def full(self, now: float, queue: float) -> bool:
         """Competitive mode, at the end of an interval: whether the standing ``queue`` is near the
-        highest seen while competing, where a drop-tail buffer overflows: the competitor loses
-        packets and halves there, and a flow that loses none (small paced packets rarely meet a
-        full buffer) halves with it instead of taking its share."""
+        highest seen while competing, where a drop-tail buffer overflows: there a loss-based
+        competitor loses its segments and decreases, while this flow's small paced packets mostly
+        find room (a byte-counted buffer drops a full segment first); it decreases with the
+        competitor instead of taking its share. Once per overflow: a competitor that keeps the
+        buffer full (BBR) takes one decrease, not one per round trip."""
         if queue > self._top:
             self._top = queue
-        return queue >= FULL * self._top
+        if queue < FULL * self._top:
+            self._armed = True  # the queue fell back: the next overflow is a new one
+            return False
+        armed = self._armed
+        self._armed = False  # (one decrease per overflow, as a TCP takes one per loss event)
+        return armed
 
     def step(self, srtt: float, duration: float, packet_bytes: float, segment: int) -> float:
         """TCP's additive increase over ``duration`` seconds, in packets/s: one ``segment`` per
@@ -126,8 +139,9 @@ class Competition:
     def during_probe(self, now: float, queue: float, target: float) -> float:
         """At the end of an interval of a check: -1.0 while it goes on; else 0.0 (the queue was
         ours: back to the delay mode, at the current rate) or the rate to compete on at."""
-        if queue <= target:
-            self._cleared = True
+        # (The queue as the check ends: a competitor that keeps a queue of its own without filling
+        # the buffer, BBR, refills it while this flow holds back; one that left does not.)
+        self._cleared = queue <= target
         if now < self._probe_until:
             return -1.0
         self._probe_until = -math.inf

@@ -38,6 +38,7 @@ from typing import ClassVar, Final
 from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
+from tdtp.control.competition import DECREASE as COMPETE_DECREASE
 from tdtp.control.competition import Competition
 from tdtp.control.equations import padhye_rate
 from tdtp.control.one_way_signal import OneWaySignal
@@ -359,6 +360,7 @@ class TeleopController(RateController):
             self._set_p(loss_event_rate)
         self._loss_since_drain = True
         self._loss_events += 1
+        self._competition.last_loss = now
         target = self._target()
         # As the last complete interval measured the queue (a part of one has too few samples to
         # see through jitter): standing above half the target, or grown by a quarter of it.
@@ -375,7 +377,8 @@ class TeleopController(RateController):
             or self._competition.active  # (competing: every loss is congestion, as for TCP)
         )
         if growing and now - self._last_decrease >= self._srtt:
-            self._decrease(now, self._rate_in_use() * self._cfg.loss_decrease)
+            factor = COMPETE_DECREASE if self._competition.active else self._cfg.loss_decrease
+            self._decrease(now, self._rate_in_use() * factor)
             self._loss_decreases += 1
             self._last_decrease = self._last_congestion = now
             self._congested_once = True
@@ -733,9 +736,9 @@ class TeleopController(RateController):
             self._capped_from = None
             self._set_rate(now, probe)
             return
-        if competition.full(queue):
+        if competition.full(now, queue):
             if now - self._last_decrease >= self._srtt:
-                self._decrease(now, self._rate_in_use() * self._cfg.loss_decrease)
+                self._decrease(now, self._rate_in_use() * COMPETE_DECREASE)
                 self._last_decrease = now
             return
         cfg = self._cfg
