@@ -18,6 +18,7 @@ from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import Address, ConnectionClosed, DataReceived
 from tdtp.session.handshake import Handshake
 from tdtp.session.liveness import Liveness
+from tdtp.session.one_way import OneWayDelay
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.sample_age import SampleAgeHistogram
 from tdtp.session.sender import SampleSender
@@ -46,6 +47,7 @@ class ConnectionView:
     _close_event: ConnectionClosed | None
     _ages: SampleAgeHistogram
     _delivery: SampleDelivery
+    _one_way: OneWayDelay
 
     # ------------------------------------------------------------------ introspection
 
@@ -180,4 +182,9 @@ class ConnectionView:
         stats.sample_age_p99 = ages.quantile(0.99)
         stats.rate = self._controller.rate
         stats.rate_limit = self._controller.rate_limit
+        one_way = self._one_way
+        stats.timestamps = one_way.enabled
+        stats.queue_delay_out = one_way.queue_out
+        stats.queue_delay_in = one_way.queue_in
+        stats.stamps_rejected = one_way.stamps_rejected
         return stats
