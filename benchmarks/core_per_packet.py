@@ -14,7 +14,7 @@ fake time, then, five rounds each, the figure being the round with the least CPU
   an acknowledgement) with ``datagrams_to_send`` and the events after each; CPU per packet sent and
   received (both sides' work for it).
 
-No target: it is the profile's yardstick for the per-packet paths (benchmarks/README.md, "The
+No target: it is the profile's yardstick for the per-packet paths (benchmarks/HISTORY.md, "The
 per-packet paths of the core").
 """
 

@@ -23,7 +23,7 @@ of the chunks (another tenant on the machine inflates some chunks, not most).
 
 ``--reduce rx`` (or ``tx``) runs that side's chunks inside ``functools.reduce``, so that
 ``valgrind --tool=callgrind --toggle-collect=functools_reduce`` counts the instructions of that side
-alone: a figure the other tenants do not move (benchmarks/README.md, "Third round on the pure path").
+alone: a figure the other tenants do not move (benchmarks/HISTORY.md, "Third round on the pure path").
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ import struct
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator, Callable, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -167,6 +167,9 @@ class Meter:
     newest_sent: float = -math.inf
     ages: list[float] = field(default_factory=list)
     last_arrival: float = 0.0
+    sent_times: list[float] = field(default_factory=list)
+    """Send time of each sample of the window that arrived, in arrival order (cellular.py)."""
+    arrival_times: list[float] = field(default_factory=list)
 
     def arrived(self, payload: bytes, now: float) -> None:
         self.last_arrival = now
@@ -183,6 +186,8 @@ class Meter:
         else:
             self.received_late += 1
         self.latencies.append(now - sent_at)
+        self.sent_times.append(sent_at)
+        self.arrival_times.append(now)
         if sent_at > self.newest_sent:
             self.newest_sent = sent_at
 
@@ -291,41 +296,68 @@ def directions(meters: tuple[Meter, Meter], offered: list[int], duration: float)
 # ---------------------------------------------------------------------------- tdtp cells
 
 
+async def tdtp_pair(
+    stack: contextlib.AsyncExitStack,
+    config: tdtp.ConnectionConfig,
+    on_slave: Callable[[tdtp.DataReceived], None],
+    on_master: Callable[[tdtp.DataReceived], None],
+    *,
+    ms: str | None,
+    sm: str | None,
+    seed: int,
+    via: Callable[[int], Awaitable[int]] | None = None,
+) -> tuple[tdtp.Endpoint, tdtp.Endpoint]:
+    """A master and a slave on loopback, on ``stack``: the slave impairs what it sends with ``sm``
+    (seed + 1), the master with ``ms`` (seed); ``via(port)`` puts something in between (a relay) and
+    returns the port the master is to reach."""
+    server = await stack.enter_async_context(
+        tdtp.listen(
+            "127.0.0.1",
+            0,
+            config=config,
+            on_data=on_slave,
+            netem=sm,
+            netem_seed=None if sm is None else seed + 1,
+        )
+    )
+    port = server.port if via is None else await via(server.port)
+    master = await stack.enter_async_context(
+        tdtp.connect(
+            "127.0.0.1",
+            port,
+            config=config,
+            on_data=on_master,
+            netem=ms,
+            netem_seed=None if ms is None else seed,
+        )
+    )
+    return master, await server.accept()
+
+
 async def tdtp_cell(
     controller: str, spec: str | None, duration: float, seed: int, via_relay: bool
 ) -> Json:
     config = tdtp.ConnectionConfig(controller=controller, min_peer_payload=SIZE)  # type: ignore[arg-type]
     at_slave, at_master = Meter(), Meter()
     in_process = None if via_relay else spec
-    relay: Relay | None = None
     async with contextlib.AsyncExitStack() as stack:
-        server = await stack.enter_async_context(
-            tdtp.listen(
-                "127.0.0.1",
-                0,
-                config=config,
-                on_data=lambda e: at_slave.arrived(e.payload, e.received_at),
-                netem=in_process,
-                netem_seed=None if in_process is None else seed + 1,
-            )
-        )
-        port = server.port
-        if via_relay:
+
+        async def through_relay(port: int) -> int:
             relay = Relay(spec, port, seed)
             stack.callback(relay.close)
-            await asyncio.sleep(0.5)  # the relay's interpreter starting
-            port = relay.port
-        master = await stack.enter_async_context(
-            tdtp.connect(
-                "127.0.0.1",
-                port,
-                config=config,
-                on_data=lambda e: at_master.arrived(e.payload, e.received_at),
-                netem=in_process,
-                netem_seed=None if in_process is None else seed,
-            )
+            await relay.ready()
+            return relay.port
+
+        master, slave = await tdtp_pair(
+            stack,
+            config,
+            lambda e: at_slave.arrived(e.payload, e.received_at),
+            lambda e: at_master.arrived(e.payload, e.received_at),
+            ms=in_process,
+            sm=in_process,
+            seed=seed,
+            via=through_relay if via_relay else None,
         )
-        slave = await server.accept()
         meters = (at_slave, at_master)
 
         def running() -> bool:
@@ -405,6 +437,21 @@ class Relay:
         self.process = subprocess.Popen(
             command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
+
+    async def ready(self, patience: float = 30.0) -> None:
+        """Until the relay has bound its port (its interpreter takes a while to start on a loaded
+        machine, and a datagram sent before would meet an ICMP port unreachable)."""
+        deadline = time.monotonic() + patience
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                raise RuntimeError(f"netem-relay exited with {self.process.returncode}")
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+                try:
+                    probe.bind(("127.0.0.1", self.port))
+                except OSError:
+                    return  # taken: the relay listens
+            await asyncio.sleep(0.05)
+        raise RuntimeError(f"netem-relay did not listen within {patience:.0f} s")
 
     def close(self) -> Json:
         """Stop it (SIGINT: it prints its JSON summary) and return that summary."""
@@ -529,7 +576,7 @@ async def _zenoh_ends(
     relay = Relay(spec, slave_port, seed, return_spec)
     sessions: list[Any] = []
     try:
-        await asyncio.sleep(0.5)  # the relay's interpreter starting
+        await relay.ready()
         pair.opened_at = tdtp.monotonic()
         slave = zenoh.open(zenoh_config([f"udp/127.0.0.1:{slave_port}"], []))
         sessions.append(slave)
@@ -595,7 +642,7 @@ async def _udp_ends(
     relay = Relay(spec, slave_t.get_extra_info("sockname")[1], seed, return_spec)
     master_t = None
     try:
-        await asyncio.sleep(0.5)
+        await relay.ready()
         pair.opened_at = tdtp.monotonic()
         master_t, _ = await loop.create_datagram_endpoint(
             lambda: UdpReceiver(on_master), remote_addr=("127.0.0.1", relay.port)

@@ -15,7 +15,7 @@ Method. Two processes on loopback, each pinned to its own CPU (on 2 cores the sl
   ``--serve task`` gives each its own task iterating ``async for index in ticker`` (as
   ``examples/slave.py``), which costs a future, a task step and an async generator step per session
   per tick (1.5-3 us of CPU per session-tick more on this VM, of the 25-35 us a session costs per
-  ms: benchmarks/README.md, "Why the slave's ticks are late").
+  ms: benchmarks/HISTORY.md, "Why the slave's ticks are late").
 - the **masters**: N ``tdtp.connect`` endpoints in one process on uvloop; one shared 1 kHz ticker sends a
   100-byte sample to every endpoint per tick (one wake-up per period for all N, to keep the load
   generator cheap), and an ``on_data`` callback per endpoint takes the slave's samples.
@@ -41,7 +41,7 @@ virtual CPUs are resumed late by the host (the kernel runs ``cpuidle_haltpoll`` 
 ``guest_halt_poll_ns=0``: a CPU with nothing to do halts at once). A bare 1 kHz ``timerfd`` loop on
 an idle machine wakes more than 1 ms late 2-7 % of the time (p99 1.8-3.9 ms), 0.3-0.5 % when the CPU
 is kept from idling, so a slave whose core idles between ticks is late on that share of its ticks
-whatever it does, at 10 sessions as at 50 (benchmarks/README.md, "Why the slave's ticks are late").
+whatever it does, at 10 sessions as at 50 (benchmarks/HISTORY.md, "Why the slave's ticks are late").
 Under contention spinning backfires (the busy-waiting process loses its time slice), hence not the
 default. The spin is CPU the
 slave burns on purpose: the slave's CPU column includes it, the column beside it says how much it
@@ -87,7 +87,7 @@ figures against each (ratios paired by ramp), beside tdtp's own rows, which are 
   ``timerfd`` (absolute first expiry, then every period, re-armed by the kernel: one ``read`` per
   tick) watched with ``loop.add_reader``. Not ``loop.call_at`` on an absolute schedule: on uvloop
   that is libuv's millisecond timer against a clock cached per loop iteration, whose own error is
-  a large part of the 1 ms that "late" allows (benchmarks/README.md, pacing: naive ``call_at`` on
+  a large part of the 1 ms that "late" allows (benchmarks/HISTORY.md, pacing: naive ``call_at`` on
   uvloop deviates by 596 us at p99 against the ``timerfd``'s 108, and fired early in 46 % of
   periods), so the baseline would be late by its timer's rounding, not by the machine.
   Each tick due (the ``Ticker``'s catch-up rule: a stall of more than 10 periods skips to the tick

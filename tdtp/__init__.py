@@ -31,10 +31,11 @@ from tdtp.errors import (
     PayloadTooLargeError,
     PayloadTypeError,
     PortUnreachableError,
+    ReconnectingError,
     ServerClosedError,
     TdtpError,
 )
-from tdtp.protection.key_file import load_keys, write_key_file
+from tdtp.protection.key_file import load_key, load_keys, write_key_file
 from tdtp.protection.keys import KeyRing, PresharedKey
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
@@ -104,6 +105,7 @@ __all__ = [
     "PresharedKey",
     "ReconnectPolicy",
     "ReconnectRecord",
+    "ReconnectingError",
     "Role",
     "Server",
     "ServerClosedError",
@@ -116,11 +118,12 @@ __all__ = [
     "build_info",
     "connect",
     "listen",
+    "load_key",
     "load_keys",
     "monotonic",
     "write_key_file",
 ]
 
-# mypyc drops class docstrings: put those of the public classes back, so that help(tdtp.DataReceived)
-# reads the same in both builds.
-_restore_class_docstrings(sorted({getattr(globals()[name], "__module__", "") for name in __all__}))
+# mypyc drops the docstrings of the classes it leaves plain Python (setup.py writes the others' into
+# the compiled tables): put them back, so that help(tdtp.DataReceived) reads the same in both builds.
+_restore_class_docstrings()

@@ -14,7 +14,8 @@ exist:
   modules run instead and a warning says how to recompile.
 
 This module is imported first by ``tdtp/__init__.py``, before any compiled module, and is itself never
-compiled.
+compiled. The optional plain-C extensions beside the core are loaded by :mod:`tdtp._extensions`
+(re-exported here), which the core imports without this module.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import Final
+
+from tdtp._extensions import PURE_ENV, load_extension, pure_requested
 
 __all__ = ["COMPILED_MODULES", "PURE_ENV", "BuildInfo", "build_info", "load_extension"]
 
@@ -83,9 +86,6 @@ COMPILED_MODULES: Final = (
 )
 """The modules setup.py compiles (a test checks that both lists agree)."""
 
-PURE_ENV: Final = "TDTP_PURE_PYTHON"
-"""Set to a non-empty value other than ``0`` to run the pure-Python modules although extensions exist."""
-
 _PACKAGE_DIR: Final = Path(__file__).resolve().parent
 _SHARED_LIB: Final = "_core__mypyc"
 
@@ -102,6 +102,7 @@ class BuildInfo:
 
     @property
     def compiled(self) -> bool:
+        """Whether the mypyc-compiled core runs."""
         return self.build == "compiled"
 
     def describe(self) -> str:
@@ -109,6 +110,7 @@ class BuildInfo:
         return "compiled (mypyc)" if self.compiled else f"pure Python ({self.reason})"
 
     def as_dict(self) -> dict[str, str]:
+        """``{"build": ..., "reason": ...}``, for a JSON summary."""
         return {"build": self.build, "reason": self.reason}
 
     def __repr__(self) -> str:
@@ -162,7 +164,7 @@ def _stale_source(library: Path) -> str | None:
 
 def _choose() -> BuildInfo:
     library = _shared_library()
-    if os.environ.get(PURE_ENV, "") not in ("", "0"):
+    if pure_requested():
         reason = f"{PURE_ENV} is set"
     elif library is None:
         reason = "no compiled extensions: installed without a C compiler, or with TDTP_PURE_BUILD"
@@ -178,31 +180,6 @@ def _choose() -> BuildInfo:
 
 
 _INFO: Final = _choose()
-
-
-def load_extension(name: str, source: Path) -> tuple[ModuleType | None, str]:
-    """One of tdtp's optional plain-C extensions (built by setup.py beside the mypyc core, e.g. the
-    datagram engine): the module, or ``None`` and why not. Not with ``TDTP_PURE_PYTHON=1``, not
-    where it was not built, and not in a checkout whose ``source`` was edited after the build (as
-    for the core, stale machine code would silently ignore the edit)."""
-    if os.environ.get(PURE_ENV, "") not in ("", "0"):
-        return None, f"{PURE_ENV} is set"
-    try:
-        module = importlib.import_module(name)  # optional: setup.py builds it
-    except ImportError:
-        return None, "the C extension is not built: no C compiler, or TDTP_PURE_BUILD"
-    library = getattr(module, "__file__", None) or ""
-    checkout = _PACKAGE_DIR.parent
-    try:
-        stale = (checkout / "setup.py").is_file() and (
-            source.stat().st_mtime > Path(library).stat().st_mtime
-        )
-    except OSError:
-        stale = False
-    if stale:
-        where = source.resolve().relative_to(checkout) if source.is_absolute() else source
-        return None, f"the C extension is older than {where.as_posix()}; run `make build`"
-    return module, ""
 
 
 def build_info() -> BuildInfo:
@@ -225,10 +202,13 @@ _CLASS_DOC: Final = re.compile(
 def restore_class_docstrings(modules: Sequence[str] = COMPILED_MODULES) -> int:
     """Give the classes of the compiled modules their docstrings back, from the ``.py`` beside them.
 
-    mypyc drops class docstrings (native classes get none, plain ones ``"mypyc filler docstring"``),
-    so ``help(tdtp.DataReceived)`` would say nothing in the compiled build. A scan of the sources (a
-    regular expression, not a parse: about a millisecond for the whole core) puts them back. Returns
-    how many classes got theirs; does nothing in the pure build, where Python kept them.
+    mypyc drops docstrings. setup.py writes those of the functions, methods, properties and
+    native classes into the compiled tables as it builds; the classes mypyc leaves plain Python
+    (``mypyc_attr(native_class=False)``, dataclasses, enums) get ``"mypyc filler docstring"``, so
+    ``help(tdtp.DataReceived)`` would say nothing in the compiled build. A scan of the sources (a
+    regular expression, not a parse: about a millisecond for the whole core) puts theirs back (and
+    any a build missed). Returns how many classes got theirs; does nothing in the pure build, where
+    Python kept them.
     """
     if not _INFO.compiled:
         return 0

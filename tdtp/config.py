@@ -31,10 +31,13 @@ MAX_CONTROL_WINDOW = 4096
 """The largest ``control_window``: far below the 32768 that 16-bit message numbers can tell apart."""
 
 KEEPALIVE_PER_SILENCE = 3
-MAX_REORDER_WAIT = 1.0
-"""The longest reorder wait a connection accepts (s): beyond it a sample is no longer real-time."""
 """With ``keepalive_interval`` left to its default, a quiet peer sends this many keep-alives per
 ``silence_timeout``: one lost keep-alive never makes a healthy peer look silent."""
+MAX_REORDER_WAIT = 1.0
+"""The longest reorder wait a connection accepts (s): beyond it a sample is no longer real-time."""
+RECLAIM_SILENCES = 10
+"""``AdmissionConfig.reclaim_after`` is at least this many watchdog periods (``silence_timeout``):
+a slot is reclaimed from a master that is gone, never from one the watchdog saw hiccup."""
 
 
 class Role(enum.Enum):
@@ -97,10 +100,28 @@ class AdmissionConfig:
     migration_quiet: float = 0.005
     """A session is a candidate for path migration once nothing has come from its master's address
     for this long (a master sends at least once per keep-alive interval)."""
+    reclaim_after: float = 10.0
+    """A full slave gives a session's slot to a new master only once nothing has been heard from
+    that session's master for this long: its master is gone, not hiccuping (docs/PROTOCOL.md 5.1,
+    rule 2.7). Far longer than any Wi-Fi hiccup, GC pause or handover the watchdog reports (it must
+    be at least ``RECLAIM_SILENCES`` x ``silence_timeout``), shorter than ``idle_timeout`` (30 s)
+    so that a vanished master's slot frees sooner when another master needs it."""
+    source_share: float = 0.5
+    """The share of ``max_peers`` one source may hold (``floor(share x max_peers)``, at least one
+    slot): an IPv4 address, the /64 of a global IPv6 address; loopback is exempt
+    (:mod:`tdtp.admission.slots`). 0.5: no source ever holds most of a slave's slots; 1.0: no
+    bound."""
 
     def __post_init__(self) -> None:
         _positive_finite("cookie_lifetime", self.cookie_lifetime)
         _positive_finite("migration_quiet", self.migration_quiet)
+        _positive_finite("reclaim_after", self.reclaim_after)
+        _require(
+            isinstance(self.source_share, int | float)
+            and not isinstance(self.source_share, bool)
+            and 0.0 < self.source_share <= 1.0,
+            f"source_share must be a fraction of max_peers in (0, 1], got {self.source_share!r}",
+        )
         for name in (
             "opens_per_source",
             "replies_per_second",
@@ -329,6 +350,13 @@ class ConnectionConfig:
         _require(
             isinstance(self.admission, AdmissionConfig),
             f"admission must be an AdmissionConfig, got {self.admission!r}",
+        )
+        _require(
+            self.admission.reclaim_after >= RECLAIM_SILENCES * self.silence_timeout,
+            f"admission.reclaim_after ({self.admission.reclaim_after:g} s) must be at least "
+            f"{RECLAIM_SILENCES} x silence_timeout ({self.silence_timeout:g} s): a slot goes to "
+            "another master only once its master is gone, never after a hiccup the watchdog "
+            "reports; raise reclaim_after (AdmissionConfig(reclaim_after=...))",
         )
         _require(
             self.controller_config is None or isinstance(self.controller_config, config_type),

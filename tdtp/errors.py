@@ -86,6 +86,13 @@ class EndpointClosedError(ConnectionClosedError, ConnectionError):
         super().__init__(f"TDTP connection closed ({event.cause.value}): {event.detail}", event)
 
 
+class ReconnectingError(ConnectionStateError):
+    """A reconnecting endpoint (``tdtp.connect(..., reconnect=...)``) has no session right now: the
+    last one ended and the next is opening. A control message is refused at once rather than queued
+    for a session that may open much later, or on a slave that restarted since (docs/PROTOCOL.md
+    5.10); send it again once the endpoint is established (``await ep.wait_resumed()``)."""
+
+
 class ConnectError(TdtpError, ConnectionError):
     """The slave did not accept: no answer within ``open_timeout``, or an explicit refusal."""
 

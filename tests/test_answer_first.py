@@ -82,7 +82,9 @@ def test_anything_read_after_an_input_sees_the_acknowledgement() -> None:
         assert master._stats.packets_acked == acked + 1, read
 
 
-def test_an_optimistic_ack_is_still_dropped_at_once() -> None:
+def test_an_optimistic_ack_is_still_ignored_at_once() -> None:
+    """The acknowledgement names a packet never sent: nothing of it is used, nor left pending; the
+    sample it carries is delivered (PROTOCOL.md 3.1: one forged field costs only itself)."""
     master, slave, now = _established()
     slave.receive_datagram(_data(master, now), MASTER, now=now)
     answer = bytearray(_data(slave, now))  # it carries an ACK (not HOLD_NO_ACK)
@@ -93,10 +95,12 @@ def test_an_optimistic_ack_is_still_dropped_at_once() -> None:
     answer[2] = (forged_ack >> 2) & 0xFF
     answer[3] = ((forged_ack & 0x03) << 6) | (answer[3] & 0x3F)
     dropped = master.stats.drops.get(DropReason.OPTIMISTIC_ACK.value, 0)
+    acked = master._stats.packets_acked
     master.receive_datagram(bytes(answer), SLAVE, now=now + 0.001)
-    assert master.next_event() is None  # never delivered
+    assert master.next_event() is not None  # the sample is delivered
     assert not master._recovery.pending
-    assert master.stats.drops.get(DropReason.OPTIMISTIC_ACK.value, 0) == dropped + 1
+    assert master.stats.drops.get(DropReason.OPTIMISTIC_ACK.value, 0) == dropped
+    assert master.stats.optimistic_acks == 1 and master._stats.packets_acked == acked
 
 
 def test_consecutive_datagrams_are_acknowledged_as_if_each_finished_at_once() -> None:

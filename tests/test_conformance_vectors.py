@@ -1,4 +1,4 @@
-"""tdtp against its own conformance vectors (tests/vectors/tdtp-v3-*.json, tests/vectors/README.md).
+"""tdtp against its own conformance vectors (tests/vectors/tdtp-v4-*.json, tests/vectors/README.md).
 
 The files are data for any implementation; this is tdtp's runner. It reads the committed files (it
 never regenerates them) and checks every vector, so a change of behaviour that the vectors pin fails
@@ -23,6 +23,7 @@ from tdtp.protection.derivation import (
 )
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
 from tdtp.session.receive_window import ReceiveWindow
+from tdtp.session.recovery import loss_delay_of
 from tdtp.session.rtt import RttEstimator
 from tdtp.session.sent_log import LostPacket, SentPacketLog
 from tdtp.session.stats import DropReason
@@ -41,15 +42,25 @@ from tdtp.wire.errors import MalformedPacketError
 VECTORS = Path(__file__).resolve().parent / "vectors"
 sys.path.insert(0, str(VECTORS))
 
-from tdtp_adapter import ScriptRunner  # noqa: E402
+from tdtp_adapter import ScriptRunner, ServerRunner  # noqa: E402
 
 FORMAT_VERSION = 1
-SUITES = ("header", "hold", "seqnum", "control", "receiver", "sender", "keyed", "endpoint")
+SUITES = (
+    "header",
+    "hold",
+    "seqnum",
+    "control",
+    "receiver",
+    "sender",
+    "keyed",
+    "endpoint",
+    "server",
+)
 
 
 def _load(suite: str) -> dict[str, Any]:
     data: dict[str, Any] = json.loads(
-        (VECTORS / f"tdtp-v3-{suite}.json").read_text(encoding="utf-8")
+        (VECTORS / f"tdtp-v4-{suite}.json").read_text(encoding="utf-8")
     )
     return data
 
@@ -59,13 +70,13 @@ def _approx(value: float | None) -> object:
 
 
 def test_every_file_is_a_known_format_version_and_suite() -> None:
-    files = sorted(path.name for path in VECTORS.glob("tdtp-v3-*.json"))
-    assert files == sorted(f"tdtp-v3-{suite}.json" for suite in SUITES)
+    files = sorted(path.name for path in VECTORS.glob("tdtp-v4-*.json"))
+    assert files == sorted(f"tdtp-v4-{suite}.json" for suite in SUITES)
     for suite in SUITES:
         data = _load(suite)
         assert data["format"] == "tdtp-conformance-vectors"
         assert data["format_version"] == FORMAT_VERSION
-        assert data["protocol_version"] == 3
+        assert data["protocol_version"] == 4
         assert data["suite"] == suite
         assert data["description"]
 
@@ -158,7 +169,7 @@ def check_receiver(data: dict[str, Any]) -> int:
                     window.mark_reported()
                 assert acks == event["acks"], (case["name"], event)
             else:
-                arrival, full, gap = window.on_data(event["seq"], 0.0)
+                arrival, full, gap = window.on_data(event["seq"], event.get("at", 0.0))
                 assert (arrival.value, full, gap) == (event["kind"], event["full"], event["gap"])
                 acks = [[held.ack, held.sack] for held in window.take_held()]
                 if window.coverage_exhausted():
@@ -167,11 +178,6 @@ def check_receiver(data: dict[str, Any]) -> int:
                 assert acks == event["acks"], (case["name"], event)
             checked += 1
     return checked
-
-
-def _loss_delay(rtt: RttEstimator, ack_delay: float) -> float:
-    """PROTOCOL.md 5.4: 1.2 srtt + max(4 rttvar, 1 ms) + ack_delay."""
-    return 1.2 * rtt.srtt + max(4.0 * rtt.rttvar, 0.001) + ack_delay
 
 
 def check_sender(data: dict[str, Any]) -> int:
@@ -186,12 +192,14 @@ def check_sender(data: dict[str, Any]) -> int:
             assert log.on_sent(packet["at"], 100, lost) == packet["seq"]
 
         ack_delay = case["ack_delay"]
+        # PROTOCOL.md 5.4: computed at the start and after each RTT sample, kept in between.
+        delay = loss_delay_of(rtt, log.reorder_window_scale, ack_delay)
         for event in case["events"]:
             expect = event["expect"]
             at = event["at"]
             lost = []
             if event.get("event") == "timer":
-                log.detect_losses(at, _loss_delay(rtt, ack_delay), lost)
+                log.detect_losses(at, delay, lost)
             else:
                 hold = decode_hold(event["hold"])
                 full = log.expand_ack(event["ack"], hold, at, rtt.srtt)
@@ -203,7 +211,8 @@ def check_sender(data: dict[str, Any]) -> int:
                 outcome = log.on_ack(full, event["sack"], hold, at)
                 if outcome.rtt_sample is not None:
                     rtt.on_sample(outcome.rtt_sample)
-                log.detect_losses(at, _loss_delay(rtt, ack_delay), lost)
+                    delay = loss_delay_of(rtt, log.reorder_window_scale, ack_delay)
+                log.detect_losses(at, delay, lost)
                 assert outcome.newly_acked == expect["newly_acked"], case["name"]
                 assert outcome.rtt_sample == _approx(expect["rtt_sample"])
                 assert outcome.spurious == expect["spurious"]
@@ -212,7 +221,8 @@ def check_sender(data: dict[str, Any]) -> int:
                 assert log.largest_acked == expect["largest_acked"]
             assert [packet.seq for packet in lost] == expect["lost"], (case["name"], at)
             assert log.unknown == expect["unknown_total"]
-            assert log.loss_deadline(_loss_delay(rtt, ack_delay)) == _approx(expect["loss_timer"])
+            assert delay == _approx(expect["loss_delay"]), (case["name"], at)
+            assert log.loss_deadline(delay) == _approx(expect["loss_timer"])
             checked += 1
     return checked
 
@@ -293,16 +303,24 @@ def check_keyed(data: dict[str, Any]) -> int:
 # ---------------------------------------------------------------------------- endpoint scripts
 
 
-def check_endpoint(data: dict[str, Any]) -> int:
+def _check_scripts(data: dict[str, Any], runner: type[ScriptRunner] | type[ServerRunner]) -> int:
     checked = 0
     for script in data["scripts"]:
-        runner = ScriptRunner(script)
+        run = runner(script)
         for number, step in enumerate(script["steps"]):
             inputs = {k: v for k, v in step.items() if k != "expect"}
-            got = runner.step(inputs)
+            got = run.step(inputs)
             assert got == step["expect"], f"{script['name']}, step {number} at {step['at']}"
             checked += 1
     return checked
+
+
+def check_endpoint(data: dict[str, Any]) -> int:
+    return _check_scripts(data, ScriptRunner)
+
+
+def check_server(data: dict[str, Any]) -> int:
+    return _check_scripts(data, ServerRunner)
 
 
 def test_the_endpoint_scripts_cover_every_drop_reason() -> None:
@@ -324,6 +342,7 @@ CHECKS: dict[str, Callable[[dict[str, Any]], int]] = {
     "sender": check_sender,
     "keyed": check_keyed,
     "endpoint": check_endpoint,
+    "server": check_server,
 }
 
 

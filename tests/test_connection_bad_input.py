@@ -103,15 +103,22 @@ def test_bad_datagrams_are_dropped_by_reason(
     assert len(pair.slave.received) > delivered + 150  # the session carries on undisturbed
 
 
-def test_optimistic_ack_is_dropped() -> None:
+def test_an_optimistic_ack_is_ignored_and_a_standalone_one_dropped() -> None:
+    """An acknowledgement of a packet never sent is never used. In a DATA packet only the
+    acknowledgement is ignored (PROTOCOL.md 3.1: the sample is not lost with it); a stand-alone
+    ACK carries nothing else and is dropped."""
     pair = _established()
     master = pair.master.conn
     ahead = master._recovery.sent.next_seq + 100  # a packet the master has not sent yet
-    forged = encode_header(PacketType.DATA, 0, ahead, 0, 0) + b"x"
+    seq = pair.slave.conn._recovery.sent.next_seq  # the slave's next sample: new, in order
+    forged = encode_header(PacketType.DATA, seq, ahead, 0, 0) + b"x"
     pair.inject(forged, to_slave=False, source=SLAVE_ADDR)
+    assert master.stats.drops == {} and master.stats.optimistic_acks == 1
+    assert pair.master.received[-1].payload == b"x"
+    pair.inject(encode_header(PacketType.ACK, 0, ahead, 0, 0), to_slave=False, source=SLAVE_ADDR)
     assert master.stats.drops == {"optimistic_ack": 1}
     pair.run_for(0.2)
-    assert master.stats.packets_lost == 0  # the forged ACK changed nothing
+    assert master.stats.packets_lost == 0  # the forged ACKs changed nothing
 
 
 def test_replayed_data_is_a_duplicate() -> None:

@@ -284,8 +284,9 @@ def test_keyed_replays_are_refused_and_messages_arrive_once() -> None:
     assert len(_messages(pair.slave)) == 30
 
 
-def _unkeyed_message(seq: int, ack: int, data: bytes) -> bytes:
-    return encode_header(PacketType.CONTROL, 0, 0, 0, HOLD_NO_ACK) + encode_message(seq, ack, data)
+def _unkeyed_message(seq: int, ack: int, data: bytes, nonce: bytes) -> bytes:
+    header = encode_header(PacketType.CONTROL, 0, 0, 0, HOLD_NO_ACK)
+    return header + encode_message(nonce, seq, ack, data)
 
 
 @pytest.mark.parametrize(
@@ -297,6 +298,8 @@ def _unkeyed_message(seq: int, ack: int, data: bytes) -> bytes:
         ("far_ahead", "control_window"),
         ("short_ack", "bad_control"),
         ("optimistic_ack_alone", "optimistic_ack"),
+        ("another_nonce", "nonce_mismatch"),
+        ("ack_with_another_nonce", "nonce_mismatch"),
     ],
 )
 def test_malformed_and_forged_messages_are_dropped_and_counted(name: str, reason: str) -> None:
@@ -305,13 +308,18 @@ def test_malformed_and_forged_messages_are_dropped_and_counted(name: str, reason
     expected = slave._channel._expected  # the next message number the slave expects
     ours = slave._channel._acked_below  # the slave's own next number: nothing sent yet
     header = encode_header(PacketType.CONTROL, 0, 0, 0, HOLD_NO_ACK)
+    nonce = slave.master_nonce
+    other = bytes(16)
     datagram = {
-        "empty": header + encode_message(expected, ours, b"")[:5],
-        "oversized": _unkeyed_message(expected, ours, bytes(257)),
-        "optimistic": _unkeyed_message(expected, ours + 5, b"x"),
-        "far_ahead": _unkeyed_message(expected + 64, ours, b"x"),
-        "short_ack": header + encode_message_ack(ours)[:2],
-        "optimistic_ack_alone": header + encode_message_ack(ours + 1),
+        "empty": header + encode_message(nonce, expected, ours, b"")[:21],
+        "oversized": _unkeyed_message(expected, ours, bytes(257), nonce),
+        "optimistic": _unkeyed_message(expected, ours + 5, b"x", nonce),
+        "far_ahead": _unkeyed_message(expected + 64, ours, b"x", nonce),
+        "short_ack": header + encode_message_ack(nonce, ours)[:18],
+        "optimistic_ack_alone": header + encode_message_ack(nonce, ours + 1),
+        # What an off-path attacker sends: it does not know the master's nonce (PROTOCOL.md 5.10).
+        "another_nonce": _unkeyed_message(expected, ours, b"x", other),
+        "ack_with_another_nonce": header + encode_message_ack(other, ours),
     }[name]
     before = dict(slave.stats.drops)
     pair.inject(datagram, to_slave=True, source=MASTER_ADDR)
@@ -327,7 +335,8 @@ def test_malformed_and_forged_messages_are_dropped_and_counted(name: str, reason
 def test_a_forged_message_in_the_window_from_another_address_is_refused() -> None:
     pair = _opened(Pair())
     expected = pair.slave.conn._channel._expected
-    pair.inject(_unkeyed_message(expected, 0, b"evil"), to_slave=True, source=("203.0.113.9", 1))
+    forged = _unkeyed_message(expected, 0, b"evil", pair.slave.conn.master_nonce)
+    pair.inject(forged, to_slave=True, source=("203.0.113.9", 1))
     assert pair.slave.conn.stats.drops["wrong_address"] == 1
     assert not _messages(pair.slave)
 

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from tdtp.cli.live_stats import LatencyRecorder, LiveDisplay, percentile
+from tdtp.cli.live_stats import DirectionMeter, LatencyRecorder, LiveDisplay, percentile
 from tdtp.teleop.haptic_sample import SAMPLE_SIZE, HapticSample, master_trajectory, slave_feedback
 
 
@@ -55,3 +55,20 @@ def test_display_appends_when_not_a_terminal() -> None:
     display.update(["a", "b"])
     display.update(["c", "d"])
     assert stream.getvalue() == "a\nb\nc\nd\n"  # no cursor movement in a log file
+
+
+def test_the_live_line_starts_over_with_a_new_session_and_says_when_there_is_none() -> None:
+    """After a reconnect the endpoint's counters are the new session's, from zero: the line shows
+    the new session's rate, never a negative one (it showed "M->S -3084 pkt/s ... (-0.00%)")."""
+    from tdtp.session.stats import ConnectionStats
+
+    meter = DirectionMeter("M->S")
+    old = ConnectionStats()
+    old.sent.data_packets = old.packets_acked = 3084
+    assert "3084 pkt/s" in meter.line(old, old.packets_acked, 1.0, None)
+    new = ConnectionStats()  # the next session, 0.5 s old
+    new.sent.data_packets = new.packets_acked = 500
+    line = meter.line(new, new.packets_acked, 1.0, None)
+    assert "M->S      500 pkt/s" in line and "(-" not in line
+    gone = meter.line(new, new.packets_acked, 1.0, None, session="no session: reconnecting")
+    assert gone == "M->S  no session: reconnecting"

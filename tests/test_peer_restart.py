@@ -42,13 +42,38 @@ def test_a_restarted_slave_is_known_within_one_rtt(keyed: bool) -> None:
     (closed,) = _closes(pair)
     assert closed.cause is CloseCause.PEER_RESTARTED
     assert "restarted" in closed.detail
-    # One RTT (20 ms) plus the datagrams the old slave had in flight and one sample interval.
-    assert pair.now - restarted_at <= 0.035
+    # The slave restarted at once: its RESETs are believed once it has been silent for the
+    # watchdog's silence_timeout (0.1 s; before, any slave holding the key could end the session
+    # by answering a copy of a datagram, PROTOCOL.md 5.7), its in-flight datagrams and one RTT
+    # and sample interval later. A slave down longer than that is believed at its first RESET.
+    last_heard = restarted_at + 0.010  # what the old slave had in flight
+    assert pair.now - last_heard <= 0.1 + 0.021
+    assert pair.master.conn.stats.drops.get("peer_alive", 0) > 0
     admission = pair.slave.conn.admission
     assert admission is not None
     stats = admission.stats
     assert stats.resets_sent >= 1
     assert stats.reset_bytes_out <= stats.reset_bytes_in
+
+
+@pytest.mark.parametrize("keyed", [False, True], ids=["unkeyed", "keyed"])
+def test_a_slave_down_longer_than_the_watchdog_is_known_at_its_first_reset(keyed: bool) -> None:
+    pair = Pair(master_key=KEY if keyed else None, slave_keys=KEY if keyed else None)
+    pair.open()
+    pair.start_samples(1000, 1000)
+    pair.run_for(1.0)
+    pair.slave.rate = 0.0
+    pair.ms.drop = pair.sm.drop = lambda _: True  # the slave is gone (the network says so)
+    pair.run_for(0.3)
+    assert pair.master.conn.peer_silent
+    _restart_slave(pair, KEY if keyed else None)  # back
+    pair.ms.drop = pair.sm.drop = lambda _: False
+    back_at = pair.now
+    pair.run_until(pair.now + 1.0, stop=lambda: bool(_closes(pair)))
+    (closed,) = _closes(pair)
+    assert closed.cause is CloseCause.PEER_RESTARTED
+    assert pair.now - back_at <= 0.021  # one RTT and one sample interval
+    assert "peer_alive" not in pair.master.conn.stats.drops
 
 
 def test_a_keyed_reset_needs_a_tag_under_the_masters_key() -> None:

@@ -10,13 +10,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tdtp import InvalidKeyError, PresharedKey, load_keys, write_key_file
+from tdtp import InvalidKeyError, PresharedKey, load_key, load_keys, write_key_file
 from tdtp.protection.derivation import (
     derive_key_id,
     derive_open_secret,
     derive_session_secrets,
 )
 from tdtp.protection.key_file import parse_keys
+from tdtp.protection.keys import as_key
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
 from tdtp.protection.replay_window import ReplayWindow
 from tdtp.wire import (
@@ -41,9 +42,9 @@ HEADER = encode_header(PacketType.DATA, 0x0ABC, 0x0123, 0b101010, encode_hold(25
 SEALED_DATA = "2a f0 48 ea 1f 00 01 51 93 f9 13 9c 89 52 5a fb 0b 37 64 e9 ef bd 3d 41 9d f9 92 24"
 CLEAR_DATA = "2a f0 48 ea 1f 00 01 68 65 6c 6c 6f 64 e1 dc 5d 25 5e b6 b2 d0 20 f7 ac 2f d9 7d 80"
 KEYED_OPEN = (
-    "96 94 00 00 ff 01 03 06 01 04 b0 00 01 00 11 22 33 44 55 66 77 88 99 aa bb cc dd ee ff "
+    "96 94 00 00 ff 01 04 06 01 04 b0 00 01 00 11 22 33 44 55 66 77 88 99 aa bb cc dd ee ff "
     "eb 49 4c 5f a4 4b 9c 55 00 00 ab cd 11 11 11 11 11 11 11 11 11 11 11 11 "
-    "7d 32 45 80 e0 54 f6 8b e8 fb 79 fa 82 98 06 9b"
+    "50 d3 2f c2 a2 cb 3d 78 2a 1a 3f 4a 6b 35 17 3a"
 )
 
 
@@ -89,7 +90,7 @@ def test_sealed_data_is_pinned_and_opens(encrypt: bool, expected: str) -> None:
 
 
 def test_keyed_open_is_pinned() -> None:
-    body = OpenBody(3, 0x06, 1, 1200, 1, MASTER_NONCE, derive_key_id(PSK), COOKIE)
+    body = OpenBody(4, 0x06, 1, 1200, 1, MASTER_NONCE, derive_key_id(PSK), COOKIE)
     datagram = encode_header(PacketType.CONTROL, 0x5A5, 0, 0, 255) + encode_open(body)
     tagger = Direction(SUITE, derive_open_secret(PSK, MASTER_NONCE, SUITE))
     datagram += tagger.tag(1, datagram)
@@ -148,6 +149,38 @@ def test_key_files_round_trip_and_refuse_bad_ones(tmp_path: Path) -> None:
     with pytest.raises(InvalidKeyError, match="line 2: the name 'a' is already used on line 1"):
         parse_keys(f"a {secret}\na {other}\n")
     assert [k.name for k in parse_keys(f"a {secret}\nb {other}\n")] == ["a", "b"]
+
+
+def test_load_key_gives_what_key_takes_and_key_takes_a_one_key_file(tmp_path: Path) -> None:
+    """A user's first try was connect(key=tdtp.load_keys(path)), refused with an error that said
+    to use load_keys (issue 35): the file's one key is taken; of several, the error says how to
+    choose, and load_key is the master's reader."""
+    first, second = PresharedKey.generate("station-1"), PresharedKey.generate("station-2")
+    one, two = tmp_path / "one.keys", tmp_path / "two.keys"
+    write_key_file(one, [first])
+    write_key_file(two, [first, second])
+    assert load_key(two) == first and load_key(two, name="station-2") == second
+    with pytest.raises(
+        InvalidKeyError, match=r"no key named 'x' in .*two.keys \(it has: station-1, station-2\)"
+    ):
+        load_key(two, name="x")
+    assert as_key(load_keys(one)) == first  # what connect(key=...) does with it
+    assert as_key({"station-1": first.secret}) == first
+    with pytest.raises(InvalidKeyError) as several:
+        as_key(load_keys(two))
+    message = str(several.value)
+    assert "got 2 (station-1, station-2)" in message
+    assert "key=tdtp.load_key(path)" in message and "listen(keys=tdtp.load_keys(path))" in message
+    with pytest.raises(
+        InvalidKeyError, match=r"not the path of a key file: pass key=tdtp.load_key\("
+    ):
+        as_key(str(one))  # type: ignore[arg-type]
+    with pytest.raises(InvalidKeyError, match="empty collection"):
+        as_key([])
+    with pytest.raises(
+        InvalidKeyError, match=r"got int \(read one from a key file with tdtp.load_key"
+    ):
+        as_key(7)  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------- long loss runs (issue 20, item 2)

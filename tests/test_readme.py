@@ -29,6 +29,21 @@ def _free_port() -> int:
     return port
 
 
+async def _until_bound(port: int, patience: float = 30.0) -> None:
+    """Until something (the README's slave) holds ``port``: one loop step is not always enough for
+    it to bind, and a master that dials first fails at once on the ICMP port unreachable."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + patience
+    while loop.time() < deadline:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                return  # in use: the slave is there
+        await asyncio.sleep(0.005)
+    raise AssertionError(f"nothing bound 127.0.0.1:{port} within {patience} s")
+
+
 def test_there_are_python_blocks() -> None:
     assert len(BLOCKS) >= 2
 
@@ -64,7 +79,7 @@ def test_the_asyncio_slave_serves_every_master_and_holds_when_each_goes_away() -
 
     async def scenario() -> None:
         slave = asyncio.create_task(block["slave"]("127.0.0.1", port))
-        await asyncio.sleep(0)  # let it bind
+        await _until_bound(port)
         # Two masters at once: the TaskGroup serves both.
         await asyncio.gather(
             block["master"]("127.0.0.1", port, seconds=0.3),
@@ -92,7 +107,7 @@ def test_the_asyncio_master_reports_the_slave_going_away() -> None:
 
     async def scenario() -> None:
         slave = asyncio.create_task(block["slave"]("127.0.0.1", port))
-        await asyncio.sleep(0)
+        await _until_bound(port)
         master = asyncio.create_task(block["master"]("127.0.0.1", port, seconds=60.0))
         async with asyncio.timeout(30):
             while not driven:  # the master is connected and streaming

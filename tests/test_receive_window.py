@@ -64,6 +64,21 @@ def test_scattered_replays_of_old_packets_do_not_resync() -> None:
     assert window.highest == 499
 
 
+def test_consecutive_stale_numbers_spread_between_live_packets_do_not_resync() -> None:
+    """Only a run of consecutive *arrivals* re-anchors the window: three consecutive old numbers
+    replayed one at a time between live packets are each stale (they once moved the window 4096
+    ahead, found by the ring's property test below)."""
+    window = ReceiveWindow(0)
+    for seq in range(100):
+        window.on_data(seq, seq * 0.001)
+    live = 100
+    for old in (10, 11, 12, 13):
+        assert window.on_data(old, live * 0.001)[0] is Arrival.STALE
+        assert window.on_data(live, live * 0.001)[0] is Arrival.NEW
+        live += 1
+    assert window.highest == live - 1
+
+
 def test_jump_rule_reports_the_packets_a_lost_seventh_would_orphan() -> None:
     """PROTOCOL.md 3.2: after a report at L, L+1..L+6 arrive, L+7 is lost, L+8 arrives. An ACK of
     L+8 reaches down to L+2 only, so the ACK of L+6 must go out first (L = -1 here)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import random
 
-from tdtp.admission.path_migration import PathMigration
+from tdtp.admission.path_migration import NOT_OURS, OURS, ROAMED, PathMigration
 from tdtp.admission.rate_limit import TokenBucket
 from tdtp.config import AdmissionConfig
 from tdtp.session.events import Address
@@ -16,26 +16,40 @@ DATA = encode_header(0, 7, 0, 0, 255) + bytes(40)
 
 
 class FakeSession:
-    """What path migration asks of a session; ``owns`` says whether a keyed trial succeeds."""
+    """What path migration asks of a session; ``owns`` says whether a keyed trial succeeds (and
+    ``replayed`` whether it authenticates at an old packet number)."""
 
-    def __init__(self, *, keyed: bool, last_heard: float, owns: bool = False) -> None:
+    def __init__(
+        self, *, keyed: bool, last_heard: float, owns: bool = False, replayed: bool = False
+    ) -> None:
         self.migratable = True
         self.keyed = keyed
         self.master_nonce = bytes(16)
+        self.live_gap = 0.075
         self._last = last_heard
         self._owns = owns
+        self._replayed = replayed
         self.moved_to: Address | None = None
 
     def quiet_for(self, now: float) -> float:
         return now - self._last
 
-    def roam(self, data: bytes, addr: Address, *, now: float) -> bool:
+    def roam(self, data: bytes, addr: Address, *, now: float) -> int:
+        if self._replayed:
+            return OURS
         if self._owns:
             self.moved_to = addr
-        return self._owns
+            return ROAMED
+        return NOT_OURS
 
     def migrate(self, addr: Address, *, now: float) -> None:
         self.moved_to = addr
+
+    def move_back(self, data: bytes, addr: Address, *, now: float) -> bool:
+        return False
+
+    def take_challenge(self, now: float) -> bool:
+        return True
 
 
 def _paths() -> PathMigration:
@@ -75,3 +89,27 @@ def test_an_unkeyed_quiet_session_gets_a_challenge_not_a_reset() -> None:
     quiet = FakeSession(keyed=False, last_heard=0.0)
     assert isinstance(paths.on_unattached(DATA, NEW, 1.0, [quiet]), bytes)
     assert not paths.unclaimed
+
+
+def test_a_copy_of_a_live_keyed_sessions_datagram_is_never_unclaimed() -> None:
+    """A datagram that authenticates at a packet number its session accepted already: a replay of
+    the master's, sent from elsewhere. The session is alive, so nothing may answer it with a RESET
+    (PROTOCOL.md 5.7); it moves nothing either (counted ``replayed``)."""
+    paths = _paths()
+    sessions = [
+        FakeSession(keyed=True, last_heard=0.0),
+        FakeSession(keyed=True, last_heard=0.0, replayed=True),
+    ]
+    assert paths.on_unattached(DATA, NEW, 1.0, sessions) is None
+    assert not paths.unclaimed
+    assert paths.stats.drops == {"replayed": 1}
+
+
+def test_an_unkeyed_session_is_quiet_only_when_silent_longer_than_a_live_master() -> None:
+    """A master that still sends keep-alives has not moved (PROTOCOL.md 5.8): no challenge until
+    its silence exceeds a keep-alive interval and two round trips (``live_gap``)."""
+    paths = _paths()
+    quiet = FakeSession(keyed=False, last_heard=1.0)
+    assert paths.on_unattached(DATA, NEW, 1.05, [quiet]) is None
+    assert paths.stats.drops == {"no_quiet_session": 1} and not paths.unclaimed
+    assert isinstance(paths.on_unattached(DATA, NEW, 1.08, [quiet]), bytes)

@@ -113,13 +113,15 @@ def expected_fields(datagram: bytes, keyed: bool) -> dict[str, str]:
     if datagram[5] == 3:
         out["tdtp.nonce"] = datagram[6:22].hex()
         return out
-    if datagram[5] == 10:  # MESSAGE: number, next expected, the message
-        out["tdtp.message.seq"] = str(int.from_bytes(datagram[6:8], "big"))
-        out["tdtp.message.ack"] = str(int.from_bytes(datagram[8:10], "big"))
-        out["tdtp.message_len"] = str(len(datagram) - 10)
+    if datagram[5] == 10:  # MESSAGE: the master's nonce, number, next expected, the message
+        out["tdtp.nonce"] = datagram[6:22].hex()
+        out["tdtp.message.seq"] = str(int.from_bytes(datagram[22:24], "big"))
+        out["tdtp.message.ack"] = str(int.from_bytes(datagram[24:26], "big"))
+        out["tdtp.message_len"] = str(len(datagram) - 26)
         return out
-    if datagram[5] == 11:  # MESSAGE_ACK
-        out["tdtp.message.ack"] = str(int.from_bytes(datagram[6:8], "big"))
+    if datagram[5] == 11:  # MESSAGE_ACK: the master's nonce, next expected
+        out["tdtp.nonce"] = datagram[6:22].hex()
+        out["tdtp.message.ack"] = str(int.from_bytes(datagram[22:24], "big"))
         return out
     tag = b""
     body = decode_control(datagram[5:])

@@ -7,7 +7,7 @@ Sans-IO, like the connection. :meth:`Admission.admit` takes one OPEN datagram an
   create a connection, answer OPEN_ACK and spend a ``max_peers`` slot;
 * a :class:`Reply`: a datagram to send back to the source, never larger than the OPEN (a COOKIE, or
   a REJECT that says why the master cannot be served), with the reason the OPEN was not taken;
-* a :class:`~tdtp.session.stats.DropReason`: nothing is sent.
+* a :class:`~tdtp.wire.drop_reason.DropReason`: nothing is sent.
 
 Checks, in order: the version (an unknown one gets REJECT if that is no larger than the OPEN); the
 body; the cookie (none or a stale one: the per-source OPEN rate, then a COOKIE within the global
@@ -33,8 +33,7 @@ from tdtp.config import ConnectionConfig
 from tdtp.protection.derivation import derive_open_secret, reset_tag
 from tdtp.protection.keys import KeyRing, PresharedKey
 from tdtp.protection.packet_protection import Direction
-from tdtp.session.events import Address
-from tdtp.session.stats import DropReason
+from tdtp.wire.address import Address
 from tdtp.wire.control import (
     CLOSE_BODY_SIZE,
     NO_COOKIE,
@@ -56,6 +55,7 @@ from tdtp.wire.control import (
     encode_reset,
     open_version,
 )
+from tdtp.wire.drop_reason import DropReason
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header, encode_header
 from tdtp.wire.hold import HOLD_NO_ACK

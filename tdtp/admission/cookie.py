@@ -17,7 +17,7 @@ import hmac
 import struct
 from typing import Final
 
-from tdtp.session.events import Address
+from tdtp.wire.address import Address
 from tdtp.wire.control import COOKIE_SIZE
 
 TICKS_PER_SECOND: Final = 16

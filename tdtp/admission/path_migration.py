@@ -13,10 +13,18 @@ the slave from an address no session holds. Sans-IO, like the admission it belon
 * ``None``: dropped, counted in :attr:`MigrationStats.drops` by reason; :attr:`PathMigration.unclaimed`
   then says whether no session can own it (the caller answers those with a RESET, PROTOCOL.md 5.7).
 
-Only sessions whose master has been quiet for ``migration_quiet`` are candidates (a master whose old
-address still works has not moved), and trial authentications draw from a global token bucket
-(``migration_trials_per_second``): a flood from unknown addresses costs a bounded amount of CPU and
-never more replies than it brings bytes.
+Only sessions whose master has gone quiet are candidates (a master whose old address still works has
+not moved): a keyed one after ``migration_quiet``, an unkeyed one only once it has been silent longer
+than a live master ever is (its keep-alive interval and two round trips), because an unkeyed move
+rests on the master's nonce, which an on-path attacker has seen. An unkeyed session that moved is
+held to the amplification limit until its old address has stayed silent for its ``silence_timeout``,
+and moves straight back if the old address speaks first. A keyed datagram that authenticates as a
+copy of one a session already accepted belongs to that live session: it moves nothing and is no
+datagram "no session can own" (``replayed``). Trial authentications draw from a global token bucket
+(``migration_trials_per_second``), PATH_CHALLENGEs from a bucket of each session's (at most
+:data:`~tdtp.session.path.CHALLENGES_PER_SECOND` a second) and the slave's global reply budget: a
+flood from unknown addresses costs a bounded amount of CPU and never more replies than it brings
+bytes.
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ from typing import Final, Protocol, TypeVar
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.rate_limit import TokenBucket
 from tdtp.config import AdmissionConfig
-from tdtp.session.events import Address
+from tdtp.wire.address import Address
 from tdtp.wire.control import (
     PATH_CHALLENGE_BODY_SIZE,
     ControlCode,
@@ -52,9 +60,23 @@ class MigratingSession(Protocol):
     def keyed(self) -> bool: ...
     @property
     def master_nonce(self) -> bytes: ...
+    @property
+    def live_gap(self) -> float: ...
     def quiet_for(self, now: float) -> float: ...
-    def roam(self, data: bytes, addr: Address, *, now: float) -> bool: ...
+    def roam(self, data: bytes, addr: Address, *, now: float) -> int: ...
     def migrate(self, addr: Address, *, now: float) -> None: ...
+    def move_back(self, data: bytes, addr: Address, *, now: float) -> bool: ...
+    def take_challenge(self, now: float) -> bool: ...
+
+
+NOT_OURS: Final = 0
+""":meth:`MigratingSession.roam`: the datagram does not authenticate under the session's keys."""
+ROAMED: Final = 1
+"""The session moved to the datagram's address and took it in."""
+OURS: Final = 2
+"""The datagram authenticates at a packet number the session has accepted already (or too old to
+tell): a copy of one of its master's datagrams, replayed from elsewhere. It moves nothing, and a
+RESET must never answer it (PROTOCOL.md 5.7)."""
 
 
 Session = TypeVar("Session", bound=MigratingSession)
@@ -82,10 +104,14 @@ class MigrationStats:
     """Bytes of PATH_CHALLENGEs sent: at most ``bytes_in``."""
     migrations: int = 0
     """Sessions moved to a new address (keyed roaming and unkeyed path validation)."""
+    moved_back: int = 0
+    """Unkeyed sessions that went back to their old address: it spoke before the new one was
+    proven (included in ``migrations``)."""
     drops: dict[str, int] = field(default_factory=dict)
     """Datagrams that moved no session, by reason: ``no_quiet_session``, ``trial_budget``,
-    ``unauthenticated``, ``too_small``, ``rate_limited``, ``bad_token``, ``no_session``,
-    ``bad_control``."""
+    ``replayed`` (a copy of a datagram a live keyed session accepted), ``unauthenticated``,
+    ``too_small``, ``challenge_budget`` (every quiet unkeyed session drew its share of
+    PATH_CHALLENGEs), ``rate_limited``, ``bad_token``, ``no_session``, ``bad_control``."""
 
     def count_drop(self, reason: str) -> None:
         self.drops[reason] = self.drops.get(reason, 0) + 1
@@ -123,18 +149,28 @@ class PathMigration:
         ):
             return self._on_response(data, addr, now, sessions)
         movable = [conn for conn in sessions if conn.migratable]
-        quiet = [conn for conn in movable if conn.quiet_for(now) >= self._quiet]
+        for conn in movable:
+            if conn.move_back(data, addr, now=now):
+                stats.migrations += 1
+                stats.moved_back += 1
+                return conn
+        least = self._quiet
+        quiet = [
+            conn
+            for conn in movable
+            if conn.quiet_for(now) >= (least if conn.keyed else max(least, conn.live_gap))
+        ]
         if not quiet:
             stats.count_drop("no_quiet_session")
             # A master that just moved may still be heard at its old address for a moment: only
             # with no established session at all can nobody own this datagram.
             self.unclaimed = not movable
             return None
-        unkeyed = False
+        unkeyed: list[Session] = []
         tried = False
         for conn in quiet:
             if not conn.keyed:
-                unkeyed = True
+                unkeyed.append(conn)
                 continue
             if not self._trials.take(now):
                 stats.count_drop("trial_budget")
@@ -143,15 +179,25 @@ class PathMigration:
                 stats.bytes_in += size
                 tried = True
             stats.trials += 1
-            if conn.roam(data, addr, now=now):
+            verdict = conn.roam(data, addr, now=now)
+            if verdict == ROAMED:
                 stats.migrations += 1
                 return conn
+            if verdict == OURS:
+                stats.count_drop("replayed")  # a live session's own: nobody answers it
+                return None
         if not unkeyed:
             stats.count_drop("unauthenticated")
             self.unclaimed = len(quiet) == len(movable)  # every session tried, none owns it
             return None
         if size < CHALLENGE_SIZE:
             stats.count_drop("too_small")
+            return None
+        # Each quiet unkeyed session may have moved here: each pays for the challenge, and one
+        # goes out if any has a token left (a flood draws at most its budget per session).
+        granted = [conn.take_challenge(now) for conn in unkeyed]
+        if not any(granted):
+            stats.count_drop("challenge_budget")
             return None
         if not self._replies.take(now):
             stats.count_drop("rate_limited")

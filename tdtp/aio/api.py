@@ -41,9 +41,9 @@ from tdtp.aio.timer import TimerPreference, monotonic
 from tdtp.config import ConnectionConfig, Role
 from tdtp.errors import ConnectError, InvalidArgumentError, PortUnreachableError
 from tdtp.netem import NetemSpec
-from tdtp.protection.keys import KeyInput
+from tdtp.protection.keys import OneKeyInput, PresharedKey, as_key
 from tdtp.session.connection import Connection
-from tdtp.session.events import Address
+from tdtp.session.events import Address, CloseCause
 from tdtp.session.state import State
 
 __all__ = [
@@ -80,7 +80,10 @@ class _MasterProtocol(asyncio.DatagramProtocol):
             endpoint.fail_open(
                 PortUnreachableError(
                     f"nothing listens at {self.where} (the host refused the OPEN with ICMP port "
-                    "unreachable); start the slave there, or check the host and port"
+                    "unreachable); start the slave there, or check the host and port. A slave "
+                    "started with tdtp.listen() binds 127.0.0.1 unless given a host: to be "
+                    'reached from other machines it listens on "0.0.0.0" or its own address '
+                    "(tdtp slave binds 0.0.0.0)"
                 )
             )
             return
@@ -113,7 +116,7 @@ def connect(
     rng: random.Random | None = None,
     netem: NetemSpec | str | None = None,
     netem_seed: int | None = None,
-    key: KeyInput | None = None,
+    key: OneKeyInput | None = None,
     pcap: CaptureTarget | None = None,
     reconnect: bool | ReconnectPolicy | None = False,
 ) -> Opener[Endpoint]:
@@ -131,9 +134,11 @@ def connect(
     sends, in tc-netem's language (``"delay 20ms 5ms loss 1%"``), emulated in-process (see
     :mod:`tdtp.aio.impairment`).
 
-    ``key`` (a :class:`~tdtp.PresharedKey` or its secret bytes) opens a keyed session: every
-    datagram authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must
-    hold the same key.
+    ``key`` (a :class:`~tdtp.PresharedKey`, its secret bytes, or ``tdtp.load_key(path)``: a key
+    file's first key, or ``load_key(path, name=...)``) opens a keyed session: every datagram
+    authenticated, payloads encrypted unless ``config.encrypt`` is False. The slave must hold the
+    same key. A collection of exactly one key (``tdtp.load_keys(path)`` of a one-key file) is
+    taken as that key; one of several raises :class:`~tdtp.InvalidKeyError` saying how to choose.
 
     ``pcap`` (a path, or a shared :class:`~tdtp.capture.pcap.PcapWriter`) records every datagram the socket
     sends and receives, with UDP/IP headers, for Wireshark (``tools/wireshark/tdtp.lua``).
@@ -155,6 +160,7 @@ def connect(
             )
         _check_port(local_addr[1], allow_zero=True)
     spec = _check_common(config, timer, on_data, on_watchdog, netem)
+    master_key = as_key(key) if key is not None else None  # checked now, as the rest
     return Opener(
         lambda: _connect(
             host,
@@ -167,10 +173,21 @@ def connect(
             rng=rng,
             netem=spec,
             netem_seed=netem_seed,
-            key=key,
+            key=master_key,
             pcap=pcap,
             reconnect=policy,
         )
+    )
+
+
+def _no_answer_hint(port: int) -> str:
+    """What to check when the slave never answered: the likely causes, in the order to check them."""
+    return (
+        ". Nothing came back: check that the slave runs and that this machine can reach it. "
+        "tdtp.listen() binds 127.0.0.1 unless given a host, so a slave meant for other machines "
+        'listens on "0.0.0.0" or its own address (tdtp slave binds 0.0.0.0); a firewall on the '
+        f"way must let UDP port {port} through; and a slave behind NAT needs UDP port {port} "
+        "forwarded to it (a master behind NAT needs nothing: its OPEN opens the way back)"
     )
 
 
@@ -186,7 +203,7 @@ async def _connect(
     rng: random.Random | None,
     netem: NetemSpec | None,
     netem_seed: int | None,
-    key: KeyInput | None,
+    key: PresharedKey | None,
     pcap: CaptureTarget | None,
     reconnect: ReconnectPolicy | None = None,
 ) -> Endpoint:
@@ -253,14 +270,17 @@ async def _connect(
     if batched is not None and recorder is None:
         batched.batch_receiver = endpoint.receive_batch
     conn.connect(remote, now=monotonic())
-    endpoint._flush()
+    endpoint.flush()
     try:
         await endpoint.wait_established()
     except EndpointClosedError as exc:
         await endpoint.close()
-        raise ConnectError(f"could not open a TDTP connection to {protocol.where}: {exc}") from exc
+        hint = _no_answer_hint(port) if exc.event.cause is CloseCause.OPEN_TIMEOUT else ""
+        raise ConnectError(
+            f"could not open a TDTP connection to {protocol.where}: {exc}{hint}"
+        ) from exc
     except PortUnreachableError:
-        endpoint._release()  # nobody to send a CLOSE to
+        # fail_open() released the endpoint already: nobody to send a CLOSE to
         transport.close()
         logger.info("tdtp master: nothing listens at %s", protocol.where)
         raise

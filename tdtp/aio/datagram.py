@@ -62,7 +62,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Final, Literal, Protocol
 
-from tdtp._build import load_extension
+from tdtp._extensions import load_extension
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,

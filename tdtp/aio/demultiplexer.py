@@ -97,7 +97,7 @@ class Demultiplexer:
                     ecn=classes[i] & 3 if classes is not None and classes[i] >= 0 else None,
                 )
                 if conn.state is CLOSED:
-                    endpoint._flush(now)  # released: later datagrams from there are strangers
+                    endpoint.flush(now)  # released: later datagrams from there are strangers
                     if endpoint._demux_batch == batch:
                         touched.remove(endpoint)
                     endpoint._demux_batch = 0
@@ -106,7 +106,7 @@ class Demultiplexer:
                     endpoint._demux_batch = batch
                     touched.append(endpoint)
             for endpoint in touched:
-                endpoint._flush(now)
+                endpoint.flush(now)
         finally:
             if owner is not None:
                 owner.release_batch(count)

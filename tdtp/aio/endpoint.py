@@ -40,9 +40,15 @@ from typing import Any, Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.outbox import SocketOutbox
-from tdtp.aio.reconnect import REOPEN_CAUSES, ReconnectPolicy, ReconnectRecord
+from tdtp.aio.reconnect import Reconnector, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
-from tdtp.errors import ConnectionClosedError, ConnectionStateError, EndpointClosedError
+from tdtp.errors import (
+    ArgumentTypeError,
+    ConnectionClosedError,
+    ConnectionStateError,
+    EndpointClosedError,
+    ReconnectingError,
+)
 from tdtp.netem import NetemLink
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
@@ -159,16 +165,17 @@ class Endpoint:
         self._silence: PeerSilent | None = None
         self._resumed: PeerResumed | None = None
         self._send_errors = 0
-        self._policy = reconnect
-        self._new_connection = new_connection
-        self.reconnects = ReconnectRecord()
+        self._reconnect = (
+            Reconnector(reconnect, new_connection, loop)
+            if reconnect is not None and new_connection is not None
+            else None
+        )
+        self.reconnects = (
+            self._reconnect.record if self._reconnect is not None else ReconnectRecord()
+        )
         """What reconnecting did (a master with ``reconnect=``): sessions reopened and why, samples
         of the sessions before the current one. All zero otherwise."""
-        self._failures_in_a_row = 0
         self._closing = False
-        self._silence_reopen = False
-        self._reopen_handle: asyncio.TimerHandle | None = None
-        self._remote: Address | None = None
         self._demux_batch = 0
         """The server's receive batch that last handed us a datagram (its Demultiplexer's count)."""
         size = getattr(transport, "get_write_buffer_size", None)
@@ -194,6 +201,7 @@ class Endpoint:
 
     @property
     def peer(self) -> Address | None:
+        """The peer's address once known (a slave's master, a master's slave), else ``None``."""
         return self._conn.peer
 
     @property
@@ -266,6 +274,7 @@ class Endpoint:
 
     @property
     def is_closed(self) -> bool:
+        """Whether the session has ended (:attr:`close_event` says why)."""
         return self._conn.state is State.CLOSED
 
     @property
@@ -275,8 +284,9 @@ class Endpoint:
 
     @property
     def peer_silent(self) -> bool:
-        """True while nothing has arrived from the peer for ``silence_timeout`` (the watchdog)."""
-        return self._conn.peer_silent
+        """True while nothing has arrived from the peer for ``silence_timeout`` (the watchdog), and
+        while there is no session to hear it in: once closed, and while reconnecting."""
+        return self._conn.peer_silent or self.reconnects.reopening
 
     @property
     def write_paused(self) -> bool:
@@ -370,7 +380,7 @@ class Endpoint:
             self.reconnects.samples_dropped += 1
             return
         if not sent or conn.timer_hint < self._timer.deadline:
-            self._flush(now)
+            self.flush(now)
 
     def send_control(self, message: bytes | bytearray | memoryview) -> None:
         """Queue a message on the reliable control channel: the peer gets it exactly once and in
@@ -385,7 +395,17 @@ class Endpoint:
             if exc.event is None:
                 raise
             raise EndpointClosedError(exc.event) from None
-        self._flush(now)
+        except ConnectionStateError:
+            record = self.reconnects
+            if not record.reopening:
+                raise
+            why = f" ({record.lost[0]})" if record.lost is not None else ""
+            raise ReconnectingError(
+                f"no session to send the control message on: the last one ended{why} and the "
+                "next is opening; the message was not queued: send it again once the endpoint "
+                "is established (await ep.wait_resumed())"
+            ) from None
+        self.flush(now)
 
     async def recv_control(self) -> ControlReceived:
         """The peer's next control message, in the order it sent them. Raises
@@ -503,14 +523,20 @@ class Endpoint:
 
     # ------------------------------------------------------------------ ending
 
-    async def close(self) -> None:
-        """Send CLOSE to the peer and release the timer (and a master's socket). Idempotent."""
+    async def close(self, *, restarting: bool = False) -> None:
+        """Send CLOSE to the peer and release the timer (and a master's socket). Idempotent.
+
+        ``restarting=True``: this side stops but will be back soon (a service restart): the CLOSE
+        says ``RESTARTING``, and a reconnecting master reopens at once (PROTOCOL.md 5.2). The
+        default says ``NORMAL``: the session is over for good."""
+        if not isinstance(restarting, bool):
+            raise ArgumentTypeError(f"restarting must be True or False, got {restarting!r}")
         self._closing = True
-        if self._reopen_handle is not None:
-            self._reopen_handle.cancel()
+        if self._reconnect is not None:
+            self._reconnect.cancel()
         if not self.is_closed:
-            self._conn.close(now=monotonic())
-            self._flush()
+            self._conn.close(now=monotonic(), restarting=restarting)
+            self.flush()
         self._release()
         closed = self._transport_closed
         if closed is not None:
@@ -530,9 +556,10 @@ class Endpoint:
     # ------------------------------------------------------------------ driven by the transport
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
+        """The transport's hand-off: one datagram from ``addr``, taken in and answered at once."""
         now = monotonic()
         self._conn.receive_datagram(data, addr, now=now)
-        self._flush(now)
+        self.flush(now)
 
     def receive_batch(
         self,
@@ -561,9 +588,9 @@ class Endpoint:
                 ecn = classes[i] & 3 if classes is not None and classes[i] >= 0 else None
                 conn.receive_datagram(datas[i], addrs[i], now=now, rx_time=rx_time, ecn=ecn)
                 if conn.state is CLOSED:
-                    self._flush(now)  # ended (or reopening): what follows finds the next session
+                    self.flush(now)  # ended (or reopening): what follows finds the next session
                     conn = self._conn
-            self._flush(now)
+            self.flush(now)
         finally:
             if owner is not None:
                 owner.release_batch(count)
@@ -580,33 +607,41 @@ class Endpoint:
         if self._conn.sending_paused:
             self._conn.resume_sending()
             if not self.is_closed:
-                self._flush()
+                self.flush()
 
-    def evict(self, now: float) -> None:
-        """Slave side: end this silent session so that a new master can have its slot (the
-        server does this when it is full; the session closes as ``EVICTED``)."""
-        self._conn.evict(now=now)
-        self._flush(now)
+    def evict(self, detail: str, now: float) -> bytes | None:
+        """Slave side: end this session so that a new master can have its slot (the server's slot
+        policy chose it; the session closes as ``EVICTED``, its master gets a CLOSE ``EVICTED``,
+        which is returned so that the server can repeat it)."""
+        close = self._conn.evict(detail, now=now)
+        self.flush(now)
         self._release()
+        return close
 
     def fail_open(self, exc: BaseException) -> None:
         """The transport reported an error that ends a connection still opening (e.g. ICMP port
-        unreachable): :meth:`wait_established` raises ``exc``."""
+        unreachable): :meth:`wait_established` raises ``exc``, and the endpoint lets go of its
+        timer and socket at once (nobody listens: there is no one to send a CLOSE to)."""
         if not self._established.done():
             self._established.set_exception(exc)
             self._established.exception()  # retrieved: connect() reports it itself
+            self._release()
 
     def _on_timer(self) -> None:
         now = monotonic()
         self._conn.handle_timer(now=now)
-        self._flush(now)
+        self.flush(now)
 
     async def wait_established(self) -> None:
+        """Wait until the opening handshake completes; raises what ended it otherwise."""
         await asyncio.shield(self._established)
 
-    # ------------------------------------------------------------------ internals
-
-    def _flush(self, now: float | None = None) -> None:
+    def flush(self, now: float | None = None) -> None:
+        """Hand the core's events to the application, send what is due and re-arm the timer: what
+        follows every input. The endpoint's own entry points (:meth:`send`, :meth:`datagram_received`,
+        the timer) do it themselves; a driver that feeds :attr:`connection` directly (the server and
+        its demultiplexer) calls it after each batch. ``now``: the clock read with the input, if any.
+        """
         conn = self._conn
         event = conn.next_event()  # (rather than asking pending_events first: one call less)
         if event is not None and conn.state is ESTABLISHED:
@@ -653,6 +688,8 @@ class Endpoint:
             deadline = conn.get_timer()
             if deadline is not None and deadline < timer.deadline:
                 timer.arm(deadline)
+
+    # ------------------------------------------------------------------ internals
 
     def _drain_events(self, event: Event | None = None) -> None:
         """Take the connection's events, ``event`` (the first, already taken) and those after it."""
@@ -731,10 +768,9 @@ class Endpoint:
     ) -> None:
         if isinstance(event, PeerSilent):
             self._silence = event
-            policy = self._policy
-            if policy is not None and policy.after_silence is not None:
-                wait = policy.after_silence - (event.detected_at - event.since)
-                self._loop.call_later(max(0.0, wait), self._silence_check, self._conn, event)
+            wait = self._reconnect.silence_wait(event) if self._reconnect is not None else None
+            if wait is not None:
+                self._loop.call_later(wait, self._silence_check, self._conn, event)
             logger.warning(
                 "%s: nothing heard from the peer for %.3f s",
                 self._name(),
@@ -758,10 +794,14 @@ class Endpoint:
                 callback, self._on_established = self._on_established, None
                 callback(self)
         else:
-            if self._policy is not None and self._may_reopen(event):
-                self._reopen(event)
+            reconnect = self._reconnect
+            if reconnect is not None and reconnect.may_reopen(
+                event, established=self.established, closing=self._closing
+            ):
+                self._reopen(reconnect, event)
                 return
             self._close_event = event
+            self.reconnects.reopening = False  # (a reconnection that gave up)
             logger.info(
                 "%s: connection closed (%s: %s)", self._name(), event.cause.value, event.detail
             )
@@ -776,65 +816,32 @@ class Endpoint:
 
     # ------------------------------------------------------------------ reconnecting (a master)
 
-    def _may_reopen(self, event: ConnectionClosed) -> bool:
-        policy = self._policy
-        if policy is None or self._closing or self._new_connection is None or not self.established:
-            return False
-        if event.cause is CloseCause.LOCAL_CLOSE:
-            return self._silence_reopen
-        if event.cause not in REOPEN_CAUSES:
-            return False
-        if event.cause is CloseCause.OPEN_TIMEOUT:
-            if not self.reconnects.reopening:
-                return False
-            self._failures_in_a_row += 1
-            self.reconnects.failed_attempts += 1
-            attempts = policy.attempts
-            return attempts is None or self._failures_in_a_row <= attempts
-        return True
-
-    def _reopen(self, event: ConnectionClosed) -> None:
-        """The session ended for a reason a new one can cure: open the next on the same socket."""
-        record = self.reconnects
+    def _reopen(self, reconnect: Reconnector, event: ConnectionClosed) -> None:
+        """The session ended for a reason a new one can cure: open the next on the same socket
+        (tdtp.aio.reconnect). While there is none, the watchdog says the peer is silent."""
         old = self._conn
-        if not record.reopening:
+        if not self.reconnects.reopening:
             why = "silence" if event.cause is CloseCause.LOCAL_CLOSE else event.cause.value
-            record.causes[why] = record.causes.get(why, 0) + 1
-            stats = old.stats
-            record.samples_received_before += stats.samples_delivered
-            record.samples_sent_before += stats.sent.data_packets
-            record.reopening = True
             logger.warning(
                 "%s: session lost (%s: %s); opening a new one", self._name(), why, event.detail
             )
-        self._silence_reopen = False
-        self._remote = old.peer
-        assert self._new_connection is not None and self._policy is not None
-        conn = self._new_connection()
-        if old.sending_paused:
-            conn.pause_sending()
-        self._conn = conn
-        failures = self._failures_in_a_row
-        policy = self._policy
-        delay = min(policy.max_backoff, policy.backoff * 2.0 ** (failures - 1)) if failures else 0.0
-        self._reopen_handle = self._loop.call_later(delay, self._start_reopen)
+            if self._silence is None:
+                now = monotonic()
+                self._silence = silence = PeerSilent(now - old.quiet_for(now), now)
+                self._wake(self._watch_waiters)
+                self._call_watchdog(silence)
+        self._conn = reconnect.reopen(old, event, self._start_reopen)
 
     def _start_reopen(self) -> None:
-        self._reopen_handle = None
-        conn = self._conn
-        remote = self._remote
-        if self._closing or remote is None or conn.state is not State.IDLE:
-            return
-        conn.connect(remote, now=monotonic())
-        self._flush()
+        reconnect = self._reconnect
+        if reconnect is not None and not self._closing and reconnect.open(self._conn, monotonic()):
+            self.flush()
 
     def _reopened(self) -> None:
-        record = self.reconnects
-        record.reopening = False
-        record.count += 1
-        record.last_at = now = monotonic()
-        self._failures_in_a_row = 0
-        logger.info("%s: reconnected (%d so far)", self._name(), record.count)
+        now = monotonic()
+        if self._reconnect is not None:
+            self._reconnect.reopened(now)
+        logger.info("%s: reconnected (%d so far)", self._name(), self.reconnects.count)
         silence = self._silence
         if silence is not None:
             # The application held its machine on PeerSilent: the peer is back, in a new session.
@@ -847,11 +854,11 @@ class Endpoint:
         """``after_silence`` after the slave went silent: if it still is, open a new session."""
         if conn is not self._conn or self._closing or conn.silent_since != event.since:
             return
-        if conn.state is not State.ESTABLISHED:
+        if conn.state is not State.ESTABLISHED or self._reconnect is None:
             return
-        self._silence_reopen = True
+        self._reconnect.silence_reopen = True
         conn.close(now=monotonic())
-        self._flush()
+        self.flush()
 
     def _name(self) -> str:
         return f"tdtp {self._conn.role.value} {format_address(self._conn.peer)}"

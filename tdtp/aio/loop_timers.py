@@ -34,7 +34,15 @@ from tdtp.aio.timer import DeadlineTimer, create_timer, monotonic
 if TYPE_CHECKING:  # the ticker imports this module; a handle only reads and writes its attributes
     from tdtp.aio.ticker import Ticker
 
-__all__ = ["LoopTimers", "TickGroup", "TickHandle", "TimerEntry", "loop_timers", "tick_group"]
+__all__ = [
+    "LoopTimers",
+    "TickGroup",
+    "TickHandle",
+    "TimerEntry",
+    "deliver_tick",
+    "loop_timers",
+    "tick_group",
+]
 
 _NEVER: Final = math.inf
 
@@ -185,7 +193,7 @@ class TickGroup:
     ``spin`` (seconds, 0 by default) arms the timer that long before each deadline and waits the
     rest on the CPU (a blocking busy-wait). A virtual CPU that idles until a deadline can be resumed
     late by its host: on this project's VM a bare 1 kHz ``timerfd`` wake-up comes more than 1 ms
-    late 2-7 % of the time, and 0.3-0.5 % with the CPU kept from idling (benchmarks/README.md,
+    late 2-7 % of the time, and 0.3-0.5 % with the CPU kept from idling (benchmarks/HISTORY.md,
     "Why the slave's ticks are late"). Spinning costs that CPU (up to ``spin * rate`` of a core,
     less when the loop is busy anyway) and backfires when another process wants the core (the
     busy-waiting one loses its time slice): it is for a process that has a core to itself.
@@ -352,12 +360,13 @@ class TickHandle:
         self._anchor: float = group.anchor
         self._period: float = group.period
         self._rate: float = ticker.rate
-        self._max_catch_up: int = ticker._max_catch_up
+        self._max_catch_up: int = ticker.max_catch_up
         self._max_lateness: float = ticker.max_lateness  # at most the ticker's (which only grows)
         self.cancelled = False
 
     @property
     def ticker(self) -> Ticker:
+        """The :class:`~tdtp.Ticker` whose ticks call this handle's callback."""
         return self._ticker
 
     def cancel(self) -> None:
@@ -387,7 +396,7 @@ class TickHandle:
                 return
             late = now - deadline
             if int(late * self._rate) > self._max_catch_up:
-                index = ticker._deliver(now, index, self._deadline_of)
+                index = deliver_tick(ticker, now, index, self._deadline_of)
             else:
                 if late > self._max_lateness:  # (read from the ticker only then)
                     self._max_lateness = late = max(late, ticker.max_lateness)
@@ -396,6 +405,25 @@ class TickHandle:
                 ticker.deadline = deadline
             self._index = index + 1
             callback(index)
+
+
+def deliver_tick(
+    ticker: Ticker, now: float, index: int, deadline_of: Callable[[int], float]
+) -> int:
+    """Account for ``ticker``'s tick ``index`` delivered at ``now``, by the rules both of its
+    schedules share (``async for`` and :class:`TickHandle`): after a stall of more than
+    ``max_catch_up`` periods, skip to the tick due now (counted in ``skipped``). Returns the tick
+    given. ``deadline_of(tick)`` is when the ticker's tick ``tick`` is due."""
+    deadline = deadline_of(index)
+    behind = int((now - deadline) * ticker.rate)
+    if behind > ticker.max_catch_up:
+        ticker.skipped += behind
+        index += behind
+        deadline = deadline_of(index)
+    ticker.max_lateness = max(ticker.max_lateness, now - deadline)
+    ticker.ticks += 1
+    ticker.deadline = deadline
+    return index
 
 
 # Each loop's timers and tick groups, held weakly on both sides: a loop whose endpoints were never

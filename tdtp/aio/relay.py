@@ -20,6 +20,13 @@ from tdtp.errors import InvalidArgumentError
 from tdtp.netem import NetemLink, NetemSpec
 from tdtp.session.events import Address
 
+__all__ = [
+    "BACKLOG_LIMIT",
+    "NetemRelay",
+    "RelayStats",
+    "start_relay",
+]
+
 BACKLOG_LIMIT = 64
 """Datagrams held per client while its upstream socket opens (a few milliseconds at most)."""
 
@@ -101,6 +108,7 @@ class NetemRelay:
 
     @property
     def address(self) -> Address:
+        """The address the relay listens on, where clients send."""
         assert self._listener is not None
         sockname: Address = self._listener.get_extra_info("sockname")
         return sockname
@@ -183,6 +191,7 @@ class NetemRelay:
             self.stats.clients = len(self._clients)
 
     async def close(self) -> None:
+        """Stop relaying: close the listening socket and every client's upstream one."""
         if self._sweeper is not None:
             self._sweeper.cancel()
         self.forward.close()

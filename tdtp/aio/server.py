@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
 from tdtp.admission.path_migration import MigrationStats
+from tdtp.admission.slots import EvictionNotices, SessionSlots, SlotStats, Verdict
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpoint
 from tdtp.aio.demultiplexer import Demultiplexer, is_open
@@ -75,14 +76,21 @@ class ServerStats:
     peers_accepted: int = 0
     """Connections established (the master confirmed the session)."""
     peers_evicted: int = 0
-    """Sessions closed (``EVICTED``) to make room for a new master while the server was full: each
-    one's master had been silent longest, beyond its silence timeout."""
+    """Sessions closed (``EVICTED``) to make room for a new master: each one's master was gone
+    (silent for ``reclaim_after``), or was the same master (same key) opening again from another
+    address (PROTOCOL.md 5.1, rule 2.7)."""
+    eviction_notices: int = 0
+    """CLOSE ``EVICTED`` repeated to an evicted master's later datagrams (it was away when the
+    first one left), and CLOSE ``TAKEN_OVER`` to a displaced master's (PROTOCOL.md 5.9)."""
     peers_in_use: int = 0
     """Exclusive server: admitted OPENs answered with REJECT ``IN_USE`` (another master commands)."""
     takeovers: int = 0
     """Exclusive server: sessions ended because another master took control."""
     admission: AdmissionStats = field(default_factory=AdmissionStats)
     """The front door: OPENs seen, cookies and rejects sent, drops by reason, bytes in and out."""
+    slots: SlotStats = field(default_factory=SlotStats)
+    """The slot policy: sessions reclaimed, OPENs refused because every master was live or their
+    source held its share of ``max_peers`` (:mod:`tdtp.admission.slots`)."""
     migration: MigrationStats = field(default_factory=MigrationStats)
     """Path migration: datagrams from unknown addresses, trials, challenges, sessions moved."""
 
@@ -119,7 +127,9 @@ class Server:
     Every OPEN goes through one shared :class:`~tdtp.admission.Admission`: no state is kept for a
     master until it proves it receives at its address (a cookie) and, on a keyed server, holds a key
     of the ring. A validated master that finds the server full (``max_peers`` connections, or
-    ``backlog`` established ones nobody accepted yet) is refused at once with REJECT ``BUSY``.
+    ``backlog`` established ones nobody accepted yet) is refused at once with REJECT ``BUSY``,
+    unless a session's master is gone (:mod:`tdtp.admission.slots`); one source holds at most its
+    share of the slots.
     """
 
     def __init__(
@@ -159,6 +169,9 @@ class Server:
         self._on_data = on_data
         self._on_watchdog = on_watchdog
         self._admission = Admission(config, keys)
+        policy = self._admission.config
+        self._slots = SessionSlots(policy, max_peers)
+        self._notices = EvictionNotices(max_peers, policy.idle_timeout, policy.silence_timeout)
         self._protocol: _ServerProtocol | None = None
         self._transport: asyncio.DatagramTransport | None = None
         self._sender: asyncio.DatagramTransport | ImpairedTransport | None = None
@@ -171,7 +184,9 @@ class Server:
         """Tasks waiting in accept(): each one looks again when a master is established."""
         self._closed = False
         self.stats = ServerStats(
-            admission=self._admission.stats, migration=self._admission.paths.stats
+            admission=self._admission.stats,
+            migration=self._admission.paths.stats,
+            slots=self._slots.stats,
         )
 
     @property
@@ -184,6 +199,7 @@ class Server:
 
     @property
     def port(self) -> int:
+        """The UDP port the server listens on (the one the system chose for ``port=0``)."""
         return int(self.sockname[1])
 
     @property
@@ -231,13 +247,19 @@ class Server:
             except ServerClosedError:
                 return
 
-    async def close(self) -> None:
+    async def close(self, *, restarting: bool = False) -> None:
         """Close every connection (each peer gets a CLOSE) and the socket, and return once the port
-        is free (an emulated link first lets its last datagrams out). Idempotent."""
+        is free (an emulated link first lets its last datagrams out). Idempotent.
+
+        ``restarting=True``: the slave stops but will be back soon (a service restart); the CLOSE
+        says ``RESTARTING`` and reconnecting masters reopen at once (PROTOCOL.md 5.2). Otherwise
+        it says ``NORMAL``: the sessions are over for good, and masters do not reopen."""
+        if not isinstance(restarting, bool):
+            raise ArgumentTypeError(f"restarting must be True or False, got {restarting!r}")
         if not self._closed:
             self._closed = True
             for endpoint in list(self._peers.values()):
-                await endpoint.close()
+                await endpoint.close(restarting=restarting)
             if self._sender is not None:
                 self._sender.close()
             self._wake()
@@ -278,7 +300,7 @@ class Server:
             # endpoint.datagram_received(data, addr), inline: one Python call less per datagram
             now = monotonic()
             endpoint._conn.receive_datagram(data, addr, now=now)
-            endpoint._flush(now)
+            endpoint.flush(now)
             if key in self._peers or not is_open(data):
                 return
             # The connection ended on this OPEN: its master restarted and opens anew.
@@ -303,6 +325,15 @@ class Server:
         """A datagram from an address no session holds: a master that moved (PROTOCOL.md 5.8)?"""
         assert self._sender is not None
         now = monotonic()
+        notices = self._notices
+        if notices and notices.holds(key, now):
+            # An evicted master back from its silence: it hears why (CLOSE EVICTED, when due),
+            # not a RESET that would tell it the slave restarted.
+            close = notices.answer(key, len(data), now)
+            if close is not None:
+                self.stats.eviction_notices += 1
+                self._sender.sendto(close, addr)
+            return
         peers = self._peers
         paths = self._admission.paths
         outcome = paths.on_unattached(
@@ -329,7 +360,7 @@ class Server:
                     old_key[1],
                     format_address(addr),
                 )
-                endpoint._flush(now)
+                endpoint.flush(now)
                 return
 
     def _exclusive_refuses(self, admitted: AdmittedOpen, addr: Address, now: float) -> bool:
@@ -355,8 +386,13 @@ class Server:
                 format_address(endpoint.peer),
                 " (takeover flag)" if takeover else " (silent)",
             )
-            endpoint.connection.close(now=now, taken_over=True)
-            endpoint._flush(now)
+            close = endpoint.connection.close(now=now, taken_over=True)
+            endpoint.flush(now)
+            peer = endpoint.peer
+            if close is not None and peer is not None:
+                # Its datagrams still on their way get this CLOSE again, never a RESET (which
+                # would say "restarted": PROTOCOL.md 5.9), as an evicted master's do.
+                self._notices.add(_peer_key(peer), close, now)
         return False
 
     def _open(
@@ -365,20 +401,35 @@ class Server:
         assert self._sender is not None
         if self._exclusive and self._exclusive_refuses(admitted, addr, now):
             return
-        if len(self._peers) >= self._max_peers:
-            self._evict_silent(now)
-        if len(self._peers) >= self._max_peers or (
-            self._on_data is None and len(self._pending) >= self._backlog
+        peers = self._peers
+        backlog_full = self._on_data is None and len(self._pending) >= self._backlog
+        placement = (
+            None
+            if backlog_full
+            else self._slots.place(
+                admitted.key, addr, [ep.connection for ep in peers.values()], now
+            )
+        )
+        if (
+            placement is None
+            or placement.verdict is Verdict.BUSY
+            or placement.verdict is Verdict.SHARE
         ):
             self.stats.peers_refused += 1
             self._sender.sendto(self._admission.reject(admitted, CloseReason.BUSY), addr)
             logger.info(
-                "tdtp slave: refused %s (busy: %d masters, %d waiting to be accepted)",
+                "tdtp slave: refused %s (busy: %d masters, %d waiting to be accepted%s)",
                 format_address(addr),
-                len(self._peers),
+                len(peers),
                 len(self._pending),
+                "; its source holds its share"
+                if placement is not None and placement.verdict is Verdict.SHARE
+                else "",
             )
             return
+        if placement.holder is not None:
+            self._evict(placement.holder, placement.detail, now)
+        self._notices.forget(key)
         conn = Connection(self._config, role=Role.SLAVE, admission=self._admission)
         endpoint = Endpoint(
             conn,
@@ -399,27 +450,20 @@ class Server:
             pending.popleft()
         pending.append(endpoint)
         conn.accept_open(admitted, addr, now=now)
-        endpoint._flush(now)
+        endpoint.flush(now)
 
-    def _evict_silent(self, now: float) -> None:
-        """The server is full and a validated master arrives: the session whose master has been
-        silent longest, beyond its silence timeout, gives up its slot (closed as ``EVICTED``).
-        Live sessions are never evicted, so a master that keeps talking keeps its slot."""
-        longest: Endpoint | None = None
-        longest_since = now
-        for endpoint in self._peers.values():
-            since = endpoint.connection.silent_since
-            if since is not None and since < longest_since:
-                longest, longest_since = endpoint, since
-        if longest is None:
+    def _evict(self, holder: Connection, detail: str, now: float) -> None:
+        """End the session the slot policy chose (its master is gone, or restarted elsewhere) and
+        remember its CLOSE, to repeat it to that master's later datagrams."""
+        found = next(((w, ep) for w, ep in self._peers.items() if ep.connection is holder), None)
+        if found is None:  # pragma: no cover - the policy chooses among the sessions it was given
             return
+        where, endpoint = found
         self.stats.peers_evicted += 1
-        logger.info(
-            "tdtp slave: %s silent for %.1f s gives its slot to a new master",
-            format_address(longest.peer),
-            now - longest_since,
-        )
-        longest.evict(now)
+        logger.info("tdtp slave: %s evicted: %s", format_address(endpoint.peer), detail)
+        close = endpoint.evict(detail, now)
+        if close is not None:
+            self._notices.add(where, close, now)
 
     def _on_established(self, endpoint: Endpoint) -> None:
         self.stats.peers_accepted += 1
@@ -461,8 +505,11 @@ def listen(
 
     At most ``max_peers`` masters are served at once, and at most ``backlog`` established ones wait
     for :meth:`Server.accept` (with ``on_data`` the sessions are served anyway and accept() sees the
-    newest ``backlog``); a master beyond either is refused at once (REJECT ``BUSY``). ``on_data``
-    and ``on_watchdog`` apply to every endpoint (see :func:`connect`).
+    newest ``backlog``); a master beyond either is refused at once (REJECT ``BUSY``), unless a
+    session's master is gone (silent for ``config.admission.reclaim_after``, 10 s): its slot is
+    given to the new master (docs/PROTOCOL.md 5.1, rule 2.7). One source holds at most
+    ``config.admission.source_share`` of the slots. ``on_data`` and ``on_watchdog`` apply to every
+    endpoint (see :func:`connect`).
 
     ``key`` (one pre-shared key) or ``keys`` (a :class:`~tdtp.KeyRing`, several keys, or a mapping
     of master name to secret) makes the server keyed: it accepts only masters holding one of the

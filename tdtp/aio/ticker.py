@@ -31,7 +31,7 @@ import math
 import time
 from collections.abc import AsyncIterator, Callable
 
-from tdtp.aio.loop_timers import TickGroup, TickHandle, tick_group
+from tdtp.aio.loop_timers import TickGroup, TickHandle, deliver_tick, tick_group
 from tdtp.aio.timer import monotonic
 from tdtp.errors import InvalidArgumentError
 
@@ -66,7 +66,8 @@ class Ticker:
         self.spin = spin
         """Seconds before each deadline spent waiting on the CPU (see the module docstring)."""
         self._start = start
-        self._max_catch_up = max_catch_up
+        self.max_catch_up = max_catch_up
+        """Missed ticks given one by one after a stall; beyond them the ticker skips to the tick due."""
         self._timer_kind = timer
         self.ticks = 0
         """Ticks delivered so far."""
@@ -103,9 +104,9 @@ class Ticker:
                 return group.deadline(first + tick)
 
             # The common tick inline (a slave runs one of these per master, every period): the
-            # same deadline as group.deadline() to the bit, the same accounting as _deliver().
+            # same deadline as group.deadline() to the bit, the same accounting as deliver_tick().
             anchor, period, rate = group.anchor, group.period, self.rate
-            catch_up = self._max_catch_up
+            catch_up = self.max_catch_up
             clock = time.monotonic  # = tdtp.aio.timer.monotonic, without a call in between
             index = 0
             while True:
@@ -116,7 +117,7 @@ class Ticker:
                     now = clock()
                 late = now - deadline
                 if int(late * rate) > catch_up:
-                    index = self._deliver(now, index, deadline_of)
+                    index = deliver_tick(self, now, index, deadline_of)
                 else:
                     if late > self.max_lateness:
                         self.max_lateness = late
@@ -140,17 +141,3 @@ class Ticker:
         self._handle = handle = TickHandle(self, group, first, callback)
         group.add_callback(handle, first)
         return handle
-
-    def _deliver(self, now: float, index: int, deadline_of: Callable[[int], float]) -> int:
-        """Account for tick ``index`` delivered at ``now`` (both schedules' rules): after a stall
-        of more than ``max_catch_up`` periods, skip to the tick due now. Returns the tick given."""
-        deadline = deadline_of(index)
-        behind = int((now - deadline) * self.rate)
-        if behind > self._max_catch_up:
-            self.skipped += behind
-            index += behind
-            deadline = deadline_of(index)
-        self.max_lateness = max(self.max_lateness, now - deadline)
-        self.ticks += 1
-        self.deadline = deadline
-        return index

@@ -235,6 +235,7 @@ class Figure5Row:
     tdtp: float
 
     def by_scheme(self) -> dict[str, float]:
+        """The row's four bandwidths (bits/s) by scheme name, in the figure's order."""
         return {"TCP": self.tcp, "UDP": self.udp, "Trinomial": self.trinomial, "TDTP": self.tdtp}
 
 

@@ -27,9 +27,12 @@ from typing import Any, BinaryIO, Final
 
 from tdtp.errors import TdtpError
 
+__all__ = ["LINKTYPE_RAW", "SNAPLEN", "CaptureError", "PcapWriter"]
+
 LINKTYPE_RAW: Final = 101
 """Raw IP: the packet begins with the IPv4 or IPv6 header (the version nibble tells which)."""
 SNAPLEN: Final = 65535
+"""The largest datagram recorded whole (the pcap header's snapshot length)."""
 _FILE_HEADER: Final = struct.Struct("<IHHiIII")  # magic, 2.4, thiszone, sigfigs, snaplen, network
 _MAGIC_MICROSECONDS: Final = 0xA1B2C3D4
 _RECORD: Final = struct.Struct("<IIII")  # seconds, microseconds, captured length, original length
@@ -86,6 +89,7 @@ class PcapWriter:
 
     @property
     def closed(self) -> bool:
+        """Whether the file is closed (by :meth:`close`, or after a write failed: :attr:`error`)."""
         return self._file is None
 
     def _address(self, host: Any) -> IpAddress:
@@ -150,6 +154,7 @@ class PcapWriter:
         self.packets += 1
 
     def flush(self) -> None:
+        """Push what was written to the file (a failure closes it and is kept in :attr:`error`)."""
         if self._file is not None:
             try:
                 self._file.flush()

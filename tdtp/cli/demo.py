@@ -36,7 +36,7 @@ from tdtp.cli.session_tasks import (
     silence_note,
     watchdog_logger,
 )
-from tdtp.cli.summary import direction_report
+from tdtp.cli.summary import direction_report, srtt_text
 from tdtp.config import ConnectionConfig
 
 
@@ -210,7 +210,7 @@ def demo_table(summary: dict[str, Any]) -> str:
         rows.append(
             f"{label}: offered {d['samples_offered']}, sent {d['packets_sent']}, "
             f"received {d['packets_received']} ({d['delivery_ratio'] * 100:.2f} %), "
-            f"lost {d['losses']}, {d['mean_rate']:.1f} pkt/s, srtt {d['srtt_ms']:.3f} ms, "
+            f"lost {d['losses']}, {d['mean_rate']:.1f} pkt/s, {srtt_text(d['srtt_ms'])}, "
             f"latency p50 {latency.get('p50', math.nan):.3f} ms p99 "
             f"{latency.get('p99', math.nan):.3f} ms, age p50 {age.get('p50', math.nan):.3f} ms p99 "
             f"{age.get('p99', math.nan):.3f} ms, header bytes {d['header_bytes']}, "

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from tdtp.errors import InvalidKeyError
-from tdtp.protection.key_file import load_keys, write_key_file
+from tdtp.protection.key_file import choose_key, load_keys, write_key_file
 from tdtp.protection.keys import KeyRing, PresharedKey
 
 
@@ -77,15 +77,10 @@ def session_keys(args: argparse.Namespace) -> SessionKeys:
         ring = KeyRing(keys)
     except InvalidKeyError as exc:
         raise KeyArgumentError(str(exc)) from None
-    name: str | None = getattr(args, "key_name", None)
-    if name is None:
-        master = keys[0]
-    else:
-        named = [key for key in keys if key.name == name]
-        if not named:
-            known = ", ".join(key.label for key in keys)
-            raise KeyArgumentError(f"no key named {name!r} in {path} (it has: {known})")
-        master = named[0]
+    try:
+        master = choose_key(keys, getattr(args, "key_name", None), path)
+    except InvalidKeyError as exc:
+        raise KeyArgumentError(str(exc)) from None
     return SessionKeys(master, ring)
 
 

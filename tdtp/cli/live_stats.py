@@ -63,13 +63,19 @@ def age_text(receiver: ConnectionStats) -> str | None:
 
 @dataclass(slots=True)
 class DirectionMeter:
-    """Turns cumulative counters into per-interval figures for the live display."""
+    """Turns cumulative counters into per-interval figures for the live display.
+
+    The counters are a session's: a reconnecting endpoint starts a new session with new counters
+    from zero, so the meter starts over from zero whenever it is handed another session's
+    statistics (otherwise the first interval after a reconnect would show a negative rate)."""
 
     label: str
     last_received: int = 0
     last_lost: int = 0
     last_sent: int = 0
     last_reordered: int = 0
+    source: ConnectionStats | None = None
+    """The statistics the ``last_*`` figures were read from."""
 
     def line(
         self,
@@ -79,9 +85,20 @@ class DirectionMeter:
         latency: list[float] | None,
         note: str | None = None,
         receiver: ConnectionStats | None = None,
+        session: str | None = None,
     ) -> str:
         """One line of figures for the last ``interval``; the sample age the ``receiver`` estimates
-        and ``note`` (e.g. the watchdog's) are appended."""
+        and ``note`` (e.g. the watchdog's) are appended. ``session``: there is no session (closed,
+        or reconnecting), and this is what the line says instead of a closed link's figures."""
+        if sender is not self.source:
+            self.source = sender
+            self.last_received = self.last_lost = self.last_sent = self.last_reordered = 0
+        if session is not None:
+            self.last_received = received_total
+            self.last_lost = sender.packets_lost
+            self.last_sent = sender.sent.data_packets
+            self.last_reordered = sender.packets_reordered
+            return f"{self.label}  {session}" + (f"  {note}" if note else "")
         received = received_total - self.last_received
         lost = sender.packets_lost - self.last_lost
         sent = sender.sent.data_packets - self.last_sent

@@ -5,16 +5,19 @@ each period with force feedback from a virtual spring wall. Both print a live st
 or with ``--json`` one JSON object at the end. Ctrl-C ends a run early and still prints the summary.
 
 Exit status: 0 when the run ended as asked, 1 when the session failed (no slave, refused, lost after a
-silence longer than the outage limit), 2 for a usage error (one line on stderr saying what to change),
-130 after Ctrl-C.
+silence longer than the outage limit, evicted), 2 for a usage error (one line on stderr saying what to
+change), 130 after Ctrl-C, 143 after SIGTERM (a service manager's stop: handled as Ctrl-C is, so a slave
+still tells its masters whether it will be back, ``--on-stop``).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import os
+import signal
 import sys
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
@@ -31,7 +34,7 @@ from tdtp.cli.keys import (
 from tdtp.cli.master import run_master
 from tdtp.cli.netem_relay import run_relay
 from tdtp.cli.options import UsageError, build_parser, session_config
-from tdtp.cli.outcome import EXIT_FAILED, EXIT_INTERRUPTED, Outcome
+from tdtp.cli.outcome import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED, Outcome
 from tdtp.cli.parser import EXIT_USAGE
 from tdtp.cli.simulate import simulate_main
 from tdtp.cli.slave import run_slave
@@ -80,6 +83,27 @@ _USAGE_ERRORS = (
 """Errors that a different command line fixes: exit status 2."""
 
 
+async def _run(runner: Runner, args: argparse.Namespace, outcome: Outcome) -> None:
+    """``runner`` with SIGTERM handled as asyncio.Runner handles SIGINT: the run's task is
+    cancelled, so that it ends as after Ctrl-C (CLOSEs sent, summary printed)."""
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    assert task is not None
+
+    def terminate() -> None:
+        outcome.terminated = True
+        task.cancel()
+
+    # Not in the main thread, or no signals here: SIGTERM keeps its default.
+    with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+        loop.add_signal_handler(signal.SIGTERM, terminate)
+    try:
+        await runner(args, outcome)
+    finally:
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+            loop.remove_signal_handler(signal.SIGTERM)
+
+
 def _fail(message: object, status: int) -> int:
     print(f"tdtp: {message}", file=sys.stderr)
     return status
@@ -109,9 +133,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     interrupted = False
     try:
         with asyncio.Runner(loop_factory=loop_factory) as runner:
-            runner.run(RUNNERS[args.command](args, outcome))
+            runner.run(_run(RUNNERS[args.command], args, outcome))
     except KeyboardInterrupt:
         interrupted = True
+    except asyncio.CancelledError:
+        if not outcome.terminated:
+            raise
     except _USAGE_ERRORS as exc:
         return _fail(exc, EXIT_USAGE)
     except (ConnectError, TdtpError, OSError) as exc:
@@ -127,6 +154,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()
         except BrokenPipeError:  # `tdtp ... | head`: the reader has what it wanted
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    if outcome.terminated:
+        return EXIT_TERMINATED
     if interrupted:
         return EXIT_INTERRUPTED
     if outcome.failure is not None:

@@ -7,7 +7,7 @@ import asyncio
 import math
 
 from tdtp.aio.api import connect
-from tdtp.aio.endpoint import format_address
+from tdtp.aio.endpoint import Endpoint, format_address
 from tdtp.aio.reconnect import ReconnectPolicy
 from tdtp.aio.timer import monotonic
 from tdtp.capture.pcap import PcapWriter
@@ -69,12 +69,11 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
 
         def show(interval: float) -> None:
             assert display is not None
+            stats = ep.stats
             lines = [
                 f"t={monotonic() - start:6.1f} s",
-                meter.line(ep.stats, ep.stats.packets_acked, interval, None),
-                receive_line(
-                    "S->M", side.received, reverse_meter, interval, side.latency, ep.stats
-                ),
+                meter.line(stats, stats.packets_acked, interval, None, session=session_state(ep)),
+                receive_line("S->M", side.received, reverse_meter, interval, side.latency, stats),
             ]
             note = silence_note(ep, "master")
             if note is not None:
@@ -139,7 +138,36 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
                 summary["slave_to_master"]["control_messages"] = control_report(
                     None, side.control, None
                 )
-            event = ep.close_event
-            if event is not None and event.cause is not CloseCause.PEER_CLOSE:
+            failure = master_failure(ep)
+            if failure is not None:
                 outcome.status = EXIT_FAILED
-                outcome.failure = f"session lost ({event.cause.value}): {event.detail}"
+                outcome.failure = failure
+
+
+def session_state(ep: Endpoint) -> str | None:
+    """``None`` while a session is up; else what the live line shows instead of its figures."""
+    if ep.reconnects.reopening:
+        lost = ep.reconnects.lost
+        return f"no session: reconnecting ({lost[0]})" if lost is not None else "no session"
+    event = ep.close_event
+    if event is not None:
+        return f"no session: closed ({event.cause.value})"
+    return None
+
+
+def master_failure(ep: Endpoint) -> str | None:
+    """The one line ``tdtp master`` ends with when its run failed, ``None`` when it did not: the
+    session was lost and not reopened (evicted, refused, the slave gone for good or for longer
+    than reconnecting tried), or the run ended while reconnecting. A CLOSE ``NORMAL`` from the
+    slave is not a failure: it ended the session on purpose."""
+    record = ep.reconnects
+    lost = f"session lost ({record.lost[0]}): {record.lost[1]}" if record.lost is not None else None
+    event = ep.close_event
+    if record.reopening:
+        return f"the run ended while reconnecting: {lost}; no new session opened"
+    if event is None or event.cause is CloseCause.PEER_CLOSE:
+        return None
+    ended = f"({event.cause.value}): {event.detail}"
+    if record.lost is not None and event.cause in (CloseCause.REJECTED, CloseCause.OPEN_TIMEOUT):
+        return f"{lost}; reconnecting gave up {ended}"
+    return f"session lost {ended}"

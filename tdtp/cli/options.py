@@ -226,7 +226,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = CommandParser(
         prog="tdtp",
         description="TDTP teleoperation transport: master, slave and demo.",
-        epilog="Exit status: 0 done, 1 session failed, 2 usage error, 130 interrupted.",
+        epilog="Exit status: 0 done, 1 session failed, 2 usage error, 130 interrupted (Ctrl-C), "
+        "143 stopped (SIGTERM).",
     )
     parser.add_argument("--version", action="version", version=f"tdtp {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -258,6 +259,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="--exclusive: watchdog periods (--silence-timeout each) a master must be silent "
         "before another one takes control (3)",
     )
+    slave.add_argument(
+        "--on-stop",
+        choices=("restart", "shutdown"),
+        default="restart",
+        help="what the CLOSE tells the masters when Ctrl-C or SIGTERM stops this slave: restart "
+        "(it will be back soon: they reopen at once; the default, since a service restart looks "
+        "just like this) or shutdown (it is gone for good: they stop); the end of --duration "
+        "always says shutdown",
+    )
     add_key_arguments(slave)
     master = commands.add_parser("master", parents=[common], help="connect to a slave")
     master.add_argument("address", type=host_port, help="the slave, HOST:PORT")
@@ -265,7 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--reconnect",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="open a new session when the slave restarts (RESET), the session idles out, or the "
+        help="open a new session when the slave restarts (its CLOSE says RESTARTING, or a RESET "
+        "says it restarted), evicts this master (after a back-off), the session idles out, or the "
         "slave is silent for --reconnect-after seconds (default: on)",
     )
     master.add_argument(

@@ -22,7 +22,7 @@ from tdtp.teleop.haptic_sample import HapticSample
 
 MAX_LATENCY = 10.0
 """Latencies above this are not recorded (the clocks of two hosts are not comparable)."""
-EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
+EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 130, 143
 
 
 @dataclass
@@ -84,6 +84,8 @@ class Outcome:
     summary: dict[str, Any] | None = None
     status: int = EXIT_OK
     failure: str | None = None
+    terminated: bool = False
+    """SIGTERM stopped the run (exit status 143)."""
 
 
 def header_line(args: argparse.Namespace, ep: Endpoint) -> str:

@@ -75,6 +75,11 @@ async def _slave(
         )
         try:
             await every_second(until, lambda interval: _show_slave(display, server, sides))
+        except asyncio.CancelledError:
+            # Ctrl-C or SIGTERM: the masters are told whether to come back (--on-stop), before
+            # the summary is made; the end of --duration closes them NORMAL (listen's exit).
+            await server.close(restarting=args.on_stop == "restart")
+            raise
         finally:
             acceptor.cancel()
             for task in tasks:
@@ -86,6 +91,8 @@ async def _slave(
                 "command": "slave",
                 "masters_served": server.stats.peers_accepted,
                 "masters_refused": server.stats.peers_refused,
+                "masters_evicted": server.stats.peers_evicted,
+                "slots": asdict(server.stats.slots),
                 "datagrams_unattached": server.stats.datagrams_unattached,
                 "admission": asdict(server.stats.admission),
                 "sessions": sessions,

@@ -72,8 +72,9 @@ class LatencyCounts:
     """Haptic samples whose send time is not on this host's monotonic clock (another host)."""
 
 
-def _ms(seconds: float) -> float:
-    return round(seconds * 1e3, 4)
+def _ms(seconds: float) -> float | None:
+    """Milliseconds, or ``None`` for a figure a closed session no longer has (NaN)."""
+    return None if math.isnan(seconds) else round(seconds * 1e3, 4)
 
 
 def sender_view(stats: ConnectionStats) -> dict[str, Any]:
@@ -189,6 +190,11 @@ def capture_report(writer: PcapWriter | None) -> dict[str, Any] | None:
     return {"file": writer.path, "packets": writer.packets, "error": writer.error}
 
 
+def srtt_text(srtt_ms: float | None) -> str:
+    """``srtt 0.312 ms``, or ``srtt - (closed)`` for a session that has ended."""
+    return "srtt - (closed)" if srtt_ms is None else f"srtt {srtt_ms:.3f} ms"
+
+
 def direction_line(label: str, report: dict[str, Any]) -> str:
     """One direction of a ``--json`` report in one line, with what this end saw of it."""
     parts: list[str] = []
@@ -198,7 +204,7 @@ def direction_line(label: str, report: dict[str, Any]) -> str:
         parts.append(
             f"offered {report['samples_offered']}, sent {sent}, acked {report['packets_acked']}, "
             f"lost {lost} ({lost / sent * 100 if sent else 0.0:.2f} %), "
-            f"srtt {report['srtt_ms']:.3f} ms"
+            + srtt_text(report["srtt_ms"])
         )
     if report.get("packets_received") is not None:
         parts.append(

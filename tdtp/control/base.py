@@ -49,6 +49,7 @@ class PacingSchedule:
 
     @property
     def next_departure(self) -> float:
+        """When the next packet may leave (``NO_LIMIT``: at once)."""
         return self._next
 
     def on_departure(self, now: float, rate: float) -> None:
@@ -74,6 +75,7 @@ class PacingSchedule:
             self._next = max(now, self._anchor + 1.0 / rate)
 
     def reset(self) -> None:
+        """Forget the schedule: the next packet may leave at once."""
         self._next = self._anchor = NO_LIMIT
 
 

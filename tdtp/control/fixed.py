@@ -47,6 +47,7 @@ class FixedRateController(RateController):
 
     @property
     def config(self) -> FixedConfig:
+        """The configuration this controller runs with."""
         return self._config
 
     @property

@@ -215,6 +215,7 @@ class TeleopController(RateController):
 
     @property
     def config(self) -> TeleopConfig:
+        """The configuration this controller runs with."""
         return self._cfg
 
     @property
@@ -261,6 +262,7 @@ class TeleopController(RateController):
 
     @property
     def delay_decrease_count(self) -> int:
+        """Decreases for a queue that kept growing (queueing delay above the target)."""
         return self._delay_decreases
 
     @property
@@ -275,10 +277,12 @@ class TeleopController(RateController):
 
     @property
     def increase_count(self) -> int:
+        """Rate increases so far."""
         return self._increases
 
     @property
     def in_blackout(self) -> bool:
+        """True while no feedback has arrived for the no-feedback timeout (the rate is held down)."""
         return self._blackout
 
     # ------------------------------------------------------------------ RateController

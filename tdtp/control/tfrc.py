@@ -135,6 +135,7 @@ class TfrcController(RateController):
 
     @property
     def config(self) -> TfrcConfig:
+        """The configuration this controller runs with."""
         return self._cfg
 
     @property
@@ -148,10 +149,12 @@ class TfrcController(RateController):
 
     @property
     def in_slow_start(self) -> bool:
+        """True until the first loss event (the loss-event rate is still 0)."""
         return self._p == 0.0
 
     @property
     def backoff_count(self) -> int:
+        """Halvings of the rate for lack of feedback (RFC 5348's no-feedback timer)."""
         return self._backoffs
 
     # ------------------------------------------------------------------ RateController

@@ -227,6 +227,7 @@ class TrinomialController(RateController):
 
     @property
     def config(self) -> TrinomialConfig:
+        """The configuration this controller runs with."""
         return self._cfg
 
     @property
@@ -255,6 +256,7 @@ class TrinomialController(RateController):
 
     @property
     def increase_count(self) -> int:
+        """Eq. 9 increases so far (one per increase interval at most)."""
         return self._increases
 
     @property

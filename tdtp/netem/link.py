@@ -239,6 +239,7 @@ class NetemStats:
     """Packets sent at once by the reorder decision, ahead of delayed ones."""
 
     def as_dict(self) -> dict[str, int]:
+        """The counters as a plain dict, for a JSON summary."""
         return asdict(self)
 
 

@@ -494,6 +494,7 @@ class TraceSpec:
 
     @property
     def path(self) -> str:
+        """The trace file's path, as given (what ``str(spec)`` writes back)."""
         return self.trace.path
 
     def __str__(self) -> str:

@@ -119,6 +119,7 @@ class TraceQueue:
 
     @property
     def trace(self) -> Trace:
+        """The recorded trace whose delivery opportunities serve this queue."""
         return self._trace
 
     def queued(self, now: float) -> tuple[int, int]:

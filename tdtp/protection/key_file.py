@@ -59,7 +59,9 @@ def parse_keys(text: str, source: str = "key file") -> list[PresharedKey]:
 
 
 def load_keys(path: str | os.PathLike[str]) -> list[PresharedKey]:
-    """Read a key file. Refuses one that other users may read: the keys are the secret."""
+    """Read every key of a key file, for a slave: ``tdtp.listen(..., keys=tdtp.load_keys(path))``
+    (a master presents one: :func:`load_key`). Refuses a file that other users may read: the keys
+    are the secret."""
     file = Path(path)
     try:
         mode = file.stat().st_mode
@@ -73,7 +75,26 @@ def load_keys(path: str | os.PathLike[str]) -> list[PresharedKey]:
     return parse_keys(text, str(file))
 
 
+def choose_key(keys: list[PresharedKey], name: str | None, source: str) -> PresharedKey:
+    """The key a master presents: the first of ``keys``, or the one called ``name``."""
+    if name is None:
+        return keys[0]
+    for key in keys:
+        if key.name == name:
+            return key
+    known = ", ".join(key.label for key in keys)
+    raise InvalidKeyError(f"no key named {name!r} in {source} (it has: {known})")
+
+
+def load_key(path: str | os.PathLike[str], name: str | None = None) -> PresharedKey:
+    """Read the key a master presents from a key file: its first key, or the one called ``name``
+    (as ``tdtp master --key-file FILE [--key-name NAME]``). For ``tdtp.connect(..., key=...)``;
+    a slave takes every key of its file: ``tdtp.listen(..., keys=tdtp.load_keys(path))``."""
+    return choose_key(load_keys(path), name, str(path))
+
+
 def format_keys(keys: list[PresharedKey]) -> str:
+    """``keys`` in the key file format, one ``NAME HEX`` (or ``HEX``) line each."""
     lines = ["# tdtp pre-shared keys: NAME HEX (keep this file secret)"]
     lines += [f"{key.name} {key.secret.hex()}" if key.name else key.secret.hex() for key in keys]
     return "\n".join(lines) + "\n"

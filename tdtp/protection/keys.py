@@ -8,6 +8,7 @@ it holds the same secret by deriving the same session keys (``derivation.py``).
 
 from __future__ import annotations
 
+import os
 import secrets
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Final
@@ -56,6 +57,7 @@ class PresharedKey:
 
     @property
     def secret(self) -> bytes:
+        """The secret bytes (never printed by ``repr`` or ``str``)."""
         return self._secret
 
     @property
@@ -79,15 +81,42 @@ class PresharedKey:
 KeyInput = PresharedKey | bytes | bytearray | memoryview
 """A key as the API accepts it: a :class:`PresharedKey` or its raw secret bytes."""
 
+OneKeyInput = KeyInput | Iterable[KeyInput] | Mapping[str, bytes]
+"""What a master's ``key=`` accepts: one key, or a collection that holds exactly one (what
+:func:`~tdtp.load_keys` returns for a file of one key)."""
 
-def as_key(value: KeyInput) -> PresharedKey:
+
+def as_key(value: OneKeyInput) -> PresharedKey:
+    """The one key ``key=`` names. A collection must hold exactly one: a master presents one key,
+    and the error for several says how to choose (:func:`~tdtp.load_key`)."""
     if isinstance(value, PresharedKey):
         return value
     if isinstance(value, bytes | bytearray | memoryview):
         return PresharedKey(bytes(value))
+    if isinstance(value, str | os.PathLike):
+        raise InvalidKeyError(
+            f"key= takes a key, not the path of a key file: pass key=tdtp.load_key({str(value)!r})"
+        )
+    if isinstance(value, Mapping):
+        keys = [PresharedKey(secret, name) for name, secret in value.items()]
+    elif isinstance(value, Iterable):
+        keys = [as_key(key) for key in value]
+    else:
+        raise InvalidKeyError(
+            f"a key must be a tdtp.PresharedKey or its secret bytes, got {type(value).__name__} "
+            "(read one from a key file with tdtp.load_key(path))"
+        )
+    if len(keys) == 1:
+        return keys[0]
+    if not keys:
+        raise InvalidKeyError(
+            "key= got an empty collection: pass one key, e.g. key=tdtp.load_key(path)"
+        )
+    names = ", ".join(key.label for key in keys)
     raise InvalidKeyError(
-        f"a key must be a tdtp.PresharedKey or bytes, got {type(value).__name__} "
-        "(load one with tdtp.load_keys(path))"
+        f"key= takes the one key a master presents, got {len(keys)} ({names}): pass "
+        "key=tdtp.load_key(path) for a key file's first key or tdtp.load_key(path, name=NAME) "
+        "for a named one (a slave takes them all: listen(keys=tdtp.load_keys(path)))"
     )
 
 
@@ -117,6 +146,7 @@ class KeyRing:
         self._by_id = by_id
 
     def find(self, key_id: bytes) -> PresharedKey | None:
+        """The key whose identifier is ``key_id``, or ``None``."""
         return self._by_id.get(key_id)
 
     def __iter__(self) -> Iterator[PresharedKey]:

@@ -203,14 +203,19 @@ class PacketOpener(Direction):
         """:meth:`open` for a datagram from an address that is not the peer's (path migration):
         only a packet number above every one accepted so far qualifies (a replay, or a late packet
         of the old path, never moves a session), a failure is not counted as a forgery (the
-        datagram may simply belong to another session) and there is no resynchronisation search."""
+        datagram may simply belong to another session) and there is no resynchronisation search.
+        ``None`` with :attr:`failure` ``"replayed"`` when the datagram authenticates at a number
+        accepted already or too old (a copy of one of this session's own datagrams: its owner is
+        alive, and nobody may answer it with a RESET), else ``"unauthenticated"``."""
         head = prefix_size + PN_SIZE
         number = self.expand(_unpack_pn(datagram, prefix_size)[0])
         window = self.window
-        if number <= window.highest:
-            return None
         body = self._decrypt(datagram, head, number)
         if body is None:
+            self.failure = "unauthenticated"
+            return None
+        if number <= window.highest:
+            self.failure = "replayed"
             return None
         window.accept(number)
         self._on_accepted(now)

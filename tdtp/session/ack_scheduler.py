@@ -22,10 +22,9 @@ from tdtp.config import AckMode, ConnectionConfig
 from tdtp.session.events import Address
 from tdtp.session.outbox import Datagrams, Outbox
 from tdtp.session.receive_window import (
-    DUPLICATE,
+    LATE,
     NEW,
     SACK_SPAN,
-    STALE,
     Arrival,
     ReceiveWindow,
 )
@@ -62,13 +61,15 @@ class AckScheduler:
         self._stats = stats
         self._hint = hint
 
-    def open(self, initial_seq: int) -> None:
-        """The peer's data starts at ``initial_seq`` (its OPEN's or OPEN_ACK's header)."""
+    def open(self, initial_seq: int, keyed: bool) -> None:
+        """The peer's data starts at ``initial_seq`` (its OPEN's or OPEN_ACK's header); an unkeyed
+        session checks that a new packet is no further ahead than the peer can have sent."""
         self.due = math.inf
         self.window = ReceiveWindow(
             initial_seq,
             coverage=self.mode is AckMode.BIDIRECTIONAL,
             silence_guard=self._silence_guard,
+            guard_jumps=not keyed,
         )
 
     def on_arrival(self, window: ReceiveWindow, seq: int, now: float) -> Arrival:
@@ -92,7 +93,7 @@ class AckScheduler:
                 self.due = since + self._ack_delay
         if arrival is NEW and window.last_gap:
             self._stats.peer_gaps += window.last_gap
-        if self.mode is _SEPARATE and arrival is not STALE and arrival is not DUPLICATE:
+        if self.mode is _SEPARATE and (arrival is NEW or arrival is LATE):
             # Trinomial acknowledges every arrival, whether or not the sample is delivered.
             self.separate.append((window.last_seq, now))
             self._hint.value = -math.inf

@@ -25,11 +25,13 @@ from collections.abc import Callable
 from typing import Final
 
 from tdtp.admission.admission import Admission, AdmittedOpen
+from tdtp.admission.path_migration import NOT_OURS, OURS, ROAMED
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.registry import create_controller
 from tdtp.errors import ArgumentTypeError, ConnectionStateError
-from tdtp.protection.keys import KeyInput, KeysInput
+from tdtp.protection.keys import KeysInput, OneKeyInput
 from tdtp.protection.packet_protection import PacketOpener
+from tdtp.session import ending
 from tdtp.session.ack_scheduler import AckScheduler
 from tdtp.session.control_channel import ALIVE, TAKEN, ControlChannel, largest_message_body
 from tdtp.session.delivery import SampleDelivery
@@ -43,12 +45,12 @@ from tdtp.session.events import (
     PeerResumed,
     PeerSilent,
 )
-from tdtp.session.handshake import Handshake, Reaction, close_reason_text
+from tdtp.session.handshake import Handshake, Reaction
 from tdtp.session.liveness import Liveness
-from tdtp.session.one_way import OneWayDelay
+from tdtp.session.one_way import STAMP_CODES, STAMP_SIZE, TIMED
 from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
-from tdtp.session.receive_window import LATE, NEW, STALE
+from tdtp.session.receive_window import FAR_AHEAD, LATE, NEW, STALE
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
@@ -61,16 +63,11 @@ from tdtp.wire.control import (
     MESSAGE_CODES,
     OPEN_BODY_SIZE,
     PATH_CODES,
-    STAMP_CODES,
-    STAMP_SIZE,
     CloseBody,
     CloseReason,
     ControlCode,
-    KeepaliveBody,
     OpenFlags,
-    decode_control,
 )
-from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import HEADER_SIZE, PacketType, decode_header
 from tdtp.wire.hold import HOLD_NO_ACK
 from tdtp.wire.protected import PROTECTION_OVERHEAD, TAG_SIZE
@@ -80,7 +77,6 @@ _DATA: Final = int(PacketType.DATA)
 _ACK: Final = int(PacketType.ACK)
 _CONTROL: Final = int(PacketType.CONTROL)
 _RESET: Final = int(ControlCode.RESET)
-_TIMED: Final = int(ControlCode.TIMED_DATA)
 _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 """The largest control body (a keyed OPEN's): datagrams up to this size pass the size check whatever
 ``max_payload`` is."""
@@ -107,7 +103,7 @@ class Connection(ConnectionView):
         *,
         role: Role,
         rng: random.Random | None = None,
-        key: KeyInput | None = None,
+        key: OneKeyInput | None = None,
         keys: KeysInput | None = None,
         admission: Admission | None = None,
     ) -> None:
@@ -144,10 +140,6 @@ class Connection(ConnectionView):
         self._controller = controller = create_controller(
             config.controller, config.controller_config
         )
-        # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
-        controller.feedback_delay = config.ack_delay
-        controller.silence_timeout = config.silence_timeout
-        controller.sample_waiting = False  # kept up to date by the sender
         self._hint = hint = TimerHint(controller)
         self._recovery = recovery = LossRecovery(
             rng.randrange(SEQ_MODULUS),
@@ -158,9 +150,7 @@ class Connection(ConnectionView):
             hint=hint,
         )
         self._acks = acks = AckScheduler(config, stats=stats, hint=hint)
-        self._one_way = outbox.one_way = one_way = OneWayDelay(config, controller, recovery)
-        self._handshake.timestamps = role is Role.MASTER and one_way.wanted
-        self._sender = SampleSender(
+        self._sender = sender = SampleSender(
             config,
             controller=controller,
             stats=stats,
@@ -169,7 +159,6 @@ class Connection(ConnectionView):
             acks=acks,
             liveness=liveness,
             hint=hint,
-            one_way=one_way,
         )
         self._events = events = EventQueue(config.max_pending_events, stats)
         self._channel = ControlChannel(
@@ -182,7 +171,7 @@ class Connection(ConnectionView):
         self._close_event: ConnectionClosed | None = None
         # In order through the reorder wait, timed (PROTOCOL.md 3.6, 5.5).
         self._delivery = delivery = SampleDelivery(
-            config, events=self._events, stats=stats, rtt=recovery.rtt, one_way=one_way
+            config, events=self._events, stats=stats, rtt=recovery.rtt, one_way=sender.one_way
         )
         self._ages = delivery.ages
 
@@ -230,11 +219,10 @@ class Connection(ConnectionView):
         When the sample may leave at once as the only datagram due (established, the pacer and the
         socket allow it, no control packet, held ACK or separate ACK waiting), it is encoded and
         passed to ``transmit(datagram, addr)`` (``addr`` ``None`` when ``connected``, else the
-        peer's address: ``transport.sendto`` fits) *before* any bookkeeping, which follows. An
-        :class:`OSError` from ``transmit`` counts in :attr:`transmit_errors` and the datagram is
-        lost like any other. Returns False when it did not send: the sample is then offered as by
-        :meth:`send`, and :meth:`datagrams_to_send` must run. Raises what :meth:`send` raises.
-        """
+        peer's: ``transport.sendto`` fits) *before* the bookkeeping. An :class:`OSError` from it
+        counts in :attr:`transmit_errors` (the datagram is lost like any other). It raises what
+        :meth:`send` raises; False: not sent, the sample offered as by :meth:`send` (then
+        :meth:`datagrams_to_send` must run)."""
         peer = self._peer
         if self._state is not ESTABLISHED or peer is None or self._path.limited:
             self.send(payload, now=now)
@@ -243,14 +231,8 @@ class Connection(ConnectionView):
             return False
         sealer = self._outbox.sealer
         if sealer is not None and sealer.exhausted:
-            self._exhausted()
+            self._terminate(CloseCause.KEY_EXHAUSTED, ending.KEY_EXHAUSTED_TEXT, now)
         return True
-
-    def _exhausted(self) -> None:
-        self._terminate(
-            CloseCause.KEY_EXHAUSTED,
-            "the session protected as many packets as its keys may; open a new connection",
-        )
 
     def send_control(self, message: bytes | bytearray | memoryview, *, now: float) -> None:
         """Queue a message on the reliable control channel (:mod:`tdtp.session.control_channel`)."""
@@ -259,30 +241,30 @@ class Connection(ConnectionView):
         self._channel.send(message, now)
 
     def pause_sending(self) -> None:
-        """The layer below cannot take datagrams now (the socket's send buffer is full).
-
-        Data is held: the pending sample waits and newer samples supersede it (counted in
-        ``samples_superseded`` and ``samples_blocked``) instead of queueing in a buffer out of sight.
-        Acknowledgements and control packets still go out. Call :meth:`resume_sending` when the
-        buffer has drained, then :meth:`datagrams_to_send`.
-        """
+        """The layer below cannot take datagrams now (the socket's send buffer is full). Data is
+        held: the pending sample waits and newer samples supersede it (counted in
+        ``samples_superseded`` and ``samples_blocked``) instead of queueing out of sight; ACKs and
+        control packets still go out. Then :meth:`resume_sending` and :meth:`datagrams_to_send`."""
         self._sender.pause()
 
     def resume_sending(self) -> None:
         """The layer below takes datagrams again; the newest held sample leaves when the pacer allows."""
         self._sender.resume()
 
-    def close(self, *, now: float, taken_over: bool = False) -> None:
-        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send`.
-        ``taken_over``: an exclusive slave hands control to another master (PROTOCOL.md 5.9)."""
+    def close(
+        self, *, now: float, taken_over: bool = False, restarting: bool = False
+    ) -> bytes | None:
+        """End the connection: a CLOSE goes out with the next :meth:`datagrams_to_send` (and is
+        returned, so that a server can repeat it: PROTOCOL.md 5.9; ``None``: nothing to send).
+        ``taken_over``: an exclusive slave hands control to another master (PROTOCOL.md 5.9);
+        ``restarting``: this side stops but expects to be back soon (CLOSE RESTARTING, 5.2)."""
         if self._state is State.CLOSED:
-            return
-        reason = CloseReason.TAKEN_OVER if taken_over else CloseReason.NORMAL
-        if self._state in (State.OPENING, State.ESTABLISHED) and self._peer is not None:
-            self._queue_close(reason, self._peer)
-        cause = CloseCause.TAKEN_OVER if taken_over else CloseCause.LOCAL_CLOSE
-        detail = "another master took control" if taken_over else "closed by the application"
-        self._terminate(cause, detail)
+            return None
+        reason, cause, detail = ending.local_ending(taken_over=taken_over, restarting=restarting)
+        opened = self._state is State.OPENING or self._state is State.ESTABLISHED
+        self._terminate(cause, detail, now, reason, send=opened)
+        control = self._outbox.control
+        return control[-1][0] if opened and control else None
 
     def accept_open(self, admitted: AdmittedOpen, addr: Address, *, now: float) -> None:
         """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already
@@ -313,12 +295,11 @@ class Connection(ConnectionView):
         rx_time: float | None = None,
         ecn: int | None = None,
     ) -> None:
-        """Take one datagram from the network. Never raises on its content.
-
-        Optional inputs a driver may know: ``rx_time``, when the kernel received it (on the same
-        clock as ``now``; kept as :attr:`last_rx_time` for a controller that wants the exact
-        one-way delay), and ``ecn``, the IP header's ECN field (0-3; ``3``, Congestion
-        Experienced, is counted in ``stats.ecn_ce``). The core reads no clock for either."""
+        """Take one datagram from the network. Never raises on its content. Optional inputs a
+        driver may know: ``rx_time``, when the kernel received it (on the same clock as ``now``;
+        kept as :attr:`last_rx_time`, what the peer's send times are read against), and ``ecn``,
+        the IP header's ECN field (0-3; ``3``, Congestion Experienced, counts in ``stats.ecn_ce``).
+        The core reads no clock for either."""
         stats = self._stats
         stats.datagrams_in += 1
         if self._state is CLOSED:
@@ -405,12 +386,11 @@ class Connection(ConnectionView):
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
         elif size > HEADER_SIZE and data[HEADER_SIZE] in STAMP_CODES:  # PROTOCOL.md 5.11
-            if self._one_way.take(data, self.last_rx_time, now, self._stats):
-                if data[HEADER_SIZE] == _TIMED:
-                    self._on_data(data[:5] + data[5 + STAMP_SIZE :], seq, ack, sack, hold, now)
-                else:
-                    self._on_ack_packet(size, ack, sack, hold, now)
-                self._one_way.pending = False  # (unread if the datagram was dropped)
+            kind = self._sender.one_way.take(data, self.last_rx_time, now)
+            if kind == TIMED:
+                self._on_data(data[:5] + data[5 + STAMP_SIZE :], seq, ack, sack, hold, now)
+            elif kind:
+                self._on_ack_packet(size, ack, sack, hold, now)
         elif size > HEADER_SIZE and data[HEADER_SIZE] in MESSAGE_CODES:  # PROTOCOL.md 5.10
             verdict = self._channel.receive(data, self._state is ESTABLISHED, now)
             if verdict is TAKEN:
@@ -427,69 +407,67 @@ class Connection(ConnectionView):
         if self._state is not State.ESTABLISHED or guard is None:
             self._stats.count_drop(DropReason.UNEXPECTED_CONTROL)
             return
-        refused = guard.judge(data)
+        refused = guard.judge(data, self._liveness.silent_for_watchdog(now))  # 5.7
         if refused is not None:
             self._stats.count_drop(refused)
             return
         self._stats.received.control_packets += 1
-        peer = self._peer_address()
-        self._terminate(
-            CloseCause.PEER_RESTARTED,
-            f"the slave at {peer[0]}:{peer[1]} holds no session for us (it restarted); open a "
-            "new connection",
-        )
+        self._terminate(CloseCause.PEER_RESTARTED, ending.restarted_text(self._peer_address()), now)
 
-    def evict(self, *, now: float) -> None:
-        """Slave side: give this session's slot to a new master (the server is full and ours has
-        been silent longest); the master, if it ever hears again, gets a CLOSE."""
-        if self._state is State.CLOSED:
-            return
-        if self._peer is not None:
-            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer)
-        silent = now - self._liveness.last_receive
-        self._terminate(
-            CloseCause.EVICTED,
-            f"the server was full and this master had been silent for {silent:.1f} s, longer "
-            "than any other; its slot went to a new master",
-        )
+    def evict(self, detail: str, *, now: float) -> bytes | None:
+        """Slave side: give this session's slot to a new master (:mod:`tdtp.admission.slots`
+        chose it; ``detail`` says why). Queues a CLOSE ``EVICTED`` and returns it, so that the
+        server can repeat it to the master's later datagrams (``None``: nothing to send)."""
+        peer = self._peer
+        if self._state is State.CLOSED or peer is None:
+            return None
+        self._terminate(CloseCause.EVICTED, detail, now, CloseReason.EVICTED, send=True)
+        return self._outbox.control[-1][0]
 
-    def roam(self, data: bytes, addr: Address, *, now: float) -> bool:
-        """Keyed slave: follow the master to ``addr`` if ``data`` from there authenticates with a
-        packet number above every one accepted so far (PROTOCOL.md 5.8), and take it in. False,
-        counting nothing, otherwise: the caller (:class:`~tdtp.admission.PathMigration`) counts."""
+    def roam(self, data: bytes, addr: Address, *, now: float) -> int:
+        """Keyed slave: follow the master to ``addr`` if ``data`` from there authenticates above every
+        packet number accepted so far (PROTOCOL.md 5.8), and take it in: ROAMED. OURS if it does at
+        an older one (a copy of our master's), else NOT_OURS; the caller (PathMigration) counts."""
         opener = self._opener
         if opener is None or not self.migratable or len(data) > self._size_limit:
-            return False
+            return NOT_OURS
         opened = self._path.trial(opener, data, now)
         if opened is None:
-            return False
+            return OURS if opener.failure == "replayed" else NOT_OURS
         self._stats.datagrams_in += 1
         self._peer = addr
         self._hint.value = -math.inf
-        self._path.move(False, len(data), self._recovery.sent.next_seq, self._sender.limit)
+        self._path.move(len(data), self._recovery.sent.next_seq, self._sender.limit)
         self._dispatch(opened, data[0] >> 6, now)
-        return True
+        return ROAMED
 
     def migrate(self, addr: Address, *, now: float) -> None:
-        """Unkeyed slave: move to ``addr``, validated (its PATH_RESPONSE carried our nonce)."""
+        """Unkeyed slave: move to ``addr`` (its PATH_RESPONSE carried our nonce), under the 3x limit
+        until the old address has been silent for ``silence_timeout`` (:meth:`move_back`)."""
         if not self.migratable:
             raise ConnectionStateError(f"migrate() is for an established slave, not {self!r}")
         self._stats.datagrams_in += 1
+        previous, self._peer = self._peer, addr
+        self._hint.value = -math.inf
+        self._path.move_unproven(previous, now + self.config.silence_timeout, self._sender.limit)
+        self._heard(now)
+
+    def move_back(self, data: bytes, addr: Address, *, now: float) -> bool:
+        """Unkeyed slave moved by :meth:`migrate` whose old address ``addr`` speaks before the new
+        one is proven: back there (validated before), taking ``data`` in. False otherwise."""
+        if not self._path.returning(addr):
+            return False
         self._peer = addr
         self._hint.value = -math.inf
-        self._path.move(True, 0, 0, 0)
-        self._heard(now)
+        self.receive_datagram(data, addr, now=now)
+        return True
 
     def _on_unopened(self, opener: PacketOpener, now: float) -> None:
         """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
         key that has seen too many forgeries is retired with its connection (RFC 9001, 6.6)."""
         self._stats.count_drop(DropReason(opener.failure))
         if opener.exhausted:
-            self._terminate(
-                CloseCause.KEY_EXHAUSTED,
-                "too many datagrams failed authentication under this session's key; open a new "
-                "connection",
-            )
+            self._terminate(CloseCause.KEY_EXHAUSTED, ending.FORGERY_LIMIT_TEXT, now)
 
     def _accept(self, size: int, payload_size: int, now: float) -> None:
         """Count a datagram taken in; ``size`` is its length without packet protection."""
@@ -531,13 +509,16 @@ class Connection(ConnectionView):
         if not payload_size:
             stats.count_drop(DropReason.EMPTY_DATA)  # senders MUST NOT send one (section 4.1)
             return
+        arrival = self._acks.on_arrival(window, seq, now)
+        if arrival is FAR_AHEAD:
+            stats.count_drop(DropReason.FAR_AHEAD)  # no sign of life, its ACK unread (5.5)
+            return
         echo: float | None = None
         if hold != HOLD_NO_ACK:
-            if not self._on_feedback(ack, sack, hold, now):
-                stats.count_drop(DropReason.OPTIMISTIC_ACK)
-                return
-            echo = self._recovery.echo
-        arrival = self._acks.on_arrival(window, seq, now)
+            if self._on_feedback(ack, sack, hold, now):
+                echo = self._recovery.echo
+            else:
+                stats.optimistic_acks += 1  # the ACK is ignored, the sample taken (3.1)
         delivery = self._delivery
         in_order = delivery.reorder is not None  # through the reorder wait, else as it came
         if arrival is not NEW:
@@ -548,16 +529,17 @@ class Connection(ConnectionView):
             if arrival is LATE:
                 stats.reordered += 1
                 # False once its gap was given up: late after all.
-                in_order = in_order and delivery.on_late(window.last_seq, now)
+                in_order = in_order and delivery.on_late(window.last_seq, window.highest, now)
                 if not in_order and not self._deliver_late:
                     self._heard(now)
                     stats.count_drop(DropReason.LATE)
                     return
-            elif not self._deliver_duplicates:
-                self._heard(now)
-                stats.count_drop(DropReason.DUPLICATE)
-                return
             else:
+                delivery.on_duplicate(window.last_seq)  # a forgery's number, arriving for real?
+                if not self._deliver_duplicates:
+                    self._heard(now)
+                    stats.count_drop(DropReason.DUPLICATE)
+                    return
                 in_order = False  # a duplicate the application asked for goes up as it came
         elif in_order and window.last_gap:
             delivery.on_gap(window.last_seq, window.last_gap, now)
@@ -572,7 +554,7 @@ class Connection(ConnectionView):
         liveness.last_receive = now
         if liveness.silent_since is not None:
             self._on_peer_resumed(now)
-        sent_at = self._one_way.sent_at(echo, hold, now)  # PROTOCOL.md 3.6
+        sent_at = self._sender.one_way.sent_at(echo, hold, now)  # PROTOCOL.md 3.6
         if not in_order:
             delivery.deliver(data[HEADER_SIZE:], window.last_seq, now, now, sent_at)
         elif delivery.arrive(data[HEADER_SIZE:], window.last_seq, now, sent_at):
@@ -588,7 +570,7 @@ class Connection(ConnectionView):
             return
         self._accept(size, 0, now)
         stats.received.ack_packets += 1
-        self._one_way.settle(None if hold == HOLD_NO_ACK else self._recovery.echo, hold, now)
+        self._sender.one_way.settle(None if hold == HOLD_NO_ACK else self._recovery.echo, hold, now)
 
     def _on_feedback(self, ack: int, sack: int, hold: int, now: float) -> bool:
         """Hand the acknowledgement in a header to loss recovery (False if it acknowledges a packet
@@ -608,30 +590,20 @@ class Connection(ConnectionView):
     ) -> None:
         """KEEPALIVE and CLOSE (already opened in a keyed session)."""
         stats = self._stats
-        try:
-            body = decode_control(data[HEADER_SIZE:])
-        except MalformedPacketError:
-            stats.count_drop(DropReason.BAD_CONTROL)
-            return
-        if not isinstance(body, CloseBody | KeepaliveBody):
-            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
-            return
-        # Another session's, or a blind forgery (the nonce is secret to off-path attackers): a
-        # forged KEEPALIVE must not pass for a sign of life and hide a dead master.
-        if body.nonce != self._handshake.master_nonce:
-            stats.count_drop(DropReason.NONCE_MISMATCH)
-            return
+        body = self._handshake.session_control(data)
+        if body is None:
+            return  # malformed, unexpected, or another nonce's (counted)
         if isinstance(body, CloseBody):
             self._accept(size, size - HEADER_SIZE, now)
             stats.received.control_packets += 1
-            self._terminate(CloseCause.PEER_CLOSE, close_reason_text(body.reason))
+            cause, detail = ending.peer_ending(body.reason)
+            self._terminate(cause, detail, now, body.reason)
             return
         if self._state is not State.ESTABLISHED:
             stats.count_drop(DropReason.NOT_ESTABLISHED)
             return
         if hold != HOLD_NO_ACK and not self._on_feedback(ack, sack, hold, now):
-            stats.count_drop(DropReason.OPTIMISTIC_ACK)
-            return
+            stats.optimistic_acks += 1  # the ACK is ignored, the KEEPALIVE taken (3.1)
         self._accept(size, size - HEADER_SIZE, now)
         stats.received.control_packets += 1
 
@@ -653,9 +625,7 @@ class Connection(ConnectionView):
                 self._queue_open_ack()
                 self._delivery.opening_sent_at = now
             elif verdict is Reaction.REPLACED:
-                self._terminate(
-                    CloseCause.REPLACED, "the master opened a new connection from the same address"
-                )
+                self._terminate(CloseCause.REPLACED, ending.REPLACED_TEXT, now)
             return
         reaction = handshake.on_reply(
             data,
@@ -669,7 +639,7 @@ class Connection(ConnectionView):
             return
         self._heard(now)
         if reaction is Reaction.REJECTED:
-            self._terminate(CloseCause.REJECTED, handshake.detail)
+            self._terminate(CloseCause.REJECTED, handshake.detail, now, handshake.reject_reason)
         elif reaction is Reaction.OPENED:
             self._on_opened(decode_header(data).seq, now)
 
@@ -685,9 +655,9 @@ class Connection(ConnectionView):
             AckMode.SEPARATE if body.flags & OpenFlags.SEPARATE_ACKS else AckMode.BIDIRECTIONAL
         )
         self._sender.limit = min(self.config.max_payload, body.max_payload)
-        acks.open(admitted.initial_seq)
-        self._channel.open(self._recovery.sent.next_seq, admitted.initial_seq)
-        self._delivery.open(admitted.initial_seq)
+        acks.open(admitted.initial_seq, handshake.keyed)
+        self._channel.open(self._recovery.sent.next_seq, admitted.initial_seq, body.nonce)
+        self._delivery.open(admitted.initial_seq, handshake.keyed)
         self._install_protection()
         self._stats.count_handshake(admitted.size, handshake.tag_size)
         self._heard(now)
@@ -705,17 +675,20 @@ class Connection(ConnectionView):
         self._install_protection()
         peer_max_payload = self._handshake.peer_max_payload
         if peer_max_payload < self.config.min_peer_payload:
-            self._queue_close(CloseReason.PAYLOAD_TOO_SMALL, self._peer_address())
             self._terminate(
                 CloseCause.REJECTED,
                 f"the slave accepts payloads of at most {peer_max_payload} bytes, smaller than "
                 f"min_peer_payload ({self.config.min_peer_payload})",
+                now,
+                CloseReason.PAYLOAD_TOO_SMALL,
+                send=True,
             )
             return
         self._sender.limit = min(self.config.max_payload, peer_max_payload)
-        self._acks.open(initial_seq)
-        self._channel.open(self._recovery.sent.next_seq, initial_seq)
-        self._delivery.open(initial_seq)
+        handshake = self._handshake
+        self._acks.open(initial_seq, handshake.keyed)
+        self._channel.open(self._recovery.sent.next_seq, initial_seq, handshake.master_nonce)
+        self._delivery.open(initial_seq, handshake.keyed)
         self._establish(now)
         # Confirm at once (the slave waits for our first packet of the session): the next
         # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
@@ -741,7 +714,7 @@ class Connection(ConnectionView):
         self._state = State.ESTABLISHED
         self._hint.value = -math.inf
         self._handshake.confirming = False
-        self._one_way.start(now, self._handshake.timestamps)
+        self._sender.one_way.start(now, self._handshake.timestamps)
         liveness = self._liveness
         liveness.last_receive = now
         liveness.last_send = now
@@ -765,9 +738,9 @@ class Connection(ConnectionView):
             return None
         # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
         # for a waiting sample; the next ACK; the next loss; the controller's own.
-        if self._path.blocked(self._outbox.control):
-            # Nothing may leave before more arrives from the new path: only the watchdog's clock.
-            deadline = self._liveness.watchdog_deadline()
+        if self._path.blocked(self._outbox.control, -math.inf):
+            # Nothing may leave before more arrives from the new path (or, unkeyed, it is proven).
+            deadline = min(self._liveness.watchdog_deadline(), self._path.proven_at)
         else:
             deadline = self._acks.deadline(self._sender.deadline(self._liveness.deadline()))
             deadline = self._channel.deadline(deadline)
@@ -791,23 +764,20 @@ class Connection(ConnectionView):
         state = self._state
         if state is OPENING:
             if now >= self._handshake.open_deadline:
-                if self.role is Role.MASTER:
-                    detail = f"no answer to OPEN within {self.config.open_timeout} s"
-                else:
-                    detail = (
-                        "the master never confirmed the session within "
-                        f"{self.config.open_timeout} s after our OPEN_ACK"
-                    )
-                self._terminate(CloseCause.OPEN_TIMEOUT, detail)
+                master, timeout = self.role is Role.MASTER, self.config.open_timeout
+                detail = ending.open_timeout_text(master=master, timeout=timeout)
+                self._terminate(CloseCause.OPEN_TIMEOUT, detail, now)
             return
         if state is not ESTABLISHED:
             return
         liveness = self._liveness
         if liveness.idle_expired(now):
-            self._queue_close(CloseReason.IDLE_TIMEOUT, self._peer_address())
             self._terminate(
                 CloseCause.IDLE_TIMEOUT,
                 f"nothing received from the peer for {self.config.idle_timeout:g} s",
+                now,
+                CloseReason.IDLE_TIMEOUT,
+                send=True,
             )
             return
         if liveness.check_silence(now):
@@ -834,7 +804,7 @@ class Connection(ConnectionView):
             self._emit_open(out, now)
         path = self._path
         # The 3x limit of an unvalidated new path (PROTOCOL.md 5.8).
-        if path.limited and path.blocked(outbox.control):
+        if path.limited and path.blocked(outbox.control, now):
             if self._sender.pending is not None or self._liveness.keepalive_due(now):
                 self._stats.path_limited += 1
             return out
@@ -870,13 +840,13 @@ class Connection(ConnectionView):
             nonce = self._handshake.master_nonce
             outbox.emit_keepalive(out, sent.next_seq, ack, sack, hold, nonce, peer, now)
         if outbox.sealer is not None and outbox.sealer.exhausted:
-            self._exhausted()
+            self._terminate(CloseCause.KEY_EXHAUSTED, ending.KEY_EXHAUSTED_TEXT, now)
 
     def _emit_open(self, out: list[tuple[bytes, Address]], now: float) -> None:
         handshake = self._handshake
         datagram = handshake.next_open(self._recovery.sent.next_seq, self._acks.mode)
         if datagram is None:
-            self._terminate(CloseCause.OPEN_TIMEOUT, "no answer to 65536 OPENs")
+            self._terminate(CloseCause.OPEN_TIMEOUT, "no answer to 65536 OPENs", now)
             return
         self._outbox.emit_control(
             out, datagram, self._peer_address(), now, handshake.tag_size, True
@@ -897,13 +867,27 @@ class Connection(ConnectionView):
             self._recovery.sent.next_seq, self._handshake.master_nonce, reason, addr
         )
 
-    def _terminate(self, cause: CloseCause, detail: str) -> None:
+    def _terminate(
+        self,
+        cause: CloseCause,
+        detail: str,
+        now: float,
+        reason: int | None = None,
+        *,
+        send: bool = False,
+    ) -> None:
+        """End the session (``send``: with a CLOSE ``reason`` to the peer); control messages the
+        peer never acknowledged are reported (``ControlExpired``) before the ``ConnectionClosed``."""
+        peer = self._peer
+        if send and reason is not None and peer is not None and self._state is not CLOSED:
+            self._queue_close(CloseReason(reason), peer)
         self._state = State.CLOSED
         self._hint.value = -math.inf
         self._handshake.confirming = False
         self._sender.drop()
         self._acks.separate.clear()
-        self._close_event = event = ConnectionClosed(cause, detail)
+        self._channel.abandon(ending.control_abandoned_text(cause, self._channel.unacked), now)
+        self._close_event = event = ConnectionClosed(cause, detail, reason)
         self._push_other_event(event)
 
     def _push_other_event(self, event: Event) -> None:

@@ -8,7 +8,10 @@ independent stream of **control messages** in CONTROL packets (codes MESSAGE and
 * each side numbers its messages consecutively (16 bits on the wire, full numbers here) from a first
   number derived from its initial data sequence number, which both ends know from the opening;
 * every MESSAGE carries the cumulative acknowledgement of the peer's messages (the next number
-  expected); a MESSAGE_ACK carries it alone when no message of ours leaves in the same flush;
+  expected); a MESSAGE_ACK carries it alone when no message of ours leaves in the same flush; both
+  carry the master's nonce, as a KEEPALIVE does, and one with another nonce is dropped before
+  anything in it is read (``nonce_mismatch``): a blind attacker can neither inject nor acknowledge
+  a message, however many numbers it tries;
 * a message is retransmitted when its acknowledgement has not come within the session's loss delay
   (the RTT estimator of :mod:`tdtp.session.recovery`, RFC 6298 style, plus the reorder allowance and the
   peer's ACK delay), backing off exponentially; while backed off only the oldest message is sent
@@ -50,7 +53,10 @@ from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
 from tdtp.wire.control import (
     MESSAGE_ACK_BODY_SIZE,
+    MESSAGE_NONCE_OFFSET,
+    MESSAGE_NUMBERS_OFFSET,
     MESSAGE_PREFIX_SIZE,
+    NONCE_SIZE,
     ControlCode,
 )
 from tdtp.wire.header import HEADER_SIZE, PacketType, encode_header
@@ -72,6 +78,9 @@ _MESSAGE_PREFIX: Final = bytes((ControlCode.MESSAGE,))
 _MESSAGE_ACK_PREFIX: Final = bytes((ControlCode.MESSAGE_ACK,))
 _NUMBERS: Final = struct.Struct(">HH")
 _ACK_FIELD: Final = struct.Struct(">H")
+_NONCE_START: Final = HEADER_SIZE + MESSAGE_NONCE_OFFSET
+_NONCE_END: Final = _NONCE_START + NONCE_SIZE
+_NUMBERS_START: Final = HEADER_SIZE + MESSAGE_NUMBERS_OFFSET
 _HALF: Final = 1 << 15
 _ONE_TOKEN: Final = 1.0 - 1e-9  # a token refilled up to rounding counts as one
 _TOKEN_SLACK: Final = 1e-9  # so that the refill deadline is never the instant that found it short
@@ -148,6 +157,7 @@ class ControlChannel:
         else when a transmission is next due): the connection asks it only from then on."""
         self.failed: str | None = None
         """Why the channel gave up (it then takes no more messages), else ``None``."""
+        self._nonce = bytes(NONCE_SIZE)  # the master's (set at the open)
         # Receiving.
         self._peer_first = 0
         self._expected = 0  # the next message number expected from the peer
@@ -160,9 +170,10 @@ class ControlChannel:
 
     # ------------------------------------------------------------------ the session
 
-    def open(self, own_initial_seq: int, peer_initial_seq: int) -> None:
+    def open(self, own_initial_seq: int, peer_initial_seq: int, nonce: bytes) -> None:
         """The session opened: both first message numbers follow from the initial data sequence
-        numbers (``FIRST_MESSAGE_BASE``)."""
+        numbers (``FIRST_MESSAGE_BASE``); every message carries the master's ``nonce``."""
+        self._nonce = nonce
         self._first = self._next = self._next_sent = self._acked_below = (
             FIRST_MESSAGE_BASE | own_initial_seq
         )
@@ -223,17 +234,24 @@ class ControlChannel:
         stats.count_drop(refused)
         dropped = stats.control_dropped
         dropped[refused.value] = dropped.get(refused.value, 0) + 1
-        if refused is DropReason.BAD_CONTROL or refused is DropReason.OVERSIZED:
+        if (
+            refused is DropReason.BAD_CONTROL
+            or refused is DropReason.OVERSIZED
+            or refused is DropReason.NONCE_MISMATCH
+        ):
             return DROPPED
         return ALIVE
 
     def _take(self, data: bytes, now: float) -> DropReason | None:
         """Why ``data`` is dropped, or ``None`` if it is taken in."""
         size = len(data)
+        nonce = data[_NONCE_START:_NONCE_END]
         if data[HEADER_SIZE] != _MESSAGE:
             if size != HEADER_SIZE + MESSAGE_ACK_BODY_SIZE:
                 return DropReason.BAD_CONTROL
-            if not self._on_ack(_ACK_FIELD.unpack_from(data, HEADER_SIZE + 1)[0], now):
+            if nonce != self._nonce:
+                return DropReason.NONCE_MISMATCH
+            if not self._on_ack(_ACK_FIELD.unpack_from(data, _NUMBERS_START)[0], now):
                 return DropReason.OPTIMISTIC_ACK
             return None
         start = HEADER_SIZE + MESSAGE_PREFIX_SIZE
@@ -242,7 +260,10 @@ class ControlChannel:
             return DropReason.BAD_CONTROL
         if length > self._max_message:
             return DropReason.OVERSIZED
-        wire_seq, wire_ack = _NUMBERS.unpack_from(data, HEADER_SIZE + 1)
+        # Another session's, or a blind forgery: nothing in it is read (PROTOCOL.md 5.10).
+        if nonce != self._nonce:
+            return DropReason.NONCE_MISMATCH
+        wire_seq, wire_ack = _NUMBERS.unpack_from(data, _NUMBERS_START)
         if not self._on_ack(wire_ack, now):
             return DropReason.OPTIMISTIC_ACK
         # Whatever becomes of the message, the peer learns where we stand: a duplicate means our
@@ -305,7 +326,7 @@ class ControlChannel:
             outbox = self._outbox
             datagram = outbox.protect(
                 encode_header(_CONTROL, data_seq, 0, 0, HOLD_NO_ACK) + _MESSAGE_ACK_PREFIX,
-                _ACK_FIELD.pack(self._expected & 0xFFFF),
+                self._nonce + _ACK_FIELD.pack(self._expected & 0xFFFF),
             )
             outbox.emit_control(out, datagram, peer, now, outbox.overhead, True)
 
@@ -330,7 +351,7 @@ class ControlChannel:
                 break  # backed off: new messages wait until the probe is acknowledged
             ack = self._expected & 0xFFFF
             datagram = outbox.protect(
-                header, _NUMBERS.pack(message.number & 0xFFFF, ack) + message.payload
+                header, self._nonce + _NUMBERS.pack(message.number & 0xFFFF, ack) + message.payload
             )
             outbox.emit_control(out, datagram, peer, now, outbox.overhead, True)
             stats.control_transmissions += 1
@@ -396,6 +417,21 @@ class ControlChannel:
             if expiry < deadline:
                 deadline = expiry
         return deadline
+
+    def abandon(self, detail: str, now: float) -> None:
+        """The session ended: report the messages the peer never acknowledged (one
+        ``ControlExpired``, oldest first) instead of dropping them unsaid (PROTOCOL.md 5.10,
+        sender rule 6). Nothing is reported when every message was acknowledged."""
+        unacked = self._unacked
+        if not unacked:
+            return
+        payloads = tuple(message.payload for message in unacked)
+        self._stats.control_given_up += len(payloads)
+        first = unacked[0].number - self._first
+        unacked.clear()
+        self.failed = detail
+        self._due = math.inf
+        self._events.push(ControlExpired(first, payloads, detail, now))
 
     def expire(self, now: float) -> None:
         """Give up, at ``control_timeout``, on the oldest unacknowledged message and all after it."""

@@ -70,14 +70,15 @@ class SampleDelivery:
         if not math.isnan(sent_at) and now >= sent_at:
             self.opening_rtt = now - sent_at
 
-    def open(self, initial_seq: int) -> None:
+    def open(self, initial_seq: int, keyed: bool) -> None:
         """The peer's data starts at ``initial_seq``: deliver it in order, through a reorder wait,
-        unless the application asked for arrival order or for no wait."""
+        unless the application asked for arrival order or for no wait (unkeyed: one that forged
+        numbers cannot lengthen)."""
         config = self._config
         if config.deliver_late or config.max_reorder_wait <= 0.0:
             self.reorder = None
         else:
-            self.reorder = ReorderBuffer(initial_seq, config.max_reorder_wait)
+            self.reorder = ReorderBuffer(initial_seq, config.max_reorder_wait, guarded=not keyed)
 
     def on_gap(self, seq: int, gap: int, now: float) -> None:
         """A new sample ``seq`` skipped the ``gap`` sequence numbers below it (reorder wait on)."""
@@ -85,15 +86,22 @@ class SampleDelivery:
         if reorder is not None:
             reorder.on_gap(seq - gap, seq, now)
 
-    def on_late(self, seq: int, now: float) -> bool:
-        """A sample arrived after a newer one (reorder wait on): measure its displacement. True if
-        its gap is still open (it goes up in order), False if the gap was given up (it is late)."""
+    def on_late(self, seq: int, highest: int, now: float) -> bool:
+        """A sample arrived after a newer one (reorder wait on; ``highest`` the newest arrived):
+        measure its displacement. True if its gap is still open (it goes up in order), False if the
+        gap was given up (it is late)."""
         reorder = self.reorder
         if reorder is None:
             return False
-        reorder.on_late(seq, now)
+        reorder.on_late(seq, now, highest)
         self._stats.reorder_wait = reorder.wait
         return seq >= reorder.next_seq
+
+    def on_duplicate(self, seq: int) -> None:
+        """A sample arrived a second time (reorder wait on): it may unmask a forgery (5.5)."""
+        reorder = self.reorder
+        if reorder is not None:
+            reorder.on_duplicate(seq)
 
     def arrive(self, payload: bytes, seq: int, now: float, sent_at: float | None) -> bool:
         """A sample taken in while the reorder wait is on: deliver it, or hold it for a gap below

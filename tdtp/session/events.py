@@ -10,10 +10,8 @@ from typing import Any, Final, cast
 
 from mypy_extensions import mypyc_attr
 
-from tdtp._build import load_extension
-
-Address = tuple[Any, ...]
-"""A socket address as asyncio reports it: ``(host, port)`` or ``(host, port, flowinfo, scope_id)``."""
+from tdtp._extensions import load_extension
+from tdtp.wire.address import Address as Address  # noqa: PLC0414 - its old home, re-exported
 
 
 class CloseCause(enum.Enum):
@@ -38,9 +36,15 @@ class CloseCause(enum.Enum):
     PEER_RESTARTED = "peer_restarted"
     """The slave answered with a RESET: it holds no session for us (it restarted). Open a new
     connection (``tdtp.connect(..., reconnect=...)`` does)."""
+    PEER_RESTARTING = "peer_restarting"
+    """The peer closed with CLOSE ``RESTARTING``: it is stopping but expects to be back soon (a
+    service restart). A master with ``reconnect=`` opens a new session at once."""
     EVICTED = "evicted"
-    """Slave side: the server was full and this session's master had been silent longer than any
-    other, beyond the silence timeout, when a new master arrived; its slot went to the new one."""
+    """A full server gave this session's slot to another master: its master had been silent for
+    the server's reclaim time (``AdmissionConfig.reclaim_after``, 10 s), or the same master (same
+    key) opened from another address while it was silent (docs/PROTOCOL.md 5.1, rule 2.7). The
+    slave's side ends with this cause, and so does the master's when it hears the CLOSE
+    ``EVICTED``; a master with ``reconnect=`` reopens after a back-off."""
     TAKEN_OVER = "taken_over"
     """An exclusive slave handed control to another master (this one was silent, or the other
     asked with ``takeover=True``); the slave's side ends with this cause, the master's with
@@ -171,6 +175,10 @@ class ConnectionClosed:
 
     cause: CloseCause
     detail: str
+    reason: int | None = None
+    """The CLOSE or REJECT reason code (``tdtp.wire.CloseReason``, or a number this side does not
+    know) behind this ending: the one the peer sent, or the one this side sent it; ``None`` when no
+    CLOSE or REJECT said anything (a RESET, an open timeout, a process that vanished)."""
 
 
 @mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one

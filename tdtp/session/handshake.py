@@ -25,10 +25,11 @@ from tdtp.admission.admission import Admission, AdmittedOpen, Reply
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.errors import InvalidKeyError
 from tdtp.protection.derivation import derive_open_secret, derive_session_secrets
-from tdtp.protection.keys import KeyInput, KeysInput, PresharedKey, as_key, as_key_ring
+from tdtp.protection.keys import KeysInput, OneKeyInput, PresharedKey, as_key, as_key_ring
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
 from tdtp.session.events import Address
 from tdtp.session.liveness import Liveness
+from tdtp.session.one_way import wants_timestamps
 from tdtp.session.outbox import Outbox
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.wire.control import (
@@ -97,7 +98,7 @@ class Handshake:
         role: Role,
         rng: random.Random,
         *,
-        key: KeyInput | None,
+        key: OneKeyInput | None,
         keys: KeysInput | None,
         admission: Admission | None,
         stats: ConnectionStats,
@@ -153,9 +154,12 @@ class Handshake:
         """The largest payload the slave sends, from its OPEN_ACK (a master's)."""
         self.detail = ""
         """Why the slave refused us (:attr:`Reaction.REJECTED`)."""
-        self.timestamps = False
-        """The session stamps send times (the TIMESTAMPS flag): a master's choice (set by the
-        connection from its config), a slave's from the OPEN."""
+        self.reject_reason: int | None = None
+        """The REJECT's reason code (:attr:`Reaction.REJECTED`)."""
+        self.timestamps = role is Role.MASTER and wants_timestamps(config)
+        """The session stamps send times (the TIMESTAMPS flag, PROTOCOL.md 5.11): a master's
+        choice (its controller reads one-way delays and ``timestamp_interval`` is not 0), a
+        slave's from the OPEN."""
         self._open_tagger: Direction | None = None  # a keyed master's OPEN key
         self._cookie = NO_COOKIE
         self._cookie_answered_at = -math.inf
@@ -278,6 +282,7 @@ class Handshake:
         elif isinstance(body, CloseBody):  # REJECT
             stats.count_handshake(len(data), 0)
             self.detail = self.reject_text(body.reason)
+            self.reject_reason = body.reason
             return Reaction.REJECTED
         else:  # pragma: no cover - decode_control returns one of the above for these codes
             stats.count_drop(DropReason.BAD_CONTROL)
@@ -373,6 +378,25 @@ class Handshake:
             return Reaction.REPLACED
         return Reaction.IGNORED
 
+    def session_control(self, data: bytes) -> CloseBody | KeepaliveBody | None:
+        """A KEEPALIVE or CLOSE of our session (protection removed), or ``None`` with the drop
+        counted: malformed, another code, or another session's nonce. The nonce is what an
+        off-path attacker does not know: a forged KEEPALIVE must not pass for a sign of life and
+        hide a dead master, nor a forged CLOSE end the session."""
+        stats = self._stats
+        try:
+            body = decode_control(data[HEADER_SIZE:])
+        except MalformedPacketError:
+            stats.count_drop(DropReason.BAD_CONTROL)
+            return None
+        if not isinstance(body, CloseBody | KeepaliveBody):
+            stats.count_drop(DropReason.UNEXPECTED_CONTROL)
+            return None
+        if body.nonce != self.master_nonce:
+            stats.count_drop(DropReason.NONCE_MISMATCH)
+            return None
+        return body
+
     def on_stranger(self, data: bytes, addr: Address, now: float) -> None:
         """A session datagram while we hold no session: a listening slave answers it with a RESET
         within admission's budget (PROTOCOL.md 5.7); a master before connect() drops it."""
@@ -432,14 +456,6 @@ class Handshake:
             PacketSealer(suite, ours, encrypt=self.encrypt),
             PacketOpener(suite, theirs, encrypt=self.encrypt),
         )
-
-
-def close_reason_text(reason: int) -> str:
-    """A peer's CLOSE reason code, as the detail of a :class:`~tdtp.session.events.ConnectionClosed`."""
-    try:
-        return CloseReason(reason).name.lower()
-    except ValueError:
-        return f"reason code {reason}"
 
 
 _REJECT_TEXT = {

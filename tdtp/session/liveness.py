@@ -74,6 +74,11 @@ class Liveness:
         since = self.silent_since
         return self.last_outage if since is None else (since, now)
 
+    def silent_for_watchdog(self, now: float) -> bool:
+        """Nothing from the peer for ``silence_timeout``: what the watchdog calls silent (only the
+        timer's :meth:`check_silence` reports it; this asks, at any ``now``)."""
+        return now - self.last_receive >= self.silence
+
     def keepalive_due(self, now: float) -> bool:
         return now >= self.last_send + self.keepalive
 

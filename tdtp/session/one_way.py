@@ -40,14 +40,17 @@ from typing import Final
 
 from tdtp.config import ConnectionConfig
 from tdtp.control.base import RateController
+from tdtp.control.registry import judges_one_way_delay
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.stats import ConnectionStats, DropReason
-from tdtp.wire.control import STAMP_MODULUS, STAMP_SIZE, ControlCode
+from tdtp.wire.control import STAMP_CODES, STAMP_MODULUS, STAMP_SIZE, ControlCode
 from tdtp.wire.header import HEADER_SIZE
 from tdtp.wire.hold import HOLD_SATURATED
 
 _WRAP_HALF: Final = STAMP_MODULUS // 2
 _TIMESTAMP: Final = int(ControlCode.TIMESTAMP)
+TIMED: Final = int(ControlCode.TIMED_DATA)
+__all__ = ["STAMP_CODES", "STAMP_SIZE", "TIMED", "OneWayDelay", "WindowMin", "wants_timestamps"]
 BASE_WINDOW: Final = 10.0
 """Seconds over which each direction's smallest delay is its base (the teleop controller's
 ``base_window``)."""
@@ -57,6 +60,12 @@ RESET_AFTER: Final = 64
 """Stamps rejected in a row after which the bases start over."""
 QUEUE_GAIN: Final = 0.125
 """Gain of the moving averages of each direction's queue (what ``stats`` shows)."""
+
+
+def wants_timestamps(config: ConnectionConfig) -> bool:
+    """Whether a master with this config opens with the TIMESTAMPS flag: its controller reads
+    one-way delays and ``timestamp_interval`` is not 0."""
+    return config.timestamp_interval > 0.0 and judges_one_way_delay(config.controller)
 
 
 class WindowMin:
@@ -104,6 +113,8 @@ class OneWayDelay:
         "_rejected_run",
         "_rx",
         "_stamp_clock",
+        "_stats",
+        "_taken_with",
         "due",
         "enabled",
         "pending",
@@ -111,17 +122,23 @@ class OneWayDelay:
         "queue_out",
         "samples",
         "stamps_rejected",
-        "wanted",
     )
 
     def __init__(
-        self, config: ConnectionConfig, controller: RateController, recovery: LossRecovery
+        self,
+        config: ConnectionConfig,
+        controller: RateController,
+        recovery: LossRecovery,
+        stats: ConnectionStats,
     ) -> None:
-        self._interval = interval = config.timestamp_interval
+        self._interval = config.timestamp_interval
         self._controller = controller
+        # A controller that reads one-way delays holds its rate through a silence of the peer
+        # (the way back may be what failed): it waits for the watchdog's verdict first.
+        controller.silence_timeout = config.silence_timeout
         self._recovery = recovery
-        self.wanted = interval > 0.0 and controller.judges_one_way_delay
-        """A master opens with the TIMESTAMPS flag: stamps are on and its controller reads them."""
+        self._stats = stats
+        self._taken_with = -1  # stats.datagrams_in when the pending stamp arrived
         self.enabled = False
         """The session was opened with the TIMESTAMPS flag: both ends stamp."""
         self.due = math.inf
@@ -161,17 +178,20 @@ class OneWayDelay:
 
     # ------------------------------------------------------------------ the peer's
 
-    def take(self, data: bytes, rx: float | None, now: float, stats: ConnectionStats) -> bool:
+    def take(self, data: bytes, rx: float | None, now: float) -> int:
         """A TIMESTAMP or TIMED_DATA arrived (at ``rx`` by the kernel's clock, if the driver read
         it, else ``now``): take its stamp, to be read once the datagram's acknowledgement has been
-        taken (:meth:`sent_at`, :meth:`settle`). False, counting the drop, if the session has no
-        stamps or a TIMESTAMP is of the wrong size."""
+        taken (:meth:`sent_at`, :meth:`settle`; a datagram dropped before that leaves it unread).
+        Returns its code, or 0, counting the drop, if the session has no stamps or a TIMESTAMP is
+        of the wrong size."""
+        stats = self._stats
+        kind = data[HEADER_SIZE]
         if not self.enabled:
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)
-            return False
-        if data[HEADER_SIZE] == _TIMESTAMP and len(data) != HEADER_SIZE + STAMP_SIZE:
+            return 0
+        if kind == _TIMESTAMP and len(data) != HEADER_SIZE + STAMP_SIZE:
             stats.count_drop(DropReason.BAD_CONTROL)
-            return False
+            return 0
         raw = int.from_bytes(data[HEADER_SIZE + 1 : HEADER_SIZE + STAMP_SIZE], "big")
         last = self._last_raw
         clock = self._peer_clock
@@ -188,13 +208,14 @@ class OneWayDelay:
         self._stamp_clock = clock
         self._rx = now if rx is None else rx
         self.pending = True
-        return True
+        self._taken_with = stats.datagrams_in
+        return kind
 
     def sent_at(self, echo: float | None, hold: int, now: float) -> float | None:
         """When the peer sent the sample that just arrived, on our clock: read from its own stamp
         when it had one, else from the round trip ``echo`` its header timed (``None`` if none);
         ``hold`` is the header's HOLD code."""
-        if self.pending:
+        if self.pending and self._taken_with == self._stats.datagrams_in:
             inbound = self._read(echo, hold, now)
             if inbound is not None:
                 return now - inbound
@@ -204,7 +225,7 @@ class OneWayDelay:
 
     def settle(self, echo: float | None, hold: int, now: float) -> None:
         """Read a stamp taken with a datagram that carried no sample (TIMESTAMP)."""
-        if self.pending:
+        if self.pending and self._taken_with == self._stats.datagrams_in:
             self._read(echo, hold, now)
 
     def inbound(self, echo: float) -> float:

@@ -46,7 +46,8 @@ class Outbox:
         self.reset_guard: ResetGuard | None = None
         """A master's memory of its recent datagrams, which a RESET must echo (set at connect)."""
         self.one_way: OneWayDelay | None = None
-        """Our stamps' schedule: a stand-alone ACK goes as a TIMESTAMP when one is due."""
+        """Our stamps' schedule (the sender's): a stand-alone ACK goes as a TIMESTAMP when one is
+        due."""
         self._ack_padding = bytes(config.ack_size - HEADER_SIZE)
         self._stats = stats
         self._liveness = liveness

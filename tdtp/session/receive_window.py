@@ -15,6 +15,14 @@ an ACK can still reach it. Two rules do that. *Full*: once the highest received 
 sequence number still to be described, the next ACK must go out now (:meth:`coverage_exhausted`).
 *Jump*: a new packet more than 6 above that oldest number would push it out of every later ACK, so
 the ACK of the highest *before* the jump is held for sending first (:meth:`take_held`).
+
+In an unkeyed session (``guard_jumps``) a new packet may not move the window further ahead than the
+peer can have sent since the highest arrived (docs/PROTOCOL.md 5.5, ``far_ahead``): more than
+:data:`JUMP_FREE` ahead needs a silence of the peer's data that long at twice its fastest recent rate
+(:data:`JUMP_MIN_RATE` at least), or a silence of ``silence_guard``. A blind forgery numbered ahead
+of a live flow would otherwise make us acknowledge numbers the peer never sent and take the real
+packets that follow for late ones; a loss burst of the real flow passes, because its silence is as
+long as the burst.
 """
 
 from __future__ import annotations
@@ -44,6 +52,14 @@ ahead instead of discarding a live flow as stale. After a silence the same rule 
 like duplicates or late packets within the window (an outage just short of a multiple of 4096)."""
 DEFAULT_SILENCE_GUARD: Final = 0.1
 """Seconds without a new packet after which in-window "old" numbers may be a wrapped live flow."""
+JUMP_FREE: Final = 32
+"""Sequence numbers a new packet may lie ahead of the highest received without a silence to match:
+half the window, more than any reordering a reorder wait can still put in order at 1 kHz."""
+JUMP_MIN_RATE: Final = 1000.0
+"""The least rate (packets/s) the jump check assumes for the peer (its fastest rate measured over a
+second, doubled, when higher)."""
+RATE_WINDOW: Final = 1.0
+"""Seconds over which the peer's data rate is measured for the jump check."""
 MAX_HELD: Final = 8
 """Jump ACKs kept for the next flush. The caller flushes after every input, so one is the most ever
 waiting; the bound only protects against a caller that does not (the oldest is then forgotten)."""
@@ -66,6 +82,9 @@ class Arrival(enum.Enum):
     DUPLICATE = "duplicate"
     STALE = "stale"
     """Older than the window: its fate cannot be checked, so it is not trusted."""
+    FAR_AHEAD = "far_ahead"
+    """Unkeyed: further ahead than the peer can have sent since the highest arrived; the window
+    does not move (it is dropped)."""
 
 
 # Enum members as module constants for the per-packet paths: reading one off its class goes through
@@ -74,15 +93,22 @@ NEW: Final = Arrival.NEW
 LATE: Final = Arrival.LATE
 DUPLICATE: Final = Arrival.DUPLICATE
 STALE: Final = Arrival.STALE
+FAR_AHEAD: Final = Arrival.FAR_AHEAD
 
 
 class ReceiveWindow:
     __slots__ = (
+        "_anchored",
         "_coverage",
+        "_rate_base",
+        "_rate_end",
+        "_rate_previous",
+        "_rate_start",
         "_recent",
         "_seen",
         "_stale_next",
         "_stale_run",
+        "guard_jumps",
         "has_data",
         "held",
         "highest",
@@ -90,6 +116,7 @@ class ReceiveWindow:
         "last_gap",
         "last_reported",
         "last_seq",
+        "peak_rate",
         "pending_low",
         "silence_guard",
         "unreported_since",
@@ -101,9 +128,11 @@ class ReceiveWindow:
         *,
         coverage: bool = True,
         silence_guard: float = DEFAULT_SILENCE_GUARD,
+        guard_jumps: bool = False,
     ) -> None:
         """``coverage`` enables the reporting rules of bidirectional mode (separate-ACK mode answers
-        every packet with its own ACK and needs none)."""
+        every packet with its own ACK and needs none); ``guard_jumps`` the jump check of an
+        unkeyed session (:data:`FAR_AHEAD`)."""
         self.highest = initial_seq - 1
         """Full sequence number of the newest data received (initial - 1 before any)."""
         self.highest_arrival = 0.0
@@ -131,7 +160,15 @@ class ReceiveWindow:
         self.silence_guard = silence_guard
         """After this long without a new packet, a run of consecutive numbers that look like
         duplicates or late packets re-anchors the window like a stale run (the connection passes
-        its ``silence_timeout``)."""
+        its ``silence_timeout``); and a packet any distance ahead is taken."""
+        self.guard_jumps = guard_jumps
+        self.peak_rate = 0.0
+        """The peer's faster data rate (new packets a second) of the last two measurements."""
+        self._rate_previous = 0.0
+        self._rate_start = 0.0
+        self._rate_end = 0.0  # the first new packet starts the measurement
+        self._rate_base = self.highest
+        self._anchored = False  # the packet being classified was re-anchored one wrap ahead
 
     def on_data(self, truncated_seq: int, now: float) -> tuple[Arrival, int, int]:
         """Classify an arriving data packet; returns (arrival kind, full sequence number, gap)."""
@@ -163,10 +200,18 @@ class ReceiveWindow:
                 self._stale_run = 0
                 seq += SEQ_MODULUS  # now ahead of highest: expand_seq put it at most 2048 behind
                 distance = seq - highest
+                self._anchored = True  # (at least 2048 ahead now: the jump check lets it through)
             elif distance <= -WINDOW:
                 self.last_seq = seq
                 return STALE
+        else:
+            # Any other arrival ends a run: only numbers that arrive one after the other re-anchor
+            # the window (three stale numbers spread between live packets once did).
+            self._stale_run = 0
         if distance > 0:
+            if distance > JUMP_FREE and self.guard_jumps and not self._plausible(distance, now):
+                self.last_seq = seq
+                return FAR_AHEAD
             if self._coverage:
                 reach = seq - SACK_SPAN  # the lowest sequence number an ACK of ``seq`` describes
                 low = self.pending_low
@@ -190,6 +235,8 @@ class ReceiveWindow:
             )
             self.highest = seq
             self.highest_arrival = now
+            if now >= self._rate_end:
+                self._measure_rate(now)
             self.has_data = True
             if self.unreported_since is None:
                 self.unreported_since = now
@@ -219,6 +266,33 @@ class ReceiveWindow:
         if self.unreported_since is None:
             self.unreported_since = now
         return LATE
+
+    def _plausible(self, distance: int, now: float) -> bool:
+        """Whether the peer can have sent ``distance`` packets since the highest arrived (the jump
+        check of an unkeyed session; a re-anchored packet always passes)."""
+        if self._anchored:
+            self._anchored = False
+            return True
+        silence = now - self.highest_arrival
+        if not self.has_data or silence >= self.silence_guard:
+            return True
+        rate = 2.0 * self.peak_rate
+        if rate < JUMP_MIN_RATE:
+            rate = JUMP_MIN_RATE
+        return distance - JUMP_FREE <= silence * rate
+
+    def _measure_rate(self, now: float) -> None:
+        """Close a measurement of the peer's data rate (new packets a second, over
+        :data:`RATE_WINDOW`) and start the next."""
+        elapsed = now - self._rate_start
+        if self._rate_end > 0.0 and elapsed > 0.0:
+            rate = (self.highest - self._rate_base) / elapsed
+            previous = self._rate_previous
+            self.peak_rate = rate if rate > previous else previous
+            self._rate_previous = rate
+        self._rate_start = now
+        self._rate_end = now + RATE_WINDOW
+        self._rate_base = self.highest
 
     def sack_below(self, seq: int) -> int:
         """SACK bits for the six sequence numbers below ``seq`` (which must be within the window):

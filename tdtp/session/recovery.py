@@ -36,6 +36,29 @@ TIMER_GRANULARITY: Final = 0.001
 """Slack for timers firing late (RFC 9002's kGranularity)."""
 
 
+def loss_delay_of(rtt: RttEstimator, reorder_scale: int, ack_delay: float) -> float:
+    """The loss delay of docs/PROTOCOL.md 5.4: how long a packet reported absent may still turn up.
+
+    ``srtt + max(reorder_window, 4 rttvar, 1 ms) + ack_delay``: srtt plus a reorder window (RFC 8985:
+    ``reorder_scale x min_rtt / 4``, at most srtt; none before the first RTT sample, when there is no
+    ``min_rtt``), never less than RAP's ``4 rttvar`` nor the timer granularity, plus the peer's ACK
+    delay (``ack_delay``, ours standing for it), because RTT samples exclude it: a late arrival is
+    reported only with the peer's next reverse packet.
+    """
+    srtt = rtt.srtt
+    # (min and max written out: this runs after every RTT sample)
+    margin = LOSS_DELAY_RTTVAR * rtt.rttvar
+    if rtt.has_sample:
+        reorder = REORDER_WINDOW_MIN_RTT * rtt.min_rtt * reorder_scale
+        if srtt < reorder:
+            reorder = srtt
+        if margin < reorder:
+            margin = reorder
+    if margin < TIMER_GRANULARITY:
+        margin = TIMER_GRANULARITY
+    return srtt + margin + ack_delay
+
+
 class LossRecovery:
     """The sent log, the RTT and loss-rate estimators, and the loss delay derived from them."""
 
@@ -57,6 +80,8 @@ class LossRecovery:
         self.rtt = RttEstimator(config.initial_rtt)
         self.loss = LossIntervalEstimator(first_seq)
         self._ack_delay = config.ack_delay
+        # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
+        controller.feedback_delay = config.ack_delay
         self.loss_delay = self._compute_loss_delay()
         """How long a packet reported absent may still turn up, as of the last RTT sample."""
         self.echo: float | None = None
@@ -224,21 +249,5 @@ class LossRecovery:
         self._hint.value = -math.inf
 
     def _compute_loss_delay(self) -> float:
-        """How long a packet reported absent may still turn up: srtt plus a reorder window (RFC 8985:
-        ``min_rtt / 4`` at first, scaled up by each spurious loss, at most srtt; never less than
-        RAP's ``4 rttvar`` nor the timer granularity), plus the peer's ACK delay, because RTT samples
-        exclude it: a late arrival is reported only with the peer's next reverse packet.
-        """
-        rtt = self.rtt
-        srtt = rtt.srtt
-        # (min and max written out: this runs after every RTT sample)
-        margin = LOSS_DELAY_RTTVAR * rtt.rttvar
-        if rtt.has_sample:
-            reorder = REORDER_WINDOW_MIN_RTT * rtt.min_rtt * self.sent.reorder_window_scale
-            if srtt < reorder:
-                reorder = srtt
-            if margin < reorder:
-                margin = reorder
-        if margin < TIMER_GRANULARITY:
-            margin = TIMER_GRANULARITY
-        return srtt + margin + self._ack_delay
+        """The loss delay as of now (:func:`loss_delay_of`); kept until the next RTT sample."""
+        return loss_delay_of(self.rtt, self.sent.reorder_window_scale, self._ack_delay)

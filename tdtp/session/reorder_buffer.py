@@ -22,6 +22,13 @@ and adaptive:
 It holds at most :data:`SPAN` sequence numbers: a sample further ahead gives up the oldest gaps first,
 so a peer cannot grow it. Sans-IO: every call takes ``now``; :meth:`deadline` says when
 :meth:`release` has work.
+
+In an unkeyed session (``guarded``) a displacement counts only once a sample newer than the one that
+opened its gap has arrived, and only if that one never arrives a second time: a blind forgery
+numbered ahead of the flow opens a gap that the real samples then fill in order, one after another,
+and would otherwise prime the wait with their "displacement" (the maximum, after every loss, for
+seconds); the real sample with the forgery's number then arrives as a duplicate, which gives it
+away. Real reordering moves on past the sample that opened the gap, and nothing arrives twice.
 """
 
 from __future__ import annotations
@@ -43,8 +50,12 @@ class ReorderBuffer:
     __slots__ = (
         "_bucket_end",
         "_bucket_max",
+        "_guarded",
         "_newest",
         "_opened",
+        "_opener",
+        "_pending",
+        "_pending_opener",
         "_previous_max",
         "given_up",
         "held",
@@ -54,7 +65,7 @@ class ReorderBuffer:
         "wait",
     )
 
-    def __init__(self, next_seq: int, max_wait: float) -> None:
+    def __init__(self, next_seq: int, max_wait: float, *, guarded: bool = False) -> None:
         self.next_seq = next_seq
         """Every sequence number below it was delivered or given up."""
         self.max_wait = max_wait
@@ -69,6 +80,13 @@ class ReorderBuffer:
         """Sequence numbers given up (lost, or later than the wait)."""
         self._opened = [0.0] * SPAN
         """When the gap at each sequence number (mod SPAN) opened: a newer sample arrived."""
+        self._opener = [0] * SPAN
+        """Which sample opened the gap at each sequence number (mod SPAN)."""
+        self._guarded = guarded
+        self._pending_opener = -1
+        """Guarded: the sample whose gap the displacement :attr:`_pending` was measured in, until a
+        newer sample arrives (it counts) or the same number arrives again (it does not); -1: none."""
+        self._pending = 0.0
         self._bucket_max = 0.0
         self._previous_max = 0.0
         self._bucket_end = 0.0
@@ -77,22 +95,55 @@ class ReorderBuffer:
 
     def on_gap(self, first: int, end: int, now: float) -> None:
         """A new sample skipped ``first .. end - 1``: their gaps open now."""
+        if self._pending_opener >= 0:
+            self._settle(end, now)
         if end - first > SPAN:
             first = end - SPAN
         # opened[seq & _SLOT] = now for each, as at most two slices (a burst of losses skips dozens)
         start = first & _SLOT
         stop = start + end - first
         opened = self._opened
+        opener = self._opener
         if stop <= SPAN:
             opened[start:stop] = [now] * (stop - start)
+            opener[start:stop] = [end] * (stop - start)
         else:
             opened[start:] = [now] * (SPAN - start)
             opened[: stop - SPAN] = [now] * (stop - SPAN)
+            opener[start:] = [end] * (SPAN - start)
+            opener[: stop - SPAN] = [end] * (stop - SPAN)
 
-    def on_late(self, seq: int, now: float) -> None:
-        """A sample arrived after a newer one (within the receive window): measure its displacement."""
-        self._age_buckets(now)
+    def on_late(self, seq: int, now: float, highest: int = 0) -> None:
+        """A sample arrived after a newer one (within the receive window; ``highest`` is the newest
+        arrived): measure its displacement."""
         displacement = now - self._opened[seq & _SLOT]
+        if self._guarded:
+            if self._pending_opener >= 0:
+                self._settle(highest, now)
+            opener = self._opener[seq & _SLOT]
+            if highest <= opener:
+                # Nothing arrived past the sample that opened its gap yet: keep the largest such
+                # displacement until something does (PROTOCOL.md 5.5).
+                if opener != self._pending_opener or displacement > self._pending:
+                    self._pending_opener = opener
+                    self._pending = displacement
+                return
+        self._count(displacement, now)
+
+    def on_duplicate(self, seq: int) -> None:
+        """A sample arrived a second time: if it opened the gap of a pending displacement, it was a
+        forgery's number (or a duplicate of the network's), and proves no reordering."""
+        if seq == self._pending_opener:
+            self._pending_opener = -1
+
+    def _settle(self, highest: int, now: float) -> None:
+        """A pending displacement counts once a sample past its gap's opener has arrived."""
+        if highest > self._pending_opener:
+            self._pending_opener = -1
+            self._count(self._pending, now)
+
+    def _count(self, displacement: float, now: float) -> None:
+        self._age_buckets(now)
         if displacement > self._bucket_max:
             self._bucket_max = displacement
             self._update_wait()

@@ -9,6 +9,14 @@ requires one of the RESET's tags to be HMAC-SHA256 of the echo under its key's r
 holder of the pre-shared key can compute: an on-path attacker who sees the echo cannot end a keyed
 session either.
 
+Neither proves that the slave lost the session: a copy of one of our datagrams, replayed to the
+slave from another address or to another slave holding the same key, draws a RESET as genuine as a
+restarted slave's (docs/SECURITY.md). What only a slave that lost our session shows is silence: a
+slave that holds it answers, or at least sends a KEEPALIVE, within our ``silence_timeout``. So a
+RESET is taken only while the slave has been silent that long (the watchdog's verdict); one that
+arrives while the slave is heard is dropped as ``peer_alive``, and the next RESET (each datagram we
+send into a restarted slave draws one) ends the session once the silence is long enough.
+
 The per-datagram cost is one 16-byte slice appended to a bounded deque.
 """
 
@@ -40,13 +48,16 @@ class ResetGuard:
     def record(self, datagram: bytes) -> None:
         self.recent.append(datagram[:RESET_ECHO_SIZE])
 
-    def judge(self, data: bytes) -> DropReason | None:
-        """``None`` for a RESET datagram that answers a datagram we sent, else why it is dropped."""
+    def judge(self, data: bytes, silent: bool) -> DropReason | None:
+        """``None`` for a RESET datagram that answers a datagram we sent while the slave is
+        ``silent`` (nothing from it for our ``silence_timeout``), else why it is dropped."""
         try:
             body = decode_reset(data[HEADER_SIZE:])
         except MalformedPacketError:
             return DropReason.BAD_CONTROL
-        return None if self.verify(body) else DropReason.UNMATCHED_RESET
+        if not self.verify(body):
+            return DropReason.UNMATCHED_RESET
+        return None if silent else DropReason.PEER_ALIVE
 
     def verify(self, body: ResetBody) -> bool:
         """Whether the RESET answers a datagram we sent (and, keyed, comes from a key holder)."""

@@ -54,7 +54,6 @@ class SampleSender:
         acks: AckScheduler,
         liveness: Liveness,
         hint: TimerHint,
-        one_way: OneWayDelay,
     ) -> None:
         self.pending: bytes | None = None
         self._pending_paced = False  # the pending sample had to wait for the pacer
@@ -64,13 +63,16 @@ class SampleSender:
         """The largest payload accepted: the smaller of ours and the peer's maximum."""
         self.transmit_errors = 0
         self._controller = controller
+        controller.sample_waiting = False  # kept up to date from here on
         self._stats = stats
         self._recovery = recovery
         self._outbox = outbox
         self._acks = acks
         self._liveness = liveness
         self._hint = hint
-        self._one_way = one_way
+        self.one_way = outbox.one_way = OneWayDelay(config, controller, recovery, stats)
+        """Our stamps and the peer's (PROTOCOL.md 5.11): TIMED_DATA leaves from here."""
+        self._one_way = self.one_way
 
     def offer(self, payload: bytes | bytearray | memoryview, now: float) -> None:
         """Connection.send on an established session: the newest sample takes the slot."""

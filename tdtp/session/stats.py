@@ -2,69 +2,15 @@
 
 from __future__ import annotations
 
-import enum
 import logging
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from tdtp.wire.drop_reason import DropReason as DropReason  # noqa: PLC0414 - its old home, re-exported
 from tdtp.wire.header import HEADER_SIZE
 
 _logger = logging.getLogger("tdtp")
-
-
-class DropReason(enum.Enum):
-    """Why a received datagram was not taken in. Every dropped datagram has exactly one reason."""
-
-    TRUNCATED = "truncated"
-    """Shorter than the 5-byte header."""
-    UNKNOWN_TYPE = "unknown_type"
-    """TYPE is the reserved value."""
-    UNKNOWN_VERSION = "unknown_version"
-    """An OPEN for a protocol version this implementation does not speak."""
-    OVERSIZED = "oversized"
-    """Longer than the header plus the maximum payload."""
-    EMPTY_DATA = "empty_data"
-    """A DATA packet without payload: senders never send one (a sample has at least one byte)."""
-    WRONG_ADDRESS = "wrong_address"
-    """Not from the connection's peer (off-path)."""
-    OPTIMISTIC_ACK = "optimistic_ack"
-    """Acknowledges a sequence number this side never sent."""
-    DUPLICATE = "duplicate"
-    """A second copy of a data packet (replayed or duplicated by the network)."""
-    LATE = "late"
-    """Arrived after a newer data packet and too late to be delivered in order: its gap was given up
-    (the reorder wait ran out, or there is none). Still acknowledged."""
-    STALE = "stale"
-    """Older than the 64-packet reordering window: cannot be told apart from a replay."""
-    NOT_ESTABLISHED = "not_established"
-    """Data or acknowledgement before the connection is open."""
-    CLOSED = "closed"
-    """Arrived after the connection ended."""
-    BAD_CONTROL = "bad_control"
-    """A control packet with an unknown code or a body of the wrong size."""
-    NONCE_MISMATCH = "nonce_mismatch"
-    """A control packet of another (earlier) connection: a replay or a stale retransmission."""
-    UNEXPECTED_CONTROL = "unexpected_control"
-    """A well-formed control packet that makes no sense in this state or role."""
-    UNVALIDATED = "unvalidated"
-    """An OPEN without a valid cookie: answered with a COOKIE, nothing kept (address validation)."""
-    REFUSED = "refused"
-    """An OPEN from a validated address that was answered with REJECT (busy, unknown key, ...)."""
-    RATE_LIMITED = "rate_limited"
-    """An OPEN over its source's rate, or one the slave's reply budget could not answer."""
-    UNAUTHENTICATED = "unauthenticated"
-    """Keyed session: the authentication tag did not verify (forged, corrupted, or another key)."""
-    REPLAYED = "replayed"
-    """Keyed session: a packet number already accepted, or too old to check (replayed)."""
-    CONTROL_WINDOW = "control_window"
-    """A control MESSAGE numbered beyond the receive window (``control_window`` past the next
-    message expected): more than a conforming peer may have outstanding."""
-    CONTROL_BACKLOG = "control_backlog"
-    """A control MESSAGE that found the receive bound full (messages held out of order plus those
-    delivered but not read by the application): not acknowledged, so the peer sends it again."""
-    UNMATCHED_RESET = "unmatched_reset"
-    """A RESET that echoes none of our recent datagrams, or (keyed) whose tags do not verify:
-    forged, replayed, or too late."""
 
 
 @dataclass(slots=True)
@@ -155,10 +101,15 @@ class ConnectionStats:
     the driver read the IP header's ECN field (``receive_datagram(..., ecn=3)``)."""
     migrations: int = 0
     """Times a slave's session followed its master to a new address (path migration, PROTOCOL.md
-    5.8): a keyed datagram that authenticated from there, or an unkeyed PATH_RESPONSE."""
+    5.8): a keyed datagram that authenticated from there, an unkeyed PATH_RESPONSE, or (unkeyed)
+    its old address speaking again before the new one was proven."""
     paths_validated: int = 0
-    """New paths validated (unkeyed: at once by the PATH_RESPONSE; keyed: by an authenticated
-    datagram from there that acknowledges a packet sent on it)."""
+    """New paths validated (unkeyed: its old address stayed silent for ``silence_timeout`` after
+    the PATH_RESPONSE moved it; keyed: by an authenticated datagram from there that acknowledges a
+    packet sent on it)."""
+    optimistic_acks: int = 0
+    """Acknowledgements in accepted DATA or KEEPALIVE datagrams that named a packet we never sent:
+    ignored, the rest of the datagram taken (a stand-alone ACK is dropped as ``optimistic_ack``)."""
     path_limited: int = 0
     """Times the amplification limit of a path not validated yet held back what was due."""
     unvalidated_bytes_in: int = 0
@@ -179,8 +130,11 @@ class ConnectionStats:
     """The peer's control messages delivered to the application (``ControlReceived``), in order."""
     control_dropped: dict[str, int] = field(default_factory=dict)
     """Peer control messages not delivered, by reason: ``duplicate`` (delivered or held already),
-    ``control_window``, ``control_backlog``, ``oversized``, ``bad_control`` and
-    ``optimistic_ack`` (each datagram is also in ``drops`` under the same reason)."""
+    ``control_window``, ``control_backlog``, ``oversized``, ``bad_control``, ``nonce_mismatch``
+    and ``optimistic_ack`` (each datagram is also in ``drops`` under the same reason)."""
+    closed: bool = False
+    """The connection has ended: ``srtt`` and ``rttvar`` read NaN, ``rate`` 0 and ``rate_limit``
+    ``"closed"`` (refreshed on access); the counters keep what the session did."""
     rtt_samples: int = 0
     srtt: float = 0.0
     rttvar: float = 0.0
@@ -205,6 +159,7 @@ class ConnectionStats:
 
     @property
     def dropped(self) -> int:
+        """Datagrams dropped, all reasons together (``drops`` has them by reason)."""
         return sum(self.drops.values())
 
     def count_handshake(self, size: int, tag: int) -> None:
@@ -219,6 +174,7 @@ class ConnectionStats:
         received.control_packets += 1
 
     def count_drop(self, reason: DropReason) -> None:
+        """Count one datagram dropped for ``reason``."""
         key = reason.value
         self.drops[key] = self.drops.get(key, 0) + 1
         if _logger.isEnabledFor(logging.DEBUG):
@@ -228,6 +184,7 @@ class ConnectionStats:
         """A JSON-ready copy (``math.inf`` rates become ``None``)."""
         data = asdict(self)
         data["dropped"] = self.dropped
-        if data["rate"] == float("inf"):
-            data["rate"] = None
+        for name in ("rate", "srtt", "rttvar"):
+            if not math.isfinite(data[name]):  # NaN once closed, inf when unlimited
+                data[name] = None
         return data

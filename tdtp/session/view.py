@@ -7,6 +7,8 @@ class only reads them, so the state machine in :mod:`tdtp.session.connection` st
 
 from __future__ import annotations
 
+import math
+
 from tdtp.admission.admission import Admission
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.base import RateController
@@ -18,7 +20,7 @@ from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import Address, ConnectionClosed, DataReceived
 from tdtp.session.handshake import Handshake
 from tdtp.session.liveness import Liveness
-from tdtp.session.one_way import OneWayDelay
+from tdtp.session.path import PeerPath
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.sample_age import SampleAgeHistogram
 from tdtp.session.sender import SampleSender
@@ -47,12 +49,13 @@ class ConnectionView:
     _close_event: ConnectionClosed | None
     _ages: SampleAgeHistogram
     _delivery: SampleDelivery
-    _one_way: OneWayDelay
+    _path: PeerPath
 
     # ------------------------------------------------------------------ introspection
 
     @property
     def state(self) -> State:
+        """Where the session is in its life (:class:`~tdtp.State`)."""
         return self._state
 
     @property
@@ -75,6 +78,12 @@ class ConnectionView:
         return now - self._liveness.last_receive
 
     @property
+    def live_gap(self) -> float:
+        """The longest a live peer is silent: it sends at least once per keep-alive interval, which
+        takes up to an RTT (with margin) to arrive (PROTOCOL.md 5.1 rule 5, 5.8)."""
+        return self._liveness.keepalive + 2.0 * self._recovery.rtt.srtt
+
+    @property
     def ack_mode(self) -> AckMode:
         """The mode in force: the master's choice, adopted by the slave at the open."""
         return self._acks.mode
@@ -86,6 +95,7 @@ class ConnectionView:
 
     @property
     def controller(self) -> RateController:
+        """The rate controller deciding when data packets may leave."""
         return self._controller
 
     @property
@@ -113,8 +123,10 @@ class ConnectionView:
     @property
     def peer_silent(self) -> bool:
         """True while the watchdog finds the peer silent (between :class:`~tdtp.session.events.PeerSilent`
-        and :class:`~tdtp.session.events.PeerResumed`)."""
-        return self._liveness.silent_since is not None
+        and :class:`~tdtp.session.events.PeerResumed`), and for good once the connection is closed:
+        nothing will be heard from the peer again, so a display or a safety check built on it
+        never shows a closed link as a live one."""
+        return self._liveness.silent_since is not None or self._state is State.CLOSED
 
     @property
     def silent_since(self) -> float | None:
@@ -142,6 +154,11 @@ class ConnectionView:
     def pending_events(self) -> int:
         """Events waiting for :meth:`next_event`."""
         return self._events.count()
+
+    def take_challenge(self, now: float) -> bool:
+        """Unkeyed slave: may a PATH_CHALLENGE go out on this session's behalf (its share, a token
+        of its bucket: PROTOCOL.md 5.8)? (Changes only that bucket.)"""
+        return self._path.take_challenge(now)
 
     def control_held(self, count: int) -> None:
         """A driver's count of delivered control messages its application has not read yet: they
@@ -174,15 +191,24 @@ class ConnectionView:
 
     @property
     def stats(self) -> ConnectionStats:
-        """Live counters; the derived figures (srtt, p, rate) are refreshed on each access."""
+        """Live counters; the derived figures (srtt, p, rate) are refreshed on each access. Once
+        the connection is closed they read as closed: ``closed`` True, ``srtt`` and ``rttvar``
+        NaN (there is no path to measure), ``rate`` 0 and ``rate_limit`` ``"closed"``; the
+        counters and ``min_rtt`` keep the session's history."""
         stats = self._stats
         self._recovery.refresh(stats)
         ages = self._ages
         stats.sample_age_p50 = ages.quantile(0.5)
         stats.sample_age_p99 = ages.quantile(0.99)
-        stats.rate = self._controller.rate
-        stats.rate_limit = self._controller.rate_limit
-        one_way = self._one_way
+        if self._state is State.CLOSED:
+            stats.closed = True
+            stats.srtt = stats.rttvar = math.nan
+            stats.rate = 0.0
+            stats.rate_limit = "closed"
+        else:
+            stats.rate = self._controller.rate
+            stats.rate_limit = self._controller.rate_limit
+        one_way = self._sender.one_way
         stats.timestamps = one_way.enabled
         stats.queue_delay_out = one_way.queue_out
         stats.queue_delay_in = one_way.queue_in

@@ -117,6 +117,7 @@ class TdtpEndpoint:
 
     @property
     def address(self) -> tuple[str, int]:
+        """This end's (node name, port) in the simulated network."""
         return (self.host.name, self.port)
 
     # -- inputs -----------------------------------------------------------------------------------
@@ -127,6 +128,7 @@ class TdtpEndpoint:
         self._after_input(now)
 
     def receive(self, packet: Packet, now: float) -> None:
+        """A packet arrived at ``now``: fed to the connection, its events handled, its answers sent."""
         conn = self.conn
         conn.receive_datagram(packet.payload, (packet.src, packet.sport), now=now)  # type: ignore[arg-type]
         while (event := conn.next_event()) is not None:

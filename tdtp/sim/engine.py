@@ -93,6 +93,7 @@ class Simulator:
         heapq.heappush(self._heap, (when, self._order, callback, args))
 
     def call_later(self, delay: float, callback: Callable[..., None], *args: Any) -> None:
+        """Call ``callback(*args)`` ``delay`` virtual seconds from now."""
         self.call_at(self.now + delay, callback, *args)
 
     def next_time(self) -> float | None:
@@ -131,16 +132,19 @@ class Timer:
         self.deadline: float | None = None
 
     def set(self, when: float) -> None:
+        """Fire at ``when`` (an earlier time than the one armed moves it; a later one is kept)."""
         self.deadline = when
         if when < self._scheduled:
             self._scheduled = when
             self._sim.call_at(when, self._fire, when)
 
     def cancel(self) -> None:
+        """Disarm: nothing fires until the next :meth:`set`."""
         self.deadline = None
 
     @property
     def armed(self) -> bool:
+        """Whether a deadline is set."""
         return self.deadline is not None
 
     def _fire(self, when: float) -> None:
@@ -430,6 +434,7 @@ class Node:
         """Next hop by destination node name."""
 
     def bind(self, port: int, agent: Agent) -> None:
+        """Attach ``agent`` to ``port``: packets for it are handed to ``agent.receive``."""
         if port in self.agents:
             raise InvalidArgumentError(f"port {port} of {self.name} is already bound")
         self.agents[port] = agent
@@ -445,6 +450,7 @@ class Node:
         link.send(packet, now)
 
     def receive(self, packet: Packet, now: float) -> None:
+        """A packet arrived: to the agent bound to its port if it is for this node, else routed on."""
         if packet.dst != self.name:
             self.send(packet, now)
             return
@@ -533,6 +539,7 @@ class Network:
             source.routes.update(first_hop)
 
     def run(self, until: float) -> None:
+        """Run the simulation up to ``until`` (virtual seconds)."""
         self.sim.run(until)
 
 

@@ -86,6 +86,7 @@ class FlowSummary:
     p95_age: float
 
     def to_dict(self) -> dict[str, Any]:
+        """The summary as plain data, non-finite figures as ``None`` (for JSON)."""
         data = asdict(self)
         for key, value in data.items():
             if isinstance(value, float):
@@ -124,11 +125,13 @@ class FlowRecorder:
     # -- recording ----------------------------------------------------------------------------
 
     def on_sent(self, now: float, wire_bytes: int) -> None:
+        """A packet of ``wire_bytes`` left at ``now``."""
         index = self._bin(now)
         self.sent_packets[index] += 1
         self.sent_bytes[index] += wire_bytes
 
     def on_drop(self, packet: Packet, now: float) -> None:
+        """``packet`` was dropped (counted in the bin of its send time)."""
         self.dropped_packets[self._bin(packet.sent_at)] += 1
 
     def on_delivered(
@@ -139,6 +142,7 @@ class FlowRecorder:
         wire_bytes: int,
         age: float | None = None,
     ) -> None:
+        """A packet sent at ``sent_at`` was delivered at ``now``: its payload and wire bytes."""
         index = self._bin(now)
         self.delivered_packets[index] += 1
         self.delivered_bytes[index] += app_bytes

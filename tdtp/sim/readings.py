@@ -105,6 +105,7 @@ class Reading:
 
     @property
     def tcp_both_ways(self) -> bool:
+        """Whether the cross TCP runs in both directions (else master to slave only)."""
         return self.tcp_directions == "both"
 
     def describe(self) -> str:
@@ -120,6 +121,7 @@ class Reading:
         )
 
     def to_dict(self) -> dict[str, Any]:
+        """The reading's parameters and its one-line description, as plain data."""
         return asdict(self) | {"description": self.describe()}
 
 

@@ -444,6 +444,7 @@ class PaperStudy(ScenarioResult):
         return json_safe(out)  # type: ignore[no-any-return]
 
     def to_dict(self) -> dict[str, Any]:
+        """The study as plain data: the reading, each scheme's figures and the ratios."""
         return {
             "scenario": "paper",
             "params": self.params,
@@ -637,6 +638,7 @@ class LockoutStudy(ScenarioResult):
     ``allowed_pps`` and TCP ``goodput_kbps`` per bin."""
 
     def headline(self) -> dict[str, Any]:
+        """Per pair of controllers and scheme: seeds, starved seeds, runs outside a factor of two, and TCP's share after the return over before."""
         out: dict[str, Any] = {}
         for o in self.outcomes:
             out.setdefault(o.controllers, {})[o.scheme] = {
@@ -672,6 +674,7 @@ class LockoutStudy(ScenarioResult):
         return json_safe(out)  # type: ignore[no-any-return]
 
     def to_dict(self) -> dict[str, Any]:
+        """The study as plain data: per-seed figures and their medians with intervals."""
         return {
             "scenario": "lockout",
             "params": self.params,

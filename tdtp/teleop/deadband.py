@@ -47,7 +47,7 @@ class DeadbandConfig:
     max_hold: float = 0.1
     """Seconds after which a sample is sent anyway (a heartbeat); ``math.inf`` never."""
     velocity_gain: float = 0.0
-    """Widen the threshold by this factor per unit of |rate of change| (per second); 0 keeps it fixed."""
+    """Widen the threshold by this factor per unit of ``|rate of change|`` (per second); 0 keeps it fixed."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.k, int | float) and math.isfinite(self.k) and 0.0 <= self.k < 10.0):
@@ -82,7 +82,7 @@ class DeadbandStats:
     heartbeats: int = 0
     """Samples sent only because ``max_hold`` passed."""
     squared_error: float = 0.0
-    """Sum over offered samples of |offered - held|^2 (all groups): what the receiver would hold."""
+    """Sum over offered samples of ``|offered - held|^2`` (all groups): what the receiver would hold."""
 
     @property
     def saving(self) -> float:
@@ -165,6 +165,7 @@ class DeadbandReceiver:
     _slope: list[float] | None = None
 
     def receive(self, values: Sequence[float], *, now: float) -> None:
+        """Take the values of a sample that arrived at ``now`` (the newest the sender let through)."""
         current = list(values)
         last = self._last
         if (

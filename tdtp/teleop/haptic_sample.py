@@ -22,6 +22,19 @@ from dataclasses import dataclass
 from tdtp.errors import InvalidArgumentError
 from tdtp.teleop.schema import SampleCodec, SampleFormatError
 
+__all__ = [
+    "CODEC",
+    "FORCE_LIMIT",
+    "MOTION_PERIOD",
+    "POSITION_LIMIT",
+    "SAMPLE_SIZE",
+    "WALL_X",
+    "HapticSample",
+    "master_trajectory",
+    "operator_motion",
+    "slave_feedback",
+]
+
 POSITION_LIMIT = 10.0
 """Metres: the largest coordinate a haptic sample may carry (a workspace, not a float32's range)."""
 FORCE_LIMIT = 1e4

@@ -214,7 +214,7 @@ class SampleCodec(Generic[T]):
 
     def field_slots(self, *names: str) -> tuple[int, ...]:
         """Where the named fields sit in :meth:`decode_values`' flat tuple (arrays: every element):
-        what :class:`~tdtp.teleop.deadband.Deadband` groups are made of."""
+        what :class:`~tdtp.teleop.deadband.DeadbandSender` groups are made of."""
         positions: dict[str, range] = {}
         index = 0
         for f in self._fields:

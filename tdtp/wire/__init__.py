@@ -1,6 +1,8 @@
 """The TDTP wire format: the 5-byte header, hold-time code, sequence expansion, control bodies and
-the keyed packet layout's sizes."""
+the keyed packet layout's sizes; and what a received datagram is judged by: the address it came from
+and the reasons it may be dropped for."""
 
+from tdtp.wire.address import Address
 from tdtp.wire.control import (
     COOKIE_SIZE,
     KEY_ID_SIZE,
@@ -44,6 +46,7 @@ from tdtp.wire.control import (
     encode_reset,
     encode_timestamp,
 )
+from tdtp.wire.drop_reason import DropReason
 from tdtp.wire.errors import MalformedPacketError
 from tdtp.wire.header import (
     HEADER_SIZE,
@@ -79,11 +82,13 @@ __all__ = [
     "SEQ_MODULUS",
     "STAMP_SIZE",
     "TAG_SIZE",
+    "Address",
     "CipherSuite",
     "CloseBody",
     "CloseReason",
     "ControlCode",
     "CookieBody",
+    "DropReason",
     "Header",
     "KeepaliveBody",
     "MalformedPacketError",

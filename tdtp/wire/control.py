@@ -36,8 +36,8 @@ from tdtp.wire.protected import TAG_SIZE
 
 PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
-had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 had no send
-timestamps, TIMESTAMP and TIMED_DATA)."""
+had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3's MESSAGE and
+MESSAGE_ACK carried no nonce, and it had no send timestamps: TIMESTAMP and TIMED_DATA)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -77,11 +77,12 @@ class ControlCode(enum.IntEnum):
     """master -> slave: the PATH_CHALLENGE's token and the master's nonce, from the master's current
     address."""
     MESSAGE = 10
-    """either way: one message of the reliable control channel (its 16-bit number, the cumulative
-    acknowledgement of the peer's messages, the message), retransmitted until acknowledged."""
+    """either way: one message of the reliable control channel (the master's nonce, its 16-bit
+    number, the cumulative acknowledgement of the peer's messages, the message), retransmitted until
+    acknowledged."""
     MESSAGE_ACK = 11
-    """either way: the cumulative acknowledgement of the peer's control messages alone, when no
-    MESSAGE of ours leaves to carry it."""
+    """either way: the master's nonce and the cumulative acknowledgement of the peer's control
+    messages alone, when no MESSAGE of ours leaves to carry it."""
     TIMESTAMP = 15
     """either way, sessions with the TIMESTAMPS flag: a stand-alone acknowledgement (the header's
     ACK fields, as an ACK's) with the sender's clock when it left, in microseconds."""
@@ -173,6 +174,14 @@ class CloseReason(enum.IntEnum):
     TAKEN_OVER = 13
     """CLOSE: the slave is exclusive and another master took control (after this one was silent,
     or at once with the TAKEOVER flag)."""
+    EVICTED = 14
+    """CLOSE, slave -> master: the slave was full and gave this session's slot to another master,
+    after this one had been silent for the slave's reclaim time (docs/PROTOCOL.md 5.1, rule 2.7).
+    The master may reopen later; it should wait (back off) first."""
+    RESTARTING = 15
+    """CLOSE: the sender is stopping but expects to be back soon (a service restart: ``tdtp slave``
+    stopped by Ctrl-C or SIGTERM). A master should reopen at once, at its usual OPEN pacing
+    (docs/PROTOCOL.md 5.2). ``NORMAL`` says the opposite: the session is over for good."""
 
 
 class OpenBody(NamedTuple):
@@ -190,6 +199,7 @@ class OpenBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.OPEN
 
 
@@ -208,6 +218,7 @@ class OpenAckBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.OPEN_ACK
 
 
@@ -221,6 +232,7 @@ class CookieBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.COOKIE
 
 
@@ -251,6 +263,7 @@ class ResetBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.RESET
 
 
@@ -261,6 +274,7 @@ class PathChallengeBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.PATH_CHALLENGE
 
 
@@ -274,12 +288,15 @@ class PathResponseBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.PATH_RESPONSE
 
 
 class MessageBody(NamedTuple):
     """MESSAGE (either way): one message of the reliable control channel."""
 
+    nonce: bytes
+    """The master's nonce, as a KEEPALIVE carries it: a blind attacker cannot forge a message."""
     seq: int
     """The low 16 bits of the message's number (the sender numbers its messages consecutively)."""
     ack: int
@@ -290,17 +307,21 @@ class MessageBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MESSAGE
 
 
 class MessageAckBody(NamedTuple):
     """MESSAGE_ACK (either way): the cumulative acknowledgement of control messages alone."""
 
+    nonce: bytes
+    """The master's nonce."""
     ack: int
     """As :attr:`MessageBody.ack`."""
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.MESSAGE_ACK
 
 
@@ -355,8 +376,8 @@ _CLOSE: Final = struct.Struct(">B16sB")  # code nonce reason
 _KEEPALIVE: Final = struct.Struct(">B16s")  # code nonce
 _PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
 _PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
-_MESSAGE: Final = struct.Struct(">BHH")  # code seq ack, then the message
-_MESSAGE_ACK: Final = struct.Struct(">BH")  # code ack
+_MESSAGE: Final = struct.Struct(">B16sHH")  # code nonce seq ack, then the message
+_MESSAGE_ACK: Final = struct.Struct(">B16sH")  # code nonce ack
 _STAMP: Final = struct.Struct(">BI")  # code time (TIMESTAMP; TIMED_DATA's payload follows)
 
 OPEN_BODY_SIZE: Final = _OPEN.size
@@ -384,9 +405,14 @@ that can trigger one (an unkeyed KEEPALIVE)."""
 PATH_RESPONSE_BODY_SIZE: Final = _PATH_RESPONSE.size
 """33 bytes: a PATH_RESPONSE datagram is 38 bytes."""
 MESSAGE_PREFIX_SIZE: Final = _MESSAGE.size
-"""5 bytes before a MESSAGE's data (code, seq, ack): an unkeyed MESSAGE is 10 bytes + the message."""
+"""21 bytes before a MESSAGE's data (code, nonce, seq, ack): an unkeyed MESSAGE is 26 bytes + the
+message."""
+MESSAGE_NONCE_OFFSET: Final = 1
+"""Where a MESSAGE or MESSAGE_ACK body carries the master's nonce (after the code byte)."""
+MESSAGE_NUMBERS_OFFSET: Final = MESSAGE_NONCE_OFFSET + NONCE_SIZE
+"""Where a MESSAGE body carries its seq and ack (a MESSAGE_ACK its ack): 17."""
 MESSAGE_ACK_BODY_SIZE: Final = _MESSAGE_ACK.size
-"""3 bytes: an unkeyed MESSAGE_ACK is 8 bytes, a keyed one 26."""
+"""19 bytes: an unkeyed MESSAGE_ACK is 24 bytes, a keyed one 42."""
 STAMP_SIZE: Final = _STAMP.size
 """5 bytes: a TIMESTAMP body (code and time); TIMED_DATA puts them before the payload, so a timed
 sample's datagram is 5 bytes longer than its DATA packet would be."""
@@ -429,6 +455,7 @@ def encode_open_ack(body: OpenAckBody) -> bytes:
 
 
 def encode_cookie(nonce: bytes, cookie: bytes) -> bytes:
+    """A COOKIE body (code byte included): the version, the master's nonce echoed, the cookie."""
     return _COOKIE.pack(ControlCode.COOKIE, PROTOCOL_VERSION, nonce, cookie)
 
 
@@ -464,21 +491,24 @@ def encode_keepalive(nonce: bytes) -> bytes:
 
 
 def encode_path_challenge(token: bytes) -> bytes:
+    """A PATH_CHALLENGE body (code byte included): the token the new address must echo."""
     return _PATH_CHALLENGE.pack(ControlCode.PATH_CHALLENGE, token)
 
 
 def encode_path_response(token: bytes, nonce: bytes) -> bytes:
+    """A PATH_RESPONSE body (code byte included): the challenge's token and the session's nonce."""
     return _PATH_RESPONSE.pack(ControlCode.PATH_RESPONSE, token, nonce)
 
 
-def encode_message(seq: int, ack: int, data: bytes) -> bytes:
-    """A MESSAGE body (code byte included): the low 16 bits of ``seq`` and ``ack``, then ``data``."""
-    return _MESSAGE.pack(ControlCode.MESSAGE, seq & 0xFFFF, ack & 0xFFFF) + data
+def encode_message(nonce: bytes, seq: int, ack: int, data: bytes) -> bytes:
+    """A MESSAGE body (code byte included): the master's nonce, the low 16 bits of ``seq`` and
+    ``ack``, then ``data``."""
+    return _MESSAGE.pack(ControlCode.MESSAGE, nonce, seq & 0xFFFF, ack & 0xFFFF) + data
 
 
-def encode_message_ack(ack: int) -> bytes:
-    """A MESSAGE_ACK body (code byte included)."""
-    return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, ack & 0xFFFF)
+def encode_message_ack(nonce: bytes, ack: int) -> bytes:
+    """A MESSAGE_ACK body (code byte included): the master's nonce and ``ack``'s low 16 bits."""
+    return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, nonce, ack & 0xFFFF)
 
 
 def encode_timestamp(code: ControlCode, time_us: int) -> bytes:
@@ -543,16 +573,16 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             raise MalformedPacketError(
                 "bad_control", f"MESSAGE body of {len(body)} bytes carries no message"
             )
-        _, seq, ack = _MESSAGE.unpack_from(body)
-        return MessageBody(seq, ack, bytes(body[MESSAGE_PREFIX_SIZE:]))
+        _, nonce, seq, ack = _MESSAGE.unpack_from(body)
+        return MessageBody(nonce, seq, ack, bytes(body[MESSAGE_PREFIX_SIZE:]))
     if code is ControlCode.MESSAGE_ACK:
         if len(body) != MESSAGE_ACK_BODY_SIZE:
             raise MalformedPacketError(
                 "bad_control",
                 f"MESSAGE_ACK body is {len(body)} bytes, not {MESSAGE_ACK_BODY_SIZE}",
             )
-        _, ack = _MESSAGE_ACK.unpack(body)
-        return MessageAckBody(ack)
+        _, nonce, ack = _MESSAGE_ACK.unpack(body)
+        return MessageAckBody(nonce, ack)
     if code is ControlCode.TIMESTAMP:
         if len(body) != STAMP_SIZE:
             raise MalformedPacketError(

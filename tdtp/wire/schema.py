@@ -84,10 +84,13 @@ ResetBody: Any = Struct(
 KeepaliveBody: Any = Struct("nonce" / Bytes(NONCE_SIZE))
 PathChallengeBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE))
 PathResponseBody: Any = Struct("token" / Bytes(PATH_TOKEN_SIZE), "nonce" / Bytes(NONCE_SIZE))
-MessageBody: Any = Struct("seq" / Int16ub, "ack" / Int16ub, "data" / GreedyBytes)
-"""MESSAGE (the reliable control channel): the message's number and the cumulative acknowledgement
-of the peer's messages (both their low 16 bits), then the message itself (at least one byte)."""
-MessageAckBody: Any = Struct("ack" / Int16ub)
+MessageBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE), "seq" / Int16ub, "ack" / Int16ub, "data" / GreedyBytes
+)
+"""MESSAGE (the reliable control channel): the master's nonce, the message's number and the
+cumulative acknowledgement of the peer's messages (both their low 16 bits), then the message itself
+(at least one byte)."""
+MessageAckBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "ack" / Int16ub)
 TimestampBody: Any = Struct("time" / Int32ub)
 """TIMESTAMP: the sender's clock (microseconds, low 32 bits) when it left."""
 TimedDataBody: Any = Struct("time" / Int32ub, "payload" / GreedyBytes)

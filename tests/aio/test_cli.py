@@ -111,10 +111,10 @@ def _wait_until_listening(port: int, patience: float = 20.0) -> None:
     fail at once, as it should, on the ICMP port unreachable."""
     import time
 
-    from tdtp.wire import OpenBody, encode_header, encode_open
+    from tdtp.wire import PROTOCOL_VERSION, OpenBody, encode_header, encode_open
 
     probe_open = encode_header(2, 0, 0, 0, 255) + encode_open(
-        OpenBody(3, 0, 0, 1200, 0, bytes(16), bytes(8), bytes(16))
+        OpenBody(PROTOCOL_VERSION, 0, 0, 1200, 0, bytes(16), bytes(8), bytes(16))
     )
     deadline = time.monotonic() + patience
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:

@@ -4,9 +4,19 @@ has been silent for ``takeover_after`` watchdog periods, or at once when keyed w
 
 from __future__ import annotations
 
+import asyncio
+
 import pytest
 
-from tdtp import CloseCause, ConnectError, ConnectionConfig, InvalidArgumentError, connect, listen
+from tdtp import (
+    CloseCause,
+    ConnectError,
+    ConnectionConfig,
+    Endpoint,
+    InvalidArgumentError,
+    connect,
+    listen,
+)
 from tdtp.aio.relay import start_relay
 from tdtp.protection import PresharedKey
 
@@ -67,6 +77,36 @@ async def test_a_keyed_master_takes_over_at_once_with_the_flag() -> None:
             lost = await first.wait_closed()
             assert lost.cause is CloseCause.PEER_CLOSE and lost.detail == "taken_over"
             assert not second.is_closed
+
+
+@pytest.mark.asyncio
+async def test_a_displaced_master_sending_at_1khz_always_ends_taken_over() -> None:
+    """The displaced master's samples still in flight reach a server that no longer holds its
+    session: in version 3 their RESET usually overtook the CLOSE (4 of 6 runs of the CLI), and
+    the master ended peer_restarted. Now it ends taken_over every time (PROTOCOL.md 5.7, 5.9)."""
+    for _ in range(3):
+        async with listen(keys=[KEY, SECOND], exclusive=True) as server:
+            first = await connect("127.0.0.1", server.port, key=KEY)
+            held = await server.accept()
+            sending = asyncio.create_task(_send_at_1khz(first))
+            await asyncio.sleep(0.05)
+            config = ConnectionConfig(takeover=True)
+            async with connect("127.0.0.1", server.port, key=SECOND, config=config):
+                await server.accept()
+                assert (await held.wait_closed()).cause is CloseCause.TAKEN_OVER
+                lost = await asyncio.wait_for(first.wait_closed(), 5.0)
+            await sending
+            assert lost.cause is CloseCause.PEER_CLOSE and lost.detail == "taken_over"
+            await first.close()
+
+
+async def _send_at_1khz(endpoint: Endpoint) -> None:
+    """Samples every millisecond until the session ends (at most 5 s)."""
+    for _ in range(5000):
+        if endpoint.is_closed:
+            return
+        endpoint.send(bytes(100))
+        await asyncio.sleep(0.001)
 
 
 @pytest.mark.asyncio

@@ -13,10 +13,20 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import pytest
 
-from tdtp import CloseCause, ConnectionConfig, DataReceived, PresharedKey
+from tdtp import (
+    CloseCause,
+    ConnectionConfig,
+    DataReceived,
+    InvalidKeyError,
+    PresharedKey,
+    load_key,
+    load_keys,
+    write_key_file,
+)
 from tdtp.aio.api import ConnectError, connect, listen
 from tdtp.wire import OpenBody, OpenFlags, encode_header, encode_open
 from tdtp.wire.control import PROTOCOL_VERSION
@@ -241,6 +251,25 @@ async def test_a_keyed_session_over_real_sockets() -> None:
             await connect("127.0.0.1", server.port, key=PresharedKey.generate())
         with pytest.raises(ConnectError, match="keyed sessions only"):
             await connect("127.0.0.1", server.port)
+
+
+@pytest.mark.asyncio
+async def test_key_files_fit_connect_and_listen(tmp_path: Path) -> None:
+    """The slave takes its file's keys (load_keys), the master one key (load_key, or load_keys
+    of a one-key file); several keys for key= are refused at the call, saying how to choose."""
+    slave_file, master_file = tmp_path / "robot.keys", tmp_path / "station.keys"
+    other = PresharedKey.generate("station-2")
+    write_key_file(slave_file, [KEY, other])
+    write_key_file(master_file, [KEY])
+    with pytest.raises(InvalidKeyError, match=r"load_key\(path, name=NAME\)"):
+        connect("127.0.0.1", 7000, key=load_keys(slave_file))  # checked before any await
+    async with await listen("127.0.0.1", 0, keys=load_keys(slave_file)) as server:
+        for key in (load_keys(master_file), load_key(slave_file, name="station-2")):
+            async with await connect("127.0.0.1", server.port, key=key) as master:
+                slave = await server.accept()
+                assert slave.connection.key is not None
+                assert master.connection.key is not None
+                assert slave.connection.key.name == master.connection.key.name
 
 
 @pytest.mark.asyncio

@@ -45,26 +45,33 @@ async def test_the_slave_learns_its_master_is_silent_and_back_and_the_session_su
                     asyncio.create_task(_stream(slave, stop)),
                 ]
                 await eventually(lambda: slave.stats.samples_delivered >= 50)
-                assert not slave.peer_silent
+                # A loaded machine can starve the master for a watchdog period before the outage:
+                # judge only what the outage itself brings (events and silences from here on).
+                await eventually(lambda: not slave.peer_silent)
                 assert await slave.wait_resumed() is None  # not silent: returns at once
+                before = len(slave_events)
+                silences_before = slave.stats.peer_silences
 
                 relay.change("loss 100%")  # the link goes down both ways
                 silent = await asyncio.wait_for(slave.wait_silent(), 10.0)
                 assert slave.peer_silent
                 await eventually(lambda: master.peer_silent)
-                assert [type(e) for e in slave_events] == [PeerSilent]
-                assert slave_events[0] is silent
+                assert [type(e) for e in slave_events[before:]] == [PeerSilent]
+                assert slave_events[before] is silent
                 assert silent.detected_at - silent.since >= 0.1  # never before silence_timeout
 
                 delivered = slave.stats.samples_delivered
                 relay.change("delay 1ms")  # and comes back
                 resumed = await asyncio.wait_for(slave.wait_resumed(), 10.0)
                 assert resumed is not None and resumed.silent_for >= 0.1
-                assert [type(e) for e in slave_events] == [PeerSilent, PeerResumed]
+                assert [type(e) for e in slave_events[before : before + 2]] == [
+                    PeerSilent,
+                    PeerResumed,
+                ]
                 await eventually(lambda: slave.stats.samples_delivered > delivered + 50)
                 assert not slave.is_closed and not master.is_closed
-                assert slave.stats.peer_silences == 1
-                assert slave.stats.longest_silence == resumed.silent_for
+                assert slave.stats.peer_silences >= silences_before + 1
+                assert slave.stats.longest_silence >= resumed.silent_for
                 stop.set()
                 await asyncio.gather(*streams)
         finally:

@@ -42,6 +42,8 @@ from tdtp.wire.control import (
     CLOSE_BODY_SIZE,
     COOKIE_BODY_SIZE,
     KEEPALIVE_BODY_SIZE,
+    MESSAGE_ACK_BODY_SIZE,
+    MESSAGE_PREFIX_SIZE,
     OPEN_ACK_BODY_SIZE,
     OPEN_BODY_SIZE,
     PATH_CHALLENGE_BODY_SIZE,
@@ -74,8 +76,8 @@ UNKEYED_SIZES = {
     ControlCode.RESET: 1 + RESET_ECHO_SIZE,
     ControlCode.PATH_CHALLENGE: PATH_CHALLENGE_BODY_SIZE,
     ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
-    ControlCode.MESSAGE: 6,  # the smallest: code, seq, ack and a one-byte message
-    ControlCode.MESSAGE_ACK: 3,
+    ControlCode.MESSAGE: 22,  # the smallest: code, nonce, seq, ack and a one-byte message
+    ControlCode.MESSAGE_ACK: 19,
 }
 
 # Whole CONTROL datagrams, derived by hand field by field (docs/PROTOCOL.md section 7 shows the same).
@@ -83,46 +85,46 @@ UNKEYED_SIZES = {
 # one after the other, nonces and cookies as raw bytes.
 GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
     # OPEN, first attempt, no cookie yet: SEQ 0x5A5 (the master's initial data sequence number), no ACK
-    # -> 96 94 00 00 ff; code 01, version 03, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
+    # -> 96 94 00 00 ff; code 01, version 04, flags 00, suite 00, max_payload 1200 = 04 b0, attempt
     # 00 00, nonce, key id 0 (unkeyed), cookie 0 (none).
     (
-        "96 94 00 00 ff" + "01 03 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
+        "96 94 00 00 ff" + "01 04 00 00 04b0 0000" + NONCE.hex() + ZERO8.hex() + ZERO16.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
+        OpenBody(4, 0, 0, 1200, 0, NONCE, ZERO8, ZERO16),
         b"",
     ),
-    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 03, the master's nonce, the cookie.
+    # COOKIE: SEQ 0 -> 80 00 00 00 ff; code 06, version 04, the master's nonce, the cookie.
     (
-        "80 00 00 00 ff" + "06 03" + NONCE.hex() + COOKIE.hex(),
+        "80 00 00 00 ff" + "06 04" + NONCE.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0, 0, 0, 255),
-        CookieBody(3, NONCE, COOKIE),
+        CookieBody(4, NONCE, COOKIE),
         b"",
     ),
     # OPEN, second attempt, echoing the cookie: attempt 00 01.
     (
-        "96 94 00 00 ff" + "01 03 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
+        "96 94 00 00 ff" + "01 04 00 00 04b0 0001" + NONCE.hex() + ZERO8.hex() + COOKIE.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
+        OpenBody(4, 0, 0, 1200, 1, NONCE, ZERO8, COOKIE),
         b"",
     ),
     # A keyed OPEN: flags 06 (KEYED | ENCRYPTED), suite 01 (AES-128-GCM), the key id, then the tag.
     (
         "96 94 00 00 ff"
-        + "01 03 06 01 04b0 0001"
+        + "01 04 06 01 04b0 0001"
         + NONCE.hex()
         + KEY_ID.hex()
         + COOKIE.hex()
         + TAG.hex(),
         Header(PacketType.CONTROL, 0x5A5, 0, 0, 255),
-        OpenBody(3, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
+        OpenBody(4, 0x06, 1, 1200, 1, NONCE, KEY_ID, COOKIE),
         TAG,
     ),
-    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 03, flags 01 (SEPARATE_ACKS), suite
+    # OPEN_ACK: SEQ 0x0C3 -> 83 0c 00 00 ff; code 02, version 04, flags 01 (SEPARATE_ACKS), suite
     # 00, max_payload 100 = 00 64, packet number 00 00, both nonces.
     (
-        "83 0c 00 00 ff" + "02 03 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
+        "83 0c 00 00 ff" + "02 04 01 00 0064 0000" + NONCE.hex() + SLAVE_NONCE.hex(),
         Header(PacketType.CONTROL, 0x0C3, 0, 0, 255),
-        OpenAckBody(3, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
+        OpenAckBody(4, int(OpenFlags.SEPARATE_ACKS), 0, 100, 0, NONCE, SLAVE_NONCE),
         b"",
     ),
     # KEEPALIVE carrying an acknowledgement: SEQ 0xABD, ACK 0x124, SACK 000001, HOLD 0 ->
@@ -169,6 +171,21 @@ GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
         CloseBody(ControlCode.REJECT, NONCE, CloseReason.BUSY),
         b"",
     ),
+    # MESSAGE: SEQ 0xABD, no ACK -> aa f4 00 00 ff; code 0a, the master's nonce, message number
+    # ff ff, next expected from the peer f0 c4, the message "E-STOP" (PROTOCOL.md 7.7).
+    (
+        "aa f4 00 00 ff 0a" + NONCE.hex() + "ffff f0c4" + b"E-STOP".hex(),
+        Header(PacketType.CONTROL, 0xABD, 0, 0, 255),
+        MessageBody(NONCE, 0xFFFF, 0xF0C4, b"E-STOP"),
+        b"",
+    ),
+    # MESSAGE_ACK: code 0b, the master's nonce, next expected 00 00 (0x10000 past the wrap).
+    (
+        "aa f4 00 00 ff 0b" + NONCE.hex() + "0000",
+        Header(PacketType.CONTROL, 0xABD, 0, 0, 255),
+        MessageAckBody(NONCE, 0),
+        b"",
+    ),
 ]
 
 
@@ -188,14 +205,14 @@ def encode_body(body: ControlBody) -> bytes:
     if isinstance(body, PathResponseBody):
         return encode_path_response(body.token, body.nonce)
     if isinstance(body, MessageBody):
-        return encode_message(body.seq, body.ack, body.data)
+        return encode_message(body.nonce, body.seq, body.ack, body.data)
     if isinstance(body, MessageAckBody):
-        return encode_message_ack(body.ack)
+        return encode_message_ack(body.nonce, body.ack)
     return encode_keepalive(body.nonce)
 
 
 def test_codes_and_constants_are_pinned() -> None:
-    assert PROTOCOL_VERSION == 3
+    assert PROTOCOL_VERSION == 4
     assert {c.name: int(c) for c in ControlCode} == {
         "OPEN": 1,
         "OPEN_ACK": 2,
@@ -224,6 +241,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEY_EXHAUSTED": 11,
         "IN_USE": 12,
         "TAKEN_OVER": 13,
+        "EVICTED": 14,
+        "RESTARTING": 15,
     }
     assert int(OpenFlags.NONE) == 0
     assert {f.name: int(f) for f in OpenFlags if f.name} == {
@@ -240,6 +259,7 @@ def test_codes_and_constants_are_pinned() -> None:
     assert (OPEN_BODY_SIZE, OPEN_ACK_BODY_SIZE, COOKIE_BODY_SIZE) == (48, 40, 34)
     assert (CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, TAG_SIZE) == (18, 17, 16)
     assert (PATH_CHALLENGE_BODY_SIZE, PATH_RESPONSE_BODY_SIZE) == (17, 33)
+    assert (MESSAGE_PREFIX_SIZE, MESSAGE_ACK_BODY_SIZE) == (21, 19)
 
 
 def test_no_answer_to_an_unvalidated_open_is_larger_than_the_open() -> None:
@@ -259,7 +279,8 @@ def test_golden_control_packets(
     assert decode_header(raw) == header
     assert decode_control(raw[HEADER_SIZE:]) == body
     assert decode_control(memoryview(raw)[HEADER_SIZE:]) == body
-    assert len(raw) == HEADER_SIZE + UNKEYED_SIZES[body.code] + len(tag)
+    message = len(body.data) - 1 if isinstance(body, MessageBody) else 0  # beyond the smallest
+    assert len(raw) == HEADER_SIZE + UNKEYED_SIZES[body.code] + message + len(tag)
 
 
 def test_decoded_code_is_the_enum() -> None:

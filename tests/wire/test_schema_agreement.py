@@ -214,38 +214,41 @@ def test_path_bodies_agreement(token: bytes, nonce: bytes) -> None:
     assert decode_control(response) == PathResponseBody(token, nonce)
 
 
-@given(u16, u16, st.binary(min_size=1, max_size=300))
-def test_message_body_agreement(seq: int, ack: int, data: bytes) -> None:
-    fast = encode_message(seq, ack, data)
-    assert len(fast) == 5 + len(data)
-    fields = {"seq": seq, "ack": ack, "data": data}
+@given(b16, u16, u16, st.binary(min_size=1, max_size=300))
+def test_message_body_agreement(nonce: bytes, seq: int, ack: int, data: bytes) -> None:
+    fast = encode_message(nonce, seq, ack, data)
+    assert len(fast) == 21 + len(data)
+    fields = {"nonce": nonce, "seq": seq, "ack": ack, "data": data}
     assert schema_control_bytes(ControlCode.MESSAGE, fields) == fast
     parsed = schema.ControlBody.parse(fast)
-    assert (parsed.code, parsed.body.seq, parsed.body.ack, parsed.body.data) == (
+    body = parsed.body
+    assert (parsed.code, body.nonce, body.seq, body.ack, body.data) == (
         ControlCode.MESSAGE,
+        nonce,
         seq,
         ack,
         data,
     )
-    assert decode_control(fast) == MessageBody(seq, ack, data)
+    assert decode_control(fast) == MessageBody(nonce, seq, ack, data)
 
 
-@given(u16)
-def test_message_ack_body_agreement(ack: int) -> None:
-    fast = encode_message_ack(ack)
-    assert len(fast) == 3
-    assert schema_control_bytes(ControlCode.MESSAGE_ACK, {"ack": ack}) == fast
-    assert schema.ControlBody.parse(fast).body.ack == ack
-    assert decode_control(fast) == MessageAckBody(ack)
+@given(b16, u16)
+def test_message_ack_body_agreement(nonce: bytes, ack: int) -> None:
+    fast = encode_message_ack(nonce, ack)
+    assert len(fast) == 19
+    assert schema_control_bytes(ControlCode.MESSAGE_ACK, {"nonce": nonce, "ack": ack}) == fast
+    parsed = schema.ControlBody.parse(fast)
+    assert (parsed.body.nonce, parsed.body.ack) == (nonce, ack)
+    assert decode_control(fast) == MessageAckBody(nonce, ack)
 
 
-@given(st.binary(max_size=8))
+@given(st.binary(max_size=24))
 def test_short_or_long_message_bodies_are_malformed(rest: bytes) -> None:
     """A MESSAGE without a message byte, or a MESSAGE_ACK of any other length, is bad_control."""
-    if len(rest) <= 4:
+    if len(rest) <= 20:
         with pytest.raises(MalformedPacketError):
             decode_control(bytes([ControlCode.MESSAGE]) + rest)
-    if len(rest) != 2:
+    if len(rest) != 18:
         with pytest.raises(MalformedPacketError):
             decode_control(bytes([ControlCode.MESSAGE_ACK]) + rest)
 

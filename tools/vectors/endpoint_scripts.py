@@ -1,11 +1,11 @@
-"""The inputs of tdtp-v3-endpoint.json: what each script feeds an endpoint (generate.py records the
+"""The inputs of tdtp-v4-endpoint.json: what each script feeds an endpoint (generate.py records the
 expected outcomes by running tdtp). Every drop reason of PROTOCOL.md section 5.5 appears."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from tdtp.protection.derivation import derive_session_secrets
+from tdtp.protection.derivation import derive_reset_key, derive_session_secrets, reset_tag
 from tdtp.protection.keys import PresharedKey
 from tdtp.protection.packet_protection import Direction, PacketSealer
 from tdtp.wire import (
@@ -23,6 +23,8 @@ from tdtp.wire import (
     encode_message_ack,
     encode_open,
     encode_open_ack,
+    encode_path_challenge,
+    encode_path_response,
     encode_reset,
 )
 
@@ -126,7 +128,8 @@ def slave_session() -> dict[str, Any]:
             0.031,
             "master",
             _data(s + 3, b"s4", ack=(SLAVE_ISN + 5, 0, 0)),
-            note="acknowledges a packet the slave never sent",
+            note="acknowledges a packet the slave never sent: the acknowledgement is ignored, the "
+            "sample delivered",
         ),
         _step(0.032, "master", _hex(encode_header(2, s, 0, 0, 255) + b"\x09")),
         _step(
@@ -166,15 +169,27 @@ def slave_session() -> dict[str, Any]:
             _open(OTHER_NONCE, cookie=True, attempt=1),
             note="another nonce, valid cookie, session alive: a replay",
         ),
-        _step(0.041, "master", _data(s + 100, b"far ahead")),
-        _step(0.042, "master", _data(s + 36, b"64 below the highest")),
-        _step(0.043, "master", _data(s + 37, b"63 below: late")),
         _step(
-            0.050,
+            0.041,
+            "master",
+            _data(s + 80, b"77 ahead"),
+            note="77 above the highest, 10 ms after it arrived: more than 32 + 10 ms at 1000/s, "
+            "the least rate assumed (a blind forgery): far_ahead",
+        ),
+        _step(
+            0.100,
+            "master",
+            _data(s + 100, b"97 ahead"),
+            note="97 above the highest, 69 ms after it: 32 + 69 at 1000/s, a loss burst: taken",
+        ),
+        _step(0.101, "master", _data(s + 36, b"64 below the highest")),
+        _step(0.102, "master", _data(s + 37, b"63 below: late")),
+        _step(
+            0.110,
             "master",
             _hex(header_close + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
         ),
-        _step(0.051, "master", _data(s + 101, b"after the close")),
+        _step(0.111, "master", _data(s + 101, b"after the close")),
     ]
     return {
         "name": "slave: opening, a session's bad input, closing",
@@ -219,7 +234,20 @@ def slave_before_the_open() -> dict[str, Any]:
             _step(0.010, "master", _open(), note=f"OPEN {i + 1} within one instant")
             for i in range(41)
         ],
+        _step(
+            0.010,
+            "master",
+            _hex(encode_header(2, 0, 0, 0, 255) + b"\x01\x01\x00") + "00" * 10,
+            note="a version 1 OPEN over the rate: an OPEN of another version takes a token of its "
+            "source's rate whatever its size (5.1 rule 2.1), so rate_limited, not unknown_version",
+        ),
         _step(0.011, "stranger", _open(OTHER_NONCE), note="another host has its own budget"),
+        _step(
+            0.012,
+            "master",
+            _hex(encode_header(2, s, 0, 0, 255) + encode_message(MASTER_NONCE, 1, 2, b"hello")),
+            note="a MESSAGE (43 bytes) with no session: not a datagram a RESET answers (5.7)",
+        ),
     ]
     return {
         "name": "slave: before any session, and the per-source OPEN rate",
@@ -294,9 +322,23 @@ def keyed_slave_refusals() -> dict[str, Any]:
             ),
             note="a key id this slave does not hold",
         ),
+        _step(
+            0.006,
+            "master",
+            _data(MASTER_ISN, bytes(range(35))),
+            exact=True,
+            note="a 40-byte DATA with no session: a RESET with one tag of the ring's key (room "
+            "for floor((40 - 22) / 16) = 1)",
+        ),
+        _step(
+            0.007,
+            "master",
+            _hex(encode_header(1, MASTER_ISN, 0, 0, 255) + bytes(18)),
+            note="a keyed ACK (23 bytes) has no room for a tag: no RESET",
+        ),
     ]
     return {
-        "name": "slave with a key: refused and unauthenticated OPENs",
+        "name": "slave with a key: refused and unauthenticated OPENs, a RESET with a tag",
         "role": "slave",
         "config": {"psk": PSK.hex()},
         "random": _slave_random(),
@@ -454,9 +496,10 @@ def master_session() -> dict[str, Any]:
             0.004,
             "slave",
             _data(SLAVE_ISN, b"one", ack=(MASTER_ISN, 0, 0)),
-            note="acknowledges the master's first DATA, which it never sent",
+            note="acknowledges the master's first DATA, which it never sent: the acknowledgement "
+            "is ignored, the sample delivered",
         ),
-        _step(0.005, "slave", _data(SLAVE_ISN, b"one")),
+        _step(0.005, "slave", _data(SLAVE_ISN, b"one"), note="the same again: a duplicate"),
         _step(
             0.006,
             "slave",
@@ -470,6 +513,14 @@ def master_session() -> dict[str, Any]:
             _hex(encode_header(2, 0, 0, 0, 255) + encode_reset(bytes(range(16)))),
             note="a RESET that echoes nothing the master sent: unmatched_reset, the session goes on",
         ),
+        _step(
+            0.0076,
+            "slave",
+            _reset_of_first_keepalive(),
+            note="a RESET echoing the master's KEEPALIVE, 2.6 ms after the slave was last heard: "
+            "a slave that holds the session is talking (a copy of the KEEPALIVE drew it "
+            "elsewhere): peer_alive, the session goes on",
+        ),
         _action(0.008, "close", exact=True),
         _step(0.009, "slave", _data(SLAVE_ISN + 1, b"two")),
     ]
@@ -482,6 +533,95 @@ def master_session() -> dict[str, Any]:
     }
 
 
+def _reset_of_first_keepalive() -> str:
+    """An unkeyed RESET echoing the master's KEEPALIVE sent on its OPEN_ACK (no data yet: HOLD 255)."""
+    keepalive = encode_header(2, MASTER_ISN, 0, 0, 255) + encode_keepalive(MASTER_NONCE)
+    return _hex(encode_header(2, 0, 0, 0, 255) + encode_reset(keepalive[:16]))
+
+
+def master_slave_restarted() -> dict[str, Any]:
+    """A RESET is believed only from a slave the master has not heard for its silence_timeout
+    (section 5.7): one that holds the session is talking."""
+    steps = [
+        _action(0.0, "connect"),
+        _step(0.001, "slave", _open_ack(), note="established: the master sends a KEEPALIVE"),
+        _step(
+            0.050,
+            "slave",
+            _reset_of_first_keepalive(),
+            note="the slave was heard 49 ms ago: peer_alive",
+        ),
+        _step(
+            0.102,
+            "slave",
+            _reset_of_first_keepalive(),
+            note="nothing from the slave for 101 ms (every KEEPALIVE since had the same first "
+            "bytes): it lost the session, PEER_RESTARTED",
+        ),
+    ]
+    return {
+        "name": "master: a RESET from a slave that talks, then from one that lost the session",
+        "role": "master",
+        "config": {},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def master_closed_by(reason: CloseReason) -> dict[str, Any]:
+    """Section 5.2, "What a CLOSE says": a slave's CLOSE RESTARTING ends the master's session as
+    peer_restarting (a reconnecting master reopens at once), a CLOSE EVICTED (section 5.1, rule
+    2.7) as evicted (it backs off first); a CLOSE after the end is dropped."""
+    header = encode_header(2, SLAVE_ISN, 0, 0, 255)
+    what = {
+        CloseReason.RESTARTING: "the slave stops and will be back soon",
+        CloseReason.EVICTED: "a full slave gave this session's slot to another master",
+        CloseReason.TAKEN_OVER: "an exclusive slave handed control to another master (a "
+        "peer_close whose reason says why)",
+    }[reason]
+    steps = [
+        _action(0.0, "connect"),
+        _step(0.001, "slave", _open_ack()),
+        _step(0.002, "slave", _data(SLAVE_ISN, b"one")),
+        _step(
+            0.003,
+            "slave",
+            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, reason)),
+            note=f"CLOSE {reason.name}: {what}",
+        ),
+        _step(
+            0.004,
+            "slave",
+            _hex(header + encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
+            note="after the close: dropped",
+        ),
+    ]
+    return {
+        "name": f"master: the slave closes with {reason.name}",
+        "role": "master",
+        "config": {},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def slave_restarting() -> dict[str, Any]:
+    """The slave's application stops with restarting=True (Ctrl-C of `tdtp slave`): its CLOSE
+    carries reason 15, byte for byte."""
+    steps = [
+        *_opening(),
+        _step(0.021, "master", _data(MASTER_ISN, b"s1")),
+        _action(0.022, "close", restarting=True, exact=True),
+    ]
+    return {
+        "name": "slave: a restarting slave's CLOSE",
+        "role": "slave",
+        "config": {"max_payload": 1200},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
 def slave_control_channel() -> dict[str, Any]:
     """The reliable control channel (section 5.10) at a slave whose control_window is 4: a lost
     MESSAGE, the next one held, the retransmission delivering both in order, a duplicate, the slave's
@@ -490,11 +630,11 @@ def slave_control_channel() -> dict[str, Any]:
     s = 0xF000 | SLAVE_ISN  # the slave's
     header = encode_header(2, MASTER_ISN, 0, 0, 255)
 
-    def message(seq: int, ack: int, data: bytes) -> str:
-        return _hex(header + encode_message(seq, ack, data))
+    def message(seq: int, ack: int, data: bytes, nonce: bytes = MASTER_NONCE) -> str:
+        return _hex(header + encode_message(nonce, seq, ack, data))
 
-    def message_ack(ack: int) -> str:
-        return _hex(header + encode_message_ack(ack))
+    def message_ack(ack: int, nonce: bytes = MASTER_NONCE) -> str:
+        return _hex(header + encode_message_ack(nonce, ack))
 
     steps = [
         *_opening(),
@@ -526,7 +666,25 @@ def slave_control_channel() -> dict[str, Any]:
         _step(0.36, "master", message_ack(s + 1), note="the master acknowledges it"),
         _step(0.37, "master", message_ack(s + 5), note="acknowledges messages never sent"),
         _step(0.38, "master", message(m + 6, s + 1, b"c6"), note="4 past the next expected"),
-        _step(0.39, "master", _hex(header + encode_message(m + 2, s + 1, b"")), note="no message"),
+        _step(
+            0.39,
+            "master",
+            _hex(header + encode_message(MASTER_NONCE, m + 2, s + 1, b"")),
+            note="no message",
+        ),
+        _step(
+            0.395,
+            "master",
+            message(m + 2, s + 1, b"c2", nonce=bytes(16)),
+            note="another nonce (an off-path forgery: right numbers, wrong nonce): nothing in it "
+            "is read, no sign of life",
+        ),
+        _step(
+            0.396,
+            "master",
+            message_ack(s + 1, nonce=bytes(16)),
+            note="a MESSAGE_ACK with another nonce: dropped the same way",
+        ),
         _step(0.40, "master", message(m + 2, s + 1, bytes(257)), note="over control_max_message"),
         _action(0.41, "hold_control", count=4, note="the application holds 4 unread messages"),
         _step(0.411, "master", message(m + 2, s + 1, b"c2"), note="the receive bound is full"),
@@ -542,6 +700,173 @@ def slave_control_channel() -> dict[str, Any]:
     }
 
 
+def master_path_challenge() -> dict[str, Any]:
+    """Section 5.8: an established unkeyed master answers its slave's PATH_CHALLENGE with a
+    PATH_RESPONSE (the token and its nonce), at most one per 5 ms; neither is a sign of life nor
+    session traffic (5.2), so the KEEPALIVE stays on its schedule."""
+    challenge = _hex(encode_header(2, 0, 0, 0, 255) + encode_path_challenge(COOKIE_BYTES))
+    steps = [
+        _action(0.0, "connect"),
+        _step(0.001, "slave", _open_ack(), note="established: a KEEPALIVE at once"),
+        _step(0.030, "slave", challenge, exact=True, note="answered with a PATH_RESPONSE"),
+        _step(0.032, "slave", challenge, note="2 ms after the last answer: rate_limited"),
+        _step(0.034, "stranger", challenge, note="not from the slave's address"),
+        _action(
+            0.0345,
+            "advance",
+            note="a keep-alive interval (33.3 ms) after the last session traffic (the KEEPALIVE "
+            "at 0.001; the PATH_RESPONSE does not count): a KEEPALIVE",
+        ),
+        _step(0.036, "slave", challenge, note="6 ms after the last answer: answered"),
+        _step(
+            0.037,
+            "slave",
+            _hex(encode_header(2, 0, 0, 0, 255) + encode_path_response(COOKIE_BYTES, MASTER_NONCE)),
+            note="a PATH_RESPONSE sent to a master",
+        ),
+    ]
+    return {
+        "name": "master: PATH_CHALLENGE and PATH_RESPONSE",
+        "role": "master",
+        "config": {},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def keyed_master_reset() -> dict[str, Any]:
+    """Section 5.7 keyed: a RESET must carry a tag made with the reset key of the master's PSK,
+    and is believed only from a slave silent for the master's silence_timeout."""
+    suite = CipherSuite.AES_128_GCM
+    session = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, suite)
+    master_sealer = PacketSealer(suite, session.master_to_slave, encrypt=True)
+    # The master's first protected datagram: its KEEPALIVE right after the OPEN_ACK (PN 0).
+    keepalive = master_sealer.seal(
+        encode_header(2, MASTER_ISN, 0, 0, 255) + bytes((ControlCode.KEEPALIVE,)), MASTER_NONCE
+    )
+    echo = keepalive[:16]
+    tag = reset_tag(derive_reset_key(PSK), echo)
+    header = encode_header(2, 0, 0, 0, 255)
+    to_master = Direction(suite, session.slave_to_master)
+    open_ack = encode_header(2, SLAVE_ISN, 0, 0, 255) + encode_open_ack(
+        OpenAckBody(PROTOCOL_VERSION, 6, int(suite), 1200, 0, MASTER_NONCE, SLAVE_NONCE)
+    )
+    open_ack += to_master.tag(0, open_ack)
+    steps = [
+        _action(0.0, "connect"),
+        _step(0.001, "slave", _cookie()),
+        _step(0.002, "slave", _hex(open_ack), exact=True, note="established: a KEEPALIVE, PN 0"),
+        _step(
+            0.003,
+            "slave",
+            _hex(header + encode_reset(echo, (bytes(16),))),
+            note="it echoes the KEEPALIVE, but its tag is not the reset key's: unmatched_reset",
+        ),
+        _step(
+            0.004,
+            "slave",
+            _hex(header + encode_reset(echo, (bytes(16), tag))),
+            note="one of its tags verifies, but the slave was heard 2 ms ago: peer_alive",
+        ),
+        _step(
+            0.103,
+            "slave",
+            _hex(header + encode_reset(echo, (tag,))),
+            note="nothing from the slave for 101 ms: it lost the session, PEER_RESTARTED",
+        ),
+    ]
+    return {
+        "name": "master with a key: RESET tags and the slave's silence",
+        "role": "master",
+        "config": {"psk": PSK.hex(), "suite": int(suite), "encrypt": True},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def keyed_master_takeover_flags() -> dict[str, Any]:
+    """Section 4.3: a keyed master that asks for control (TAKEOVER, flags 0x0E) expects an OPEN_ACK
+    whose flags are its OPEN's bits 0..2 only (0x06); one that echoes TAKEOVER is bad_control."""
+    suite = CipherSuite.AES_128_GCM
+    session = derive_session_secrets(PSK, MASTER_NONCE, SLAVE_NONCE, suite)
+    to_master = Direction(suite, session.slave_to_master)
+
+    def open_ack(number: int, flags: int) -> str:
+        datagram = encode_header(2, SLAVE_ISN, 0, 0, 255) + encode_open_ack(
+            OpenAckBody(
+                PROTOCOL_VERSION, flags, int(suite), 1200, number, MASTER_NONCE, SLAVE_NONCE
+            )
+        )
+        return _hex(datagram + to_master.tag(number, datagram))
+
+    steps = [
+        _action(0.0, "connect", exact=True, note="the OPEN's flags: 0x0E (TAKEOVER | keyed)"),
+        _step(0.001, "slave", open_ack(0, 0x0E), note="TAKEOVER echoed: bad_control"),
+        _step(0.002, "slave", open_ack(1, 0x06), note="the OPEN's bits 0..2: established"),
+    ]
+    return {
+        "name": "master with a key asking for control: the OPEN_ACK's flags",
+        "role": "master",
+        "config": {"psk": PSK.hex(), "suite": int(suite), "encrypt": True, "takeover": True},
+        "random": _master_random(),
+        "steps": steps,
+    }
+
+
+def slave_keepalive_and_idle() -> dict[str, Any]:
+    """Section 5.2: the KEEPALIVE check comes last at an instant, so a MESSAGE leaving then counts
+    as session traffic; after idle_timeout without a sign of life, CLOSE IDLE_TIMEOUT. Timers run
+    only at the steps' instants."""
+    steps = [
+        *_opening(),
+        _action(
+            0.06,
+            "send_control",
+            message="676f",
+            note="a KEEPALIVE was due (0.02 + 33.3 ms), but the MESSAGE leaving at the same "
+            "instant is session traffic: no KEEPALIVE",
+        ),
+        _action(0.09, "advance", note="less than a keep-alive interval after the MESSAGE"),
+        _action(0.094, "advance", note="a keep-alive interval after the MESSAGE: a KEEPALIVE"),
+        _action(
+            30.03,
+            "advance",
+            note="nothing from the master since its first packet at 0.02: idle_timeout",
+        ),
+    ]
+    return {
+        "name": "slave: the KEEPALIVE check comes last; the idle timeout",
+        "role": "slave",
+        "config": {"max_payload": 1200},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
+def slave_opened_by_a_message() -> dict[str, Any]:
+    """Section 5.1, rule 3: the master's first packet of the session is any datagram that gets as
+    far as the checks by type, here a MESSAGE."""
+    m = 0xF000 | MASTER_ISN
+    s = 0xF000 | SLAVE_ISN
+    header = encode_header(2, MASTER_ISN, 0, 0, 255)
+    steps = [
+        *_opening()[:2],
+        _step(
+            0.02,
+            "master",
+            _hex(header + encode_message(MASTER_NONCE, m, s, b"go")),
+            note="the master's first packet of the session is a MESSAGE: established, delivered",
+        ),
+    ]
+    return {
+        "name": "slave: established by a MESSAGE",
+        "role": "slave",
+        "config": {"max_payload": 1200},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
 def all_scripts() -> list[dict[str, Any]]:
     return [
         slave_session(),
@@ -549,8 +874,18 @@ def all_scripts() -> list[dict[str, Any]]:
         slave_refusals(),
         keyed_slave_refusals(),
         master_session(),
+        master_slave_restarted(),
         master_rejected(),
         master_payload_too_small(),
         keyed_master_session(),
         slave_control_channel(),
+        master_closed_by(CloseReason.RESTARTING),
+        master_closed_by(CloseReason.EVICTED),
+        master_closed_by(CloseReason.TAKEN_OVER),
+        slave_restarting(),
+        master_path_challenge(),
+        keyed_master_reset(),
+        keyed_master_takeover_flags(),
+        slave_keepalive_and_idle(),
+        slave_opened_by_a_message(),
     ]

@@ -1,6 +1,6 @@
-"""Generate the TDTP version 2 conformance vectors in tests/vectors/ (see tests/vectors/README.md).
+"""Generate the TDTP version 4 conformance vectors in tests/vectors/ (see tests/vectors/README.md).
 
-    python tools/vectors/generate.py            # rewrite tests/vectors/tdtp-v3-*.json
+    python tools/vectors/generate.py            # rewrite tests/vectors/tdtp-v4-*.json
     python tools/vectors/generate.py --check    # exit 1 if the committed files differ
 
 The expected values come from tdtp, the reference implementation, except where the specification
@@ -32,6 +32,7 @@ from tdtp.protection.derivation import (  # noqa: E402  # noqa: E402
 from tdtp.protection.keys import PresharedKey  # noqa: E402
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
 from tdtp.session.receive_window import ReceiveWindow  # noqa: E402
+from tdtp.session.recovery import loss_delay_of  # noqa: E402
 from tdtp.session.rtt import RttEstimator  # noqa: E402
 from tdtp.session.sent_log import LostPacket, SentPacketLog  # noqa: E402
 from tdtp.session.stats import DropReason  # noqa: E402
@@ -71,8 +72,9 @@ from endpoint_scripts import (  # noqa: E402  (beside this file)
     SLAVE_NONCE,
     all_scripts,
 )
+from server_scripts import all_server_scripts  # noqa: E402  (beside this file)
 
-from tdtp_adapter import ADDRESSES, ScriptRunner  # noqa: E402  (tests/vectors/)
+from tdtp_adapter import ADDRESSES, ScriptRunner, ServerRunner  # noqa: E402  (tests/vectors/)
 
 FORMAT = "tdtp-conformance-vectors"
 FORMAT_VERSION = 1
@@ -361,10 +363,21 @@ def control_vectors() -> dict[str, Any]:
         ("CLOSE NORMAL", encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)),
         (
             "MESSAGE E-STOP, number 0xFFFF, next expected 0xF0C4 (7.7)",
-            encode_message(0xFFFF, 0xF0C4, b"E-STOP"),
+            encode_message(MASTER_NONCE, 0xFFFF, 0xF0C4, b"E-STOP"),
         ),
-        ("MESSAGE_ACK, next expected 0x0000 (past the wrap)", encode_message_ack(0)),
+        (
+            "MESSAGE_ACK, next expected 0x0000 (past the wrap)",
+            encode_message_ack(MASTER_NONCE, 0),
+        ),
         ("CLOSE with an unknown reason 200", encode_close(ControlCode.CLOSE, MASTER_NONCE, 200)),
+        (
+            "CLOSE RESTARTING (5.2: the sender will be back soon)",
+            encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.RESTARTING),
+        ),
+        (
+            "CLOSE EVICTED (5.1 rule 2.7: the slot went to another master)",
+            encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.EVICTED),
+        ),
         ("REJECT BUSY", encode_close(ControlCode.REJECT, MASTER_NONCE, CloseReason.BUSY)),
         (
             "RESET, unkeyed: the first 16 bytes of the DATA it answers (7.6)",
@@ -394,9 +407,11 @@ def control_vectors() -> dict[str, Any]:
         ("no code byte", b""),
         ("code 0", b"\x00"),
         ("code 12", b"\x0c" + bytes(17)),
-        ("MESSAGE without a message", encode_message(1, 2, b"")),
-        ("MESSAGE_ACK one byte long", encode_message_ack(1) + b"\x00"),
-        ("MESSAGE_ACK one byte short", encode_message_ack(1)[:-1]),
+        ("MESSAGE without a message", encode_message(MASTER_NONCE, 1, 2, b"")),
+        ("MESSAGE without its nonce (version 3's layout)", b"\x0a\x00\x01\x00\x02E-STOP"[:21]),
+        ("MESSAGE_ACK one byte long", encode_message_ack(MASTER_NONCE, 1) + b"\x00"),
+        ("MESSAGE_ACK one byte short", encode_message_ack(MASTER_NONCE, 1)[:-1]),
+        ("MESSAGE_ACK without its nonce (version 3's layout)", b"\x0b\x00\x01"),
         ("RESET one byte short of its echo", b"\x07" + bytes(15)),
         ("RESET with a partial tag", b"\x07" + bytes(16 + 15)),
         ("code 255", b"\xff"),
@@ -462,13 +477,16 @@ def _receiver_case(name: str, initial: int, events: list[Any]) -> dict[str, Any]
                 window.mark_reported()
             out.append({"event": "ack_delay", "acks": owed})
             continue
-        seq = event
-        kind, full, gap = window.on_data(seq & 0xFFF, 0.0)
+        seq, at = event if isinstance(event, tuple) else (event, None)
+        kind, full, gap = window.on_data(seq & 0xFFF, 0.0 if at is None else at)
         acks = [[held.ack, held.sack] for held in window.take_held()]
         if window.coverage_exhausted():
             acks.append([window.highest, window.sack_below(window.highest)])
             window.mark_reported()
-        out.append({"seq": seq & 0xFFF, "kind": kind.value, "full": full, "gap": gap, "acks": acks})
+        arrival: dict[str, Any] = {"seq": seq & 0xFFF}
+        if at is not None:
+            arrival["at"] = at
+        out.append({**arrival, "kind": kind.value, "full": full, "gap": gap, "acks": acks})
     return {"name": name, "initial_seq": initial, "events": out}
 
 
@@ -487,7 +505,7 @@ def receiver_vectors() -> dict[str, Any]:
             [0, 1, 2, 13, 14, 15, "ack_delay"],
         ),
         _receiver_case(
-            "late within 6 is reported again; late beyond 6 is not",
+            "a late packet within 6 of the highest is reported by the next ACK of the highest",
             0,
             [
                 0,
@@ -529,17 +547,52 @@ def receiver_vectors() -> dict[str, Any]:
             0,
             [0, 1, 2, *range(3003, 3010), "ack_delay"],
         ),
+        _receiver_case(
+            "late rule: a late packet more than 6 below the highest gets a stand-alone ACK naming "
+            "it (3.2)",
+            0,
+            [0, 1, *range(3, 13), 2, "ack_delay"],
+        ),
+        _receiver_case(
+            "three consecutive stale numbers arriving between live packets: no re-anchoring (3.1)",
+            0,
+            [*range(0, 10), 3000, 10, 3001, 11, 3002, 12, "ack_delay"],
+        ),
+        _receiver_case(
+            "a stale run broken by another stale number starts again at 1 (3.1)",
+            0,
+            [*range(0, 10), 3000, 3001, 3005, 3006, 3007, 3008, "ack_delay"],
+        ),
+        _receiver_case(
+            "after a silence of 0.1 s (the silence_timeout) three consecutive numbers inside the "
+            "window below the newest re-anchor it one wrap ahead; without the silence they are "
+            "duplicates (3.1)",
+            0,
+            [
+                *[(n, round(0.001 * n, 6)) for n in range(0, 20)],
+                (5, 0.02),
+                (6, 0.021),
+                (7, 0.022),
+                (8, 0.2),
+                (9, 0.201),
+                (10, 0.202),
+                (11, 0.203),
+                "ack_delay",
+            ],
+        ),
         _receiver_case("10 % random loss", 300, [*random_loss, "ack_delay"]),
     ]
     return _file(
         "receiver",
-        "The receiver (sections 3.1, 3.2, 5.3, 5.5) in bidirectional mode with its reverse flow "
-        "idle. Events in order: an arriving DATA packet's 12-bit 'seq' (its arrival kind new, "
-        "late, duplicate or stale, its full number, the gap it left, and the stand-alone ACKs "
-        "owed right after it, [ack, sack] with ack as a full number, jump-rule ACK first), "
-        "'piggyback' (an acknowledgement of the highest leaves in a DATA or KEEPALIVE: the "
-        "[ack, sack] it carries) or 'ack_delay' (ack_delay passed: the ACK owed, if any). The "
-        "first packet's full number is initial_seq.",
+        "The receiver (sections 3.1, 3.2, 5.3, 5.5) of a keyed session (no far-ahead check) in "
+        "bidirectional mode with its reverse flow idle and a silence_timeout of 0.1 s. Events in "
+        "order: an arriving DATA packet's 12-bit 'seq', arriving 'at' seconds (0 when absent; "
+        "only the re-anchoring after a silence looks at it), with its arrival kind new, late, "
+        "duplicate or stale, its full number, the gap it left, and the stand-alone ACKs owed "
+        "right after it, [ack, sack] with ack as a full number, a jump-rule or late-rule ACK "
+        "first, then a full-rule ACK; 'piggyback' (an acknowledgement of the highest leaves in a "
+        "DATA or KEEPALIVE: the [ack, sack] it carries) or 'ack_delay' (ack_delay passed: the ACK "
+        "owed, if any). The first packet's full number is initial_seq.",
         {"cases": cases},
     )
 
@@ -563,15 +616,25 @@ def _sender_case(
     for at in sends:
         sent_out.append({"at": at, "seq": log.on_sent(at, 100, lost)})
 
-    def loss_delay() -> float:
-        return 1.2 * rtt.srtt + max(4.0 * rtt.rttvar, 0.001) + ack_delay
+    def spec_loss_delay() -> float:
+        """Section 5.4 by hand: srtt + max(reorder window, 4 rttvar, 1 ms) + ack_delay, the reorder
+        window min(k min_rtt / 4, srtt) only once there is an RTT sample."""
+        margin = max(4.0 * rtt.rttvar, 0.001)
+        if rtt.has_sample:
+            margin = max(margin, min(log.reorder_window_scale * rtt.min_rtt / 4.0, rtt.srtt))
+        delay = rtt.srtt + margin + ack_delay
+        tdtp_delay = loss_delay_of(rtt, log.reorder_window_scale, ack_delay)
+        _check(abs(delay - tdtp_delay) <= 1e-12, f"loss delay in {name!r}")
+        return tdtp_delay
 
+    # Computed at the start and after each RTT sample only (section 5.4).
+    delay = spec_loss_delay()
     events = []
     for item in acks:
         if item[1] == "timer":
             at = item[0]
             lost = []
-            log.detect_losses(at, loss_delay(), lost)
+            log.detect_losses(at, delay, lost)
             events.append(
                 {
                     "at": at,
@@ -579,7 +642,8 @@ def _sender_case(
                     "expect": {
                         "lost": [p.seq for p in lost],
                         "unknown_total": log.unknown,
-                        "loss_timer": log.loss_deadline(loss_delay()),
+                        "loss_delay": delay,
+                        "loss_timer": log.loss_deadline(delay),
                     },
                 }
             )
@@ -601,8 +665,9 @@ def _sender_case(
         outcome = log.on_ack(full, sack, hold, at)
         if outcome.rtt_sample is not None:
             rtt.on_sample(outcome.rtt_sample)
+            delay = spec_loss_delay()
         lost = []
-        log.detect_losses(at, loss_delay(), lost)
+        log.detect_losses(at, delay, lost)
         events.append(
             {
                 "at": at,
@@ -620,7 +685,8 @@ def _sender_case(
                     "lost": [p.seq for p in lost],
                     "unknown_total": log.unknown,
                     "spurious": outcome.spurious,
-                    "loss_timer": log.loss_deadline(loss_delay()),
+                    "loss_delay": delay,
+                    "loss_timer": log.loss_deadline(delay),
                 },
             }
         )
@@ -658,7 +724,7 @@ def sender_vectors() -> dict[str, Any]:
             "the time threshold runs from the send time",
             0,
             _ms(3),
-            [(0.05, 1, 0b000000, 0), (0.17, "timer"), (0.177, "timer")],
+            [(0.05, 1, 0b000000, 0), (0.1665, "timer"), (0.1675, "timer")],
         ),
         _sender_case(
             "reported absent after loss_delay has passed since it was sent: lost at once",
@@ -697,6 +763,20 @@ def sender_vectors() -> dict[str, Any]:
             [(0.05, 8, 0b111111, 0), (0.051, 6, 0b111111, 0), (0.052, 8, 0b111111, 0)],
         ),
         _sender_case(
+            "the reorder window: k grows with a spurious loss, and the loss delay follows at the "
+            "next RTT sample",
+            0,
+            _ms(24),
+            [
+                *[(0.040 + i * 0.001, i, 0b111111, 0) for i in range(15)],
+                (0.056, 16, 0b111110, 0),
+                (0.057, 17, 0b111101, 0),
+                (0.058, 18, 0b111011, 0),
+                (0.0585, 18, 0b111111, 254),
+                (0.060, 20, 0b111111, 0),
+            ],
+        ),
+        _sender_case(
             "the RTT sample subtracts the hold",
             0,
             _ms(3),
@@ -714,8 +794,9 @@ def sender_vectors() -> dict[str, Any]:
         "code 'hold', arriving 'at') or a 'timer' expiry at 'at', with what must follow: the ACK's "
         "full value or that it is optimistic, packets newly acknowledged, the RTT sample, srtt and "
         "rttvar after it, the largest acknowledged, packets declared lost by this event in order, "
-        "the running count of unknown packets, spurious losses, and when the loss timer is due "
-        "(null: none). Times in seconds.",
+        "the running count of unknown packets, spurious losses, the loss delay in force (computed "
+        "at the start and after each RTT sample only), and when the loss timer is due (null: "
+        "none). Times in seconds.",
         {"cases": cases},
     )
 
@@ -765,7 +846,7 @@ def keyed_vectors() -> dict[str, Any]:
         for attempt in (0, 1, 65535):
             datagram = encode_header(2, MASTER_ISN, 0, 0, 255) + encode_open(
                 OpenBody(
-                    2,
+                    WIRE_VERSION,
                     6,
                     int(suite),
                     1200,
@@ -860,7 +941,7 @@ def keyed_vectors() -> dict[str, Any]:
         ("101 for real", sealed(101, b"h")),
         (
             "65436 ahead, across the 16-bit wrap: 65537 arrives as 0x0001 and is found by the "
-            "resynchronisation search (section 6)",
+            "resynchronisation search (section 5.6)",
             sealed(65537, b"i"),
         ),
         ("the old 1 now reads as 65537: a replay", sealed(1, b"b")),
@@ -915,12 +996,28 @@ def drop_vectors() -> dict[str, Any]:
     _check(not missing, f"drop reasons without a vector: {sorted(missing)}")
     return _file(
         "endpoint",
-        "Endpoint scripts (sections 5.1, 5.2, 5.5): a fresh endpoint with the given role, "
+        "Endpoint scripts (sections 5.1, 5.2, 5.5, 5.7, 5.8, 5.10): a fresh endpoint with the "
+        "given role, "
         "configuration and random values is fed datagrams (hex, '{cookie}' replaced by the 16 "
         "cookie bytes of the last COOKIE it sent) from named addresses at given times, or told "
         "to connect or close. After each step: the one drop reason it counted (null: taken in), "
         "its state, the samples it delivered, and the control packets it sent, in order. Every "
         "drop reason of section 5.5 appears at least once. Addresses: "
+        + ", ".join(f"{name} {host}:{port}" for name, (host, port) in ADDRESSES.items())
+        + ".",
+        {"scripts": scripts},
+    )
+
+
+def server_vectors() -> dict[str, Any]:
+    scripts = [ServerRunner(script).record() for script in all_server_scripts()]
+    return _file(
+        "server",
+        "Server scripts (sections 5.1, 5.7, 5.8, 5.9): one slave serving several masters on one "
+        "address, fed datagrams from named addresses at given times. After each step: the drop "
+        "reasons counted (by a session, admission or path migration), the sessions by master "
+        "address and their states, every datagram sent and to whom, and what the sessions' "
+        "applications got. Addresses: "
         + ", ".join(f"{name} {host}:{port}" for name, (host, port) in ADDRESSES.items())
         + ".",
         {"scripts": scripts},
@@ -936,6 +1033,7 @@ SUITES: dict[str, Callable[[], dict[str, Any]]] = {
     "sender": sender_vectors,
     "keyed": keyed_vectors,
     "endpoint": drop_vectors,
+    "server": server_vectors,
 }
 
 

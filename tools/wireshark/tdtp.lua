@@ -1,4 +1,4 @@
--- Wireshark dissector for TDTP, the Teleoperation Data Transport Protocol, version 3
+-- Wireshark dissector for TDTP, the Teleoperation Data Transport Protocol, version 4
 -- (docs/PROTOCOL.md in the tdtp repository).
 --
 -- Load it for one run:   tshark -X lua_script:tools/wireshark/tdtp.lua -r capture.pcap
@@ -15,7 +15,7 @@
 --
 -- How it finds TDTP: TDTP has no port of its own (UDP 47000, which tdtp's examples use, belongs to
 -- HCrt in Wireshark). A heuristic claims any UDP datagram that is a well-formed TDTP handshake
--- message (code, exact size, version 3), and then every datagram of that address pair. For a
+-- message (code, exact size, version 4), and then every datagram of that address pair. For a
 -- capture that starts mid-session, list the slave's port in the preference "tdtp.ports"
 -- (tshark -o tdtp.ports:47000), or let heuristics run first (-o udp.try_heuristic_first:TRUE).
 -- Whether a session is keyed is learnt from its OPEN or OPEN_ACK; preference "tdtp.keyed" forces it.
@@ -34,15 +34,18 @@ local REASON_NAMES = {
     [0] = "NORMAL", [1] = "IDLE_TIMEOUT", [2] = "PROTOCOL_ERROR", [3] = "VERSION_UNSUPPORTED",
     [4] = "REFUSED", [5] = "BUSY", [6] = "KEY_REQUIRED", [7] = "KEY_UNKNOWN",
     [8] = "PAYLOAD_TOO_SMALL", [9] = "SUITE_UNSUPPORTED", [10] = "REPLACED", [11] = "KEY_EXHAUSTED",
-    [12] = "IN_USE", [13] = "TAKEN_OVER",
+    [12] = "IN_USE", [13] = "TAKEN_OVER", [14] = "EVICTED", [15] = "RESTARTING",
 }
 local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknowledgement" }
 
 local HEADER = 5
 local PN = 2
 local TAG = 16
-local VERSION = 3
+local VERSION = 4
 local RESET_ECHO = 16
+-- MESSAGE: code, the master's nonce, seq, ack before the message; MESSAGE_ACK: code, nonce, ack.
+local MESSAGE_PREFIX = 21
+local MESSAGE_ACK = 19
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
@@ -106,7 +109,7 @@ e.bad_control = ProtoExpert.new("tdtp.bad_control", "Malformed control packet (d
     expert.group.MALFORMED, expert.severity.ERROR)
 e.unknown_code = ProtoExpert.new("tdtp.unknown_code", "Unknown control code (dropped as bad_control)",
     expert.group.MALFORMED, expert.severity.ERROR)
-e.version = ProtoExpert.new("tdtp.unknown_version", "Not protocol version 3",
+e.version = ProtoExpert.new("tdtp.unknown_version", "Not protocol version 4",
     expert.group.PROTOCOL, expert.severity.WARN)
 e.flags = ProtoExpert.new("tdtp.bad_flags", "Inconsistent flags, suite or key id (dropped as bad_control)",
     expert.group.MALFORMED, expert.severity.ERROR)
@@ -387,29 +390,34 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
                 return name .. " (truncated)"
             end
             local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
-            if (code == 10 and sealed < 5) or (code == 11 and sealed ~= 2) then
+            -- Sealed: the nonce and the numbers (MESSAGE: and at least one message byte).
+            if (code == 10 and sealed < MESSAGE_PREFIX) or (code == 11 and sealed ~= MESSAGE_ACK - 1) then
                 tree:add_proto_expert_info(e.bad_control)
             end
             return string.format("%s pn=%d", name, pn)
         end
+        -- Both carry the master's nonce after the code byte (version 4), then the numbers.
         if code == 11 then
-            if length ~= HEADER + 3 then
+            if length ~= HEADER + MESSAGE_ACK then
                 tree:add_proto_expert_info(e.bad_control)
                 return name .. " (wrong length)"
             end
-            tree:add(f.msg_ack, tvb(HEADER + 1, 2))
-            return string.format("MESSAGE_ACK next=%d", tvb(HEADER + 1, 2):uint())
+            tree:add(f.nonce, tvb(HEADER + 1, 16))
+            tree:add(f.msg_ack, tvb(HEADER + 17, 2))
+            return string.format("MESSAGE_ACK next=%d", tvb(HEADER + 17, 2):uint())
         end
-        if length < HEADER + 6 then
+        if length < HEADER + MESSAGE_PREFIX + 1 then
             tree:add_proto_expert_info(e.bad_control)
             return name .. " (no message)"
         end
-        tree:add(f.msg_seq, tvb(HEADER + 1, 2))
-        tree:add(f.msg_ack, tvb(HEADER + 3, 2))
-        tree:add(f.message_len, length - HEADER - 5):set_generated()
-        tree:add(f.message, tvb(HEADER + 5, length - HEADER - 5))
-        return string.format("MESSAGE seq=%d next=%d len=%d", tvb(HEADER + 1, 2):uint(),
-            tvb(HEADER + 3, 2):uint(), length - HEADER - 5)
+        local data = length - HEADER - MESSAGE_PREFIX
+        tree:add(f.nonce, tvb(HEADER + 1, 16))
+        tree:add(f.msg_seq, tvb(HEADER + 17, 2))
+        tree:add(f.msg_ack, tvb(HEADER + 19, 2))
+        tree:add(f.message_len, data):set_generated()
+        tree:add(f.message, tvb(HEADER + MESSAGE_PREFIX, data))
+        return string.format("MESSAGE seq=%d next=%d len=%d", tvb(HEADER + 17, 2):uint(),
+            tvb(HEADER + 19, 2):uint(), data)
     end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from tdtp.config import ConnectionConfig
-from tdtp.netem import OPPORTUNITY_BYTES, NetemSpec, parse_netem
+from tdtp.netem import OPPORTUNITY_BYTES, NetemSpec, Trace, parse_netem
 from tdtp.sim.endpoints import IP_HEADER, UDP_HEADER, CbrSource, TdtpSession
 from tdtp.sim.engine import Network
 from tdtp.sim.metrics import FlowRecorder
@@ -150,6 +150,13 @@ def _split(spec: str | NetemSpec) -> tuple[NetemSpec, float]:
     return parsed, parsed.delay.delay if parsed.delay is not None else 0.0
 
 
+def _trace_of(spec: str | NetemSpec) -> tuple[Trace, float, float]:
+    """The direction's trace, its offset in ms and its propagation delay in seconds."""
+    parsed, propagation = _split(spec)
+    assert parsed.trace is not None  # _split insists
+    return parsed.trace.trace, parsed.trace.offset * 1e3, propagation
+
+
 def ideal(
     spec: str | NetemSpec,
     *,
@@ -159,12 +166,10 @@ def ideal(
     ideal_wire: int = SAMPLE_SIZE + UDP_IP,
     origin: float = 0.0,
 ) -> Arrivals:
-    """What the direction's trace allowed (see the module's docstring): samples generated at ``rate``
-    from ``start`` for ``duration``, the trace's clock started at ``origin`` (at its offset)."""
-    parsed, propagation = _split(spec)
-    assert parsed.trace is not None
-    trace = parsed.trace.trace
-    offset_ms = parsed.trace.offset * 1e3
+    """What a sender that knew the link would deliver with nothing queued (see the module's
+    docstring): samples generated at ``rate`` from ``start`` for ``duration``, the trace's clock
+    started at ``origin`` (at its offset)."""
+    trace, offset_ms, propagation = _trace_of(spec)
     count = round(duration * rate)
     out = Arrivals(start, start + duration, count)
     index = trace.first_after(max(0.0, (start - origin) * 1e3 + offset_ms))
@@ -204,10 +209,7 @@ def allowed(
     """Samples the trace allowed in ``[start, start + duration)``: for each ``window``, the smaller of
     the samples generated in it and the samples its opportunities carry (``ideal_wire`` bytes each,
     fractions counted), summed. The trace's clock starts at ``origin``, at its offset."""
-    parsed, _ = _split(spec)
-    assert parsed.trace is not None
-    trace = parsed.trace.trace
-    offset_ms = parsed.trace.offset * 1e3
+    trace, offset_ms, _ = _trace_of(spec)
     total = 0.0
     for k in range(max(1, round(duration / window))):
         a = (start + k * window - origin) * 1e3 + offset_ms
