@@ -15,7 +15,14 @@ from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.reconnect import ReconnectPolicy, ReconnectRecord
 from tdtp.aio.ticker import Ticker, TickHandle
 from tdtp.aio.timer import monotonic
-from tdtp.config import AckMode, AdmissionConfig, ConnectionConfig, ControllerName, Role
+from tdtp.config import (
+    AckMode,
+    AdmissionConfig,
+    ConnectionConfig,
+    ControllerName,
+    MultipathConfig,
+    Role,
+)
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,
@@ -47,9 +54,11 @@ from tdtp.session.events import (
     ControlReceived,
     DataReceived,
     Event,
+    PathChanged,
     PeerResumed,
     PeerSilent,
 )
+from tdtp.session.multipath.path import PathStats
 from tdtp.session.state import State
 from tdtp.session.stats import ConnectionStats, DirectionStats, DropReason
 from tdtp.wire import HEADER_SIZE, CipherSuite
@@ -97,6 +106,9 @@ __all__ = [
     "InvalidArgumentError",
     "InvalidKeyError",
     "KeyRing",
+    "MultipathConfig",
+    "PathChanged",
+    "PathStats",
     "PayloadTooLargeError",
     "PayloadTypeError",
     "PeerResumed",

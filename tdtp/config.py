@@ -137,6 +137,87 @@ class AdmissionConfig:
             )
 
 
+MultipathScheduler = Literal["redundant", "adaptive"]
+"""How a multipath session spreads its samples over its paths (docs/PROTOCOL.md 5.11)."""
+MAX_PATHS = 16
+"""The most paths ``MultipathConfig.max_paths`` may allow one session (path ids are one byte)."""
+
+
+@dataclass(frozen=True, slots=True)
+class MultipathConfig:
+    """One session over several paths at once (docs/PROTOCOL.md 5.11, docs/CONTROL.md 11).
+
+    A master with this in its config opens a multipath session (the OPEN's MULTIPATH flag) and may
+    add paths from further local addresses; a slave follows the master's choice with its own
+    ``multipath`` config, or these defaults when it has none."""
+
+    scheduler: MultipathScheduler = "redundant"
+    """``"redundant"``: every sample on every live path, the first copy wins. ``"adaptive"``: the
+    best path alone while its recent one-way delay and loss stay within ``delay_bound`` and
+    ``loss_bound`` (and its samples are acknowledged in time), every live path while they do not."""
+    max_paths: int = 4
+    """Paths one session may have at once, the one it opened on included (1 refuses every further
+    path: ``MP_ABANDON`` with PATH_LIMIT). A peer cannot make the table grow beyond it."""
+    new_paths_per_second: float = 10.0
+    """New paths a session takes per second from its peer (a burst of ``max_paths``): a flood of
+    challenges from new addresses costs no more."""
+    probe_interval: float = 0.02
+    """A validated path that carried nothing of ours for this long gets an MP_CHALLENGE: its
+    keep-alive and round-trip probe."""
+    failed_probe_interval: float = 0.2
+    """A failed path (or one not validated yet) is challenged this often until it answers."""
+    path_timeout: float = 0.06
+    """A path is failed once nothing has arrived on it for this long (or for two probe intervals
+    and three of its round trips, if that is longer)."""
+    validation_timeout: float = 3.0
+    """A path the peer opened that does not answer our challenge within this long is forgotten."""
+    report_interval: float = 0.01
+    """A path on which the peer's data arrives gets an MP_REPORT this often (its RTT, loss and
+    first copies, for the peer's scheduler and congestion control)."""
+    delay_bound: float = 0.015
+    """Adaptive: the best path carries the samples alone while its recent one-way delay stays
+    within this of the lowest it has shown (seconds)."""
+    loss_bound: float = 0.01
+    """Adaptive: ... and its recent loss stays at or below this fraction."""
+    adaptive_hold: float = 0.1
+    """Adaptive: once the best path broke a bound, every live path carries the samples until it
+    has kept within them this long (seconds)."""
+
+    def __post_init__(self) -> None:
+        _require(
+            self.scheduler in ("redundant", "adaptive"),
+            f"scheduler must be 'redundant' or 'adaptive', got {self.scheduler!r}",
+        )
+        _require(
+            isinstance(self.max_paths, int)
+            and not isinstance(self.max_paths, bool)
+            and 1 <= self.max_paths <= MAX_PATHS,
+            f"max_paths must be an integer in 1..{MAX_PATHS}, got {self.max_paths!r}",
+        )
+        _positive_finite("new_paths_per_second", self.new_paths_per_second, "per second")
+        for name in (
+            "probe_interval",
+            "failed_probe_interval",
+            "path_timeout",
+            "validation_timeout",
+            "report_interval",
+            "delay_bound",
+            "adaptive_hold",
+        ):
+            _positive_finite(name, getattr(self, name))
+        _require(
+            isinstance(self.loss_bound, int | float)
+            and not isinstance(self.loss_bound, bool)
+            and 0.0 <= self.loss_bound < 1.0,
+            f"loss_bound must be a fraction in 0..1 (0.01 = 1 %), got {self.loss_bound!r}",
+        )
+        _require(
+            self.probe_interval < self.path_timeout,
+            f"probe_interval ({self.probe_interval} s) must be shorter than path_timeout "
+            f"({self.path_timeout} s), or an idle but healthy path would look failed",
+        )
+
+
 @dataclass(frozen=True, slots=True)
 class ConnectionConfig:
     """Everything a :class:`~tdtp.session.connection.Connection` can be told. Times are in seconds."""
@@ -234,10 +315,15 @@ class ConnectionConfig:
     """A master whose rate controller judges one-way delays (``teleop``) opens its sessions with
     the TIMESTAMPS flag: both ends then stamp their send time on a packet at most this often, so
     that each measures the queue of its own direction and the true one-way age of a sample on an
-    asymmetric path (docs/PROTOCOL.md 5.11; 5 bytes on about one packet in four at 1 kHz). ``0``:
+    asymmetric path (docs/PROTOCOL.md 5.12; 5 bytes on about one packet in four at 1 kHz). ``0``:
     no stamps (controllers judge by round trips, ages are half of one); a slave follows its master."""
     admission: AdmissionConfig = field(default_factory=AdmissionConfig)
     """A slave's policy for OPENs: cookies and rate limits."""
+    multipath: MultipathConfig | None = None
+    """A master: open a multipath session (docs/PROTOCOL.md 5.11) with this scheduling and these
+    limits; ``None``: one path. A slave follows its master's choice, with this config (or the
+    defaults of :class:`MultipathConfig` when ``None``). ``tdtp.connect(...,
+    local_addresses=[...])`` sets it."""
 
     @property
     def effective_keepalive_interval(self) -> float:
@@ -357,6 +443,10 @@ class ConnectionConfig:
             f"{RECLAIM_SILENCES} x silence_timeout ({self.silence_timeout:g} s): a slot goes to "
             "another master only once its master is gone, never after a hiccup the watchdog "
             "reports; raise reclaim_after (AdmissionConfig(reclaim_after=...))",
+        )
+        _require(
+            self.multipath is None or isinstance(self.multipath, MultipathConfig),
+            f"multipath must be a MultipathConfig or None, got {self.multipath!r}",
         )
         _require(
             self.controller_config is None or isinstance(self.controller_config, config_type),

@@ -82,7 +82,41 @@ class Endpoint:
         return self.next_sample + self.jitter(self.offered)
 
 
-class Pair:
+class FakeTime:
+    """Time that jumps from one thing to the next: ``_next_time`` says when, ``_step`` does it."""
+
+    now: float
+
+    def _next_time(self) -> float | None:
+        raise NotImplementedError
+
+    def _step(self) -> None:
+        raise NotImplementedError
+
+    def run_for(self, duration: float) -> None:
+        self.run_until(self.now + duration)
+
+    def run_until(self, end: float, stop: Callable[[], bool] | None = None) -> None:
+        same_instant = 0
+        while True:
+            if stop is not None and stop():
+                return
+            upcoming = self._next_time()
+            if upcoming is None or upcoming > end:
+                self.now = end
+                return
+            if upcoming <= self.now:
+                same_instant += 1
+                if same_instant > 100_000:
+                    # A deadline that stays due after it was served would hang the event loop too.
+                    raise AssertionError(f"livelock at t={self.now}: a deadline never moves on")
+            else:
+                same_instant = 0
+            self.now = max(self.now, upcoming)
+            self._step()
+
+
+class Pair(FakeTime):
     def __init__(
         self,
         master_config: ConnectionConfig | None = None,
@@ -156,28 +190,6 @@ class Pair:
         """Stop both applications and let what is in flight arrive and be acknowledged."""
         self.master.rate = self.slave.rate = 0.0
         self.run_for(duration)
-
-    def run_for(self, duration: float) -> None:
-        self.run_until(self.now + duration)
-
-    def run_until(self, end: float, stop: Callable[[], bool] | None = None) -> None:
-        same_instant = 0
-        while True:
-            if stop is not None and stop():
-                return
-            upcoming = self._next_time()
-            if upcoming is None or upcoming > end:
-                self.now = end
-                return
-            if upcoming <= self.now:
-                same_instant += 1
-                if same_instant > 100_000:
-                    # A deadline that stays due after it was served would hang the event loop too.
-                    raise AssertionError(f"livelock at t={self.now}: a deadline never moves on")
-            else:
-                same_instant = 0
-            self.now = max(self.now, upcoming)
-            self._step()
 
     def _next_time(self) -> float | None:
         times = []

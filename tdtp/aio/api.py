@@ -15,17 +15,19 @@ import asyncio
 import logging
 import random
 import socket
+from collections.abc import Sequence
 
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpoint
 from tdtp.aio.endpoint import (
     DataCallback,
     Endpoint,
-    EndpointClosedError,
     WatchdogCallback,
     format_address,
 )
 from tdtp.aio.impairment import ImpairedTransport
+from tdtp.aio.multipath import LocalAddress, check_path_netem, parse_local_address
+from tdtp.aio.multipath_connect import connect_multipath, multipath_config
 from tdtp.aio.opening import (
     Opener,
     _check_common,
@@ -34,6 +36,7 @@ from tdtp.aio.opening import (
     _limit_write_buffer,
     _released,
     address_error,
+    established,
 )
 from tdtp.aio.reconnect import ReconnectPolicy, as_policy
 from tdtp.aio.server import Server, ServerStats, listen
@@ -43,7 +46,7 @@ from tdtp.errors import ConnectError, InvalidArgumentError, PortUnreachableError
 from tdtp.netem import NetemSpec
 from tdtp.protection.keys import OneKeyInput, PresharedKey, as_key
 from tdtp.session.connection import Connection
-from tdtp.session.events import Address, CloseCause
+from tdtp.session.events import Address
 from tdtp.session.state import State
 
 __all__ = [
@@ -119,6 +122,8 @@ def connect(
     key: OneKeyInput | None = None,
     pcap: CaptureTarget | None = None,
     reconnect: bool | ReconnectPolicy | None = False,
+    local_addresses: Sequence[str | tuple[str, int] | LocalAddress] | None = None,
+    path_netem: Sequence[NetemSpec | str | None] | None = None,
 ) -> Opener[Endpoint]:
     """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
 
@@ -148,6 +153,15 @@ def connect(
     silent for ``after_silence``, a new session opens on the same socket and the application's
     loops go on; ``ep.reconnects`` says how often and why (:mod:`tdtp.aio.reconnect`). The first
     open still raises as above.
+
+    ``local_addresses`` opens a **multipath** session (docs/PROTOCOL.md 5.11): one socket per
+    entry (``"10.0.1.1"``, ``"10.0.1.1:7001"``, an interface ``"%wwan0"``, each optionally
+    ``"=HOST:PORT"`` for a remote end other than ``host:port``); the session opens on the first and
+    a path from each other one joins once the slave has answered on it. Every sample then goes on
+    every working path (``MultipathConfig(scheduler="adaptive")``: on the best one while it
+    behaves), the first copy wins, and the session rides out any path's failure. ``ep.paths`` has
+    each path's figures and events. ``path_netem`` (one per local address) impairs each path both
+    ways in-process (``netem`` is then not allowed).
     """
     policy = as_policy(reconnect)
     if not isinstance(host, str) or not host:
@@ -161,6 +175,36 @@ def connect(
         _check_port(local_addr[1], allow_zero=True)
     spec = _check_common(config, timer, on_data, on_watchdog, netem)
     master_key = as_key(key) if key is not None else None  # checked now, as the rest
+    if local_addresses is not None or path_netem is not None:
+        if isinstance(local_addresses, str) or not local_addresses:
+            raise InvalidArgumentError(
+                "local_addresses must be a non-empty list of local addresses, e.g. "
+                "['10.0.1.1', '10.0.2.1'] (a string is one address: put it in a list)"
+            )
+        locals_ = [parse_local_address(entry) for entry in local_addresses]
+        if local_addr is not None or netem is not None or pcap is not None:
+            raise InvalidArgumentError(
+                "with local_addresses, give the first path's address as its first entry (not "
+                "local_addr), impair paths with path_netem (not netem); pcap is not supported"
+            )
+        specs = check_path_netem(path_netem, len(locals_))
+        chosen = multipath_config(config)
+        return Opener(
+            lambda: connect_multipath(
+                host,
+                port,
+                locals_,
+                config=chosen,
+                timer=timer,
+                on_data=on_data,
+                on_watchdog=on_watchdog,
+                rng=rng,
+                path_netem=specs,
+                netem_seed=netem_seed,
+                key=master_key,
+                reconnect=policy,
+            )
+        )
     return Opener(
         lambda: _connect(
             host,
@@ -177,17 +221,6 @@ def connect(
             pcap=pcap,
             reconnect=policy,
         )
-    )
-
-
-def _no_answer_hint(port: int) -> str:
-    """What to check when the slave never answered: the likely causes, in the order to check them."""
-    return (
-        ". Nothing came back: check that the slave runs and that this machine can reach it. "
-        "tdtp.listen() binds 127.0.0.1 unless given a host, so a slave meant for other machines "
-        'listens on "0.0.0.0" or its own address (tdtp slave binds 0.0.0.0); a firewall on the '
-        f"way must let UDP port {port} through; and a slave behind NAT needs UDP port {port} "
-        "forwarded to it (a master behind NAT needs nothing: its OPEN opens the way back)"
     )
 
 
@@ -271,20 +304,9 @@ async def _connect(
         batched.batch_receiver = endpoint.receive_batch
     conn.connect(remote, now=monotonic())
     endpoint.flush()
-    try:
-        await endpoint.wait_established()
-    except EndpointClosedError as exc:
-        await endpoint.close()
-        hint = _no_answer_hint(port) if exc.event.cause is CloseCause.OPEN_TIMEOUT else ""
-        raise ConnectError(
-            f"could not open a TDTP connection to {protocol.where}: {exc}{hint}"
-        ) from exc
-    except PortUnreachableError:
-        # fail_open() released the endpoint already: nobody to send a CLOSE to
+
+    def unreachable() -> None:
         transport.close()
         logger.info("tdtp master: nothing listens at %s", protocol.where)
-        raise
-    except BaseException:
-        await endpoint.close()
-        raise
-    return endpoint
+
+    return await established(endpoint, protocol.where, port, unreachable)

@@ -39,6 +39,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any, Final, Protocol
 
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
+from tdtp.aio.multipath import PathSet
 from tdtp.aio.outbox import SocketOutbox
 from tdtp.aio.reconnect import Reconnector, ReconnectPolicy, ReconnectRecord
 from tdtp.aio.sample_iteration import samples_until_closed
@@ -60,6 +61,7 @@ from tdtp.session.events import (
     ControlReceived,
     DataReceived,
     Event,
+    PathChanged,
     PeerResumed,
     PeerSilent,
 )
@@ -178,6 +180,7 @@ class Endpoint:
         self._closing = False
         self._demux_batch = 0
         """The server's receive batch that last handed us a datagram (its Demultiplexer's count)."""
+        self._path_set: PathSet | None = None  # a multipath session's paths, once asked for
         size = getattr(transport, "get_write_buffer_size", None)
         if size is not None and size() > 0:
             conn.pause_sending()  # a shared socket that is backed up already
@@ -203,6 +206,13 @@ class Endpoint:
     def peer(self) -> Address | None:
         """The peer's address once known (a slave's master, a master's slave), else ``None``."""
         return self._conn.peer
+
+    @property
+    def paths(self) -> PathSet:
+        """A multipath session's paths: their figures, events, and ``add`` / ``remove``."""
+        if self._path_set is None:
+            self._path_set = PathSet(self)
+        return self._path_set
 
     @property
     def stats(self) -> ConnectionStats:
@@ -347,8 +357,7 @@ class Endpoint:
 
         Raises :class:`~tdtp.PayloadTypeError` for anything but bytes, bytearray or memoryview,
         :class:`~tdtp.PayloadTooLargeError` above the connection's maximum, and
-        :class:`~tdtp.EndpointClosedError`, naming the cause, once the association is over.
-        """
+        :class:`~tdtp.EndpointClosedError`, naming the cause, once the association is over."""
         now = monotonic()
         conn = self._conn
         out = self._out
@@ -670,6 +679,8 @@ class Endpoint:
                 except OSError:
                     # No buffer space or an ICMP error reported on this send: lost like any other.
                     self._send_errors += 1
+        if self._path_set is not None:
+            self._path_set.flush()  # what leaves through a multipath master's other sockets
         if event is None:
             event = conn.next_event()
         if event is not None:
@@ -722,6 +733,8 @@ class Endpoint:
                         self._wake(self._data_waiters)
             elif isinstance(event, ControlReceived | ControlExpired):
                 self._on_control_event(event)
+            elif isinstance(event, PathChanged):
+                self.paths.on_event(event)
             else:
                 self._on_other_event(event)
             event = conn.next_event()

@@ -13,13 +13,20 @@ from collections.abc import Callable, Coroutine, Generator
 from typing import Any, Generic, Protocol, TypeVar
 
 from tdtp.aio.capture import CapturingTransport
-from tdtp.aio.endpoint import format_address
+from tdtp.aio.endpoint import Endpoint, format_address
 from tdtp.aio.impairment import as_spec
 from tdtp.aio.timer import check_timer_preference
 from tdtp.config import ConnectionConfig
-from tdtp.errors import AddressError, ArgumentTypeError, InvalidArgumentError
+from tdtp.errors import (
+    AddressError,
+    ArgumentTypeError,
+    ConnectError,
+    EndpointClosedError,
+    InvalidArgumentError,
+    PortUnreachableError,
+)
 from tdtp.netem import NetemSpec
-from tdtp.session.events import Address
+from tdtp.session.events import Address, CloseCause
 
 __all__ = ["SOCKET_CLOSE_PATIENCE", "Opener", "address_error"]
 
@@ -139,3 +146,37 @@ async def _released(closed: asyncio.Future[None], transport: asyncio.DatagramTra
     except TimeoutError:
         transport.abort()
         await asyncio.shield(closed)
+
+
+def no_answer_hint(port: int) -> str:
+    """What to check when the slave never answered: the likely causes, in the order to check them."""
+    return (
+        ". Nothing came back: check that the slave runs and that this machine can reach it. "
+        "tdtp.listen() binds 127.0.0.1 unless given a host, so a slave meant for other machines "
+        'listens on "0.0.0.0" or its own address (tdtp slave binds 0.0.0.0); a firewall on the '
+        f"way must let UDP port {port} through; and a slave behind NAT needs UDP port {port} "
+        "forwarded to it (a master behind NAT needs nothing: its OPEN opens the way back)"
+    )
+
+
+async def established(
+    endpoint: Endpoint, where: str, port: int, unreachable: Callable[[], None]
+) -> Endpoint:
+    """Wait until a master's session is established: :class:`~tdtp.ConnectError` if the slave
+    refused or never answered (with :func:`no_answer_hint` then), :class:`~tdtp.PortUnreachableError`
+    as soon as its host said nothing listens (``unreachable`` releases the socket then: nobody to
+    send a CLOSE to)."""
+    try:
+        await endpoint.wait_established()
+    except EndpointClosedError as exc:
+        await endpoint.close()
+        hint = no_answer_hint(port) if exc.event.cause is CloseCause.OPEN_TIMEOUT else ""
+        raise ConnectError(f"could not open a TDTP connection to {where}: {exc}{hint}") from exc
+    except PortUnreachableError:
+        # fail_open() released the endpoint already
+        unreachable()
+        raise
+    except BaseException:
+        await endpoint.close()
+        raise
+    return endpoint

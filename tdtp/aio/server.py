@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 from tdtp.admission.admission import Admission, AdmissionStats, AdmittedOpen, Reply
 from tdtp.admission.path_migration import MigrationStats
+from tdtp.admission.rate_limit import TokenBucket
 from tdtp.admission.slots import EvictionNotices, SessionSlots, SlotStats, Verdict
 from tdtp.aio.capture import CaptureTarget, CapturingTransport, open_capture
 from tdtp.aio.datagram_transport import BatchedDatagramTransport, datagram_endpoint
@@ -55,7 +56,20 @@ from tdtp.netem import NetemSpec
 from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
-from tdtp.wire.control import CloseReason, OpenFlags
+from tdtp.wire.control import NONCE_SIZE, CloseReason, ControlCode, OpenFlags
+from tdtp.wire.header import HEADER_SIZE, PacketType
+
+_MP_CHALLENGE_BITS = int(PacketType.CONTROL) << 6
+
+
+def is_path_challenge(data: bytes) -> bool:
+    """Whether a datagram is an MP_CHALLENGE (a multipath master opening a path), by its prefix."""
+    return (
+        len(data) >= HEADER_SIZE + 1 + NONCE_SIZE
+        and data[0] & 0xC0 == _MP_CHALLENGE_BITS
+        and data[HEADER_SIZE] == ControlCode.MP_CHALLENGE
+    )
+
 
 __all__ = ["Server", "ServerStats", "listen"]
 
@@ -93,6 +107,13 @@ class ServerStats:
     source held its share of ``max_peers`` (:mod:`tdtp.admission.slots`)."""
     migration: MigrationStats = field(default_factory=MigrationStats)
     """Path migration: datagrams from unknown addresses, trials, challenges, sessions moved."""
+    path_challenges: int = 0
+    """Multipath: MP_CHALLENGEs from addresses no session holds (a master opening a path)."""
+    paths_learned: int = 0
+    """Of those, the ones a session took: its master's new address joined the session."""
+    path_challenges_unclaimed: int = 0
+    """Of those, the ones no multipath session's nonce matched, or over ``path_budget`` per
+    second (dropped, unanswered)."""
 
 
 class _ServerProtocol(asyncio.DatagramProtocol):
@@ -178,6 +199,14 @@ class Server:
         self._outbox: SocketOutbox | None = None
         """The socket's outbox on the batched layer (nothing between the endpoints and it)."""
         self._peers: dict[tuple[object, object], Endpoint] = {}
+        """Every address a session holds: its master's, and (multipath) each of its paths'."""
+        self._sessions: dict[Endpoint, None] = {}
+        """The sessions, each once (in the order they opened)."""
+        self._path_budget = TokenBucket(
+            self._admission.config.admission.migration_trials_per_second,
+            self._admission.config.admission.migration_trials_per_second / 10.0,
+        )
+        """MP_CHALLENGEs from unknown addresses looked at per second (each may cost an AEAD check)."""
         self._pending: deque[Endpoint] = deque()
         """Endpoints of admitted masters nobody has accepted yet, opening or established."""
         self._waiters: list[asyncio.Future[None]] = []
@@ -210,7 +239,7 @@ class Server:
     @property
     def endpoints(self) -> list[Endpoint]:
         """The masters connected (or connecting) now."""
-        return list(self._peers.values())
+        return list(self._sessions)
 
     async def accept(self) -> Endpoint:
         """The next master's endpoint, once its connection is established."""
@@ -258,7 +287,7 @@ class Server:
             raise ArgumentTypeError(f"restarting must be True or False, got {restarting!r}")
         if not self._closed:
             self._closed = True
-            for endpoint in list(self._peers.values()):
+            for endpoint in list(self._sessions):
                 await endpoint.close(restarting=restarting)
             if self._sender is not None:
                 self._sender.close()
@@ -270,9 +299,7 @@ class Server:
     def __repr__(self) -> str:
         state = "closed" if self._closed else "listening"
         keyed = " keyed" if self.keyed else ""
-        return (
-            f"<Server {self._where()} {state}{keyed} masters={len(self._peers)}/{self._max_peers}>"
-        )
+        return f"<Server {self._where()} {state}{keyed} masters={len(self._sessions)}/{self._max_peers}>"
 
     def _where(self) -> str:
         if self._transport is None:
@@ -321,9 +348,37 @@ class Server:
         elif isinstance(verdict, AdmittedOpen):
             self._open(verdict, key, addr, now)
 
+    def _learn_path(self, data: bytes, key: tuple[object, object], addr: Address) -> bool:
+        """An MP_CHALLENGE from an address no session holds: the master of a multipath session
+        opening a path (PROTOCOL.md 5.11), found by the nonce in the clear. True when it was one."""
+        if not is_path_challenge(data):
+            return False
+        stats = self.stats
+        stats.path_challenges += 1
+        now = monotonic()
+        nonce = data[HEADER_SIZE + 1 : HEADER_SIZE + 1 + NONCE_SIZE]
+        if self._path_budget.take(now):
+            for endpoint in self._sessions:
+                conn = endpoint.connection
+                paths = conn.multipath
+                if paths is None or conn.master_nonce != nonce:
+                    continue
+                conn.receive_datagram(data, addr, now=now)
+                paths = conn.multipath
+                if paths is not None and paths.has_path(0, addr):
+                    self._peers[key] = endpoint
+                    stats.paths_learned += 1
+                endpoint.flush(now)
+                return True
+        stats.path_challenges_unclaimed += 1
+        return True
+
     def _on_unattached(self, data: bytes, key: tuple[object, object], addr: Address) -> None:
-        """A datagram from an address no session holds: a master that moved (PROTOCOL.md 5.8)?"""
+        """A datagram from an address no session holds: a multipath session's new path, or a
+        master that moved (PROTOCOL.md 5.8)?"""
         assert self._sender is not None
+        if self._learn_path(data, key, addr):
+            return
         now = monotonic()
         notices = self._notices
         if notices and notices.holds(key, now):
@@ -337,7 +392,7 @@ class Server:
         peers = self._peers
         paths = self._admission.paths
         outcome = paths.on_unattached(
-            data, addr, now, [endpoint.connection for endpoint in peers.values()]
+            data, addr, now, [endpoint.connection for endpoint in self._sessions]
         )
         if outcome is None:
             # Only a datagram no session may own gets a RESET (PROTOCOL.md 5.7): one that might be
@@ -367,7 +422,7 @@ class Server:
         """Exclusive server (PROTOCOL.md 5.9): the master commanding the slave keeps it unless it
         has been silent for ``takeover_after`` watchdog periods, or the new master is keyed and
         asks with TAKEOVER; then it is ended (``taken_over``). True: refused with REJECT IN_USE."""
-        holders = [ep for ep in self._peers.values() if not ep.is_closed]
+        holders = [ep for ep in self._sessions if not ep.is_closed]
         if not holders:
             return False
         takeover = admitted.key is not None and bool(admitted.body.flags & OpenFlags.TAKEOVER)
@@ -401,13 +456,12 @@ class Server:
         assert self._sender is not None
         if self._exclusive and self._exclusive_refuses(admitted, addr, now):
             return
-        peers = self._peers
         backlog_full = self._on_data is None and len(self._pending) >= self._backlog
         placement = (
             None
             if backlog_full
             else self._slots.place(
-                admitted.key, addr, [ep.connection for ep in peers.values()], now
+                admitted.key, addr, [ep.connection for ep in self._sessions], now
             )
         )
         if (
@@ -420,7 +474,7 @@ class Server:
             logger.info(
                 "tdtp slave: refused %s (busy: %d masters, %d waiting to be accepted%s)",
                 format_address(addr),
-                len(peers),
+                len(self._sessions),
                 len(self._pending),
                 "; its source holds its share"
                 if placement is not None and placement.verdict is Verdict.SHARE
@@ -443,6 +497,7 @@ class Server:
             outbox=self._outbox,
         )
         self._peers[key] = endpoint
+        self._sessions[endpoint] = None
         pending = self._pending
         if len(pending) >= self._backlog:
             # Callback style (on_data): the session is served either way; accept() sees the
@@ -473,6 +528,10 @@ class Server:
         peer = endpoint.peer
         if peer is not None and self._peers.get(_peer_key(peer)) is endpoint:
             del self._peers[_peer_key(peer)]
+        if endpoint.connection.multipath is not None:  # its paths' addresses too
+            for key in [key for key, holder in self._peers.items() if holder is endpoint]:
+                del self._peers[key]
+        self._sessions.pop(endpoint, None)
         if endpoint in self._pending:
             self._pending.remove(endpoint)
 

@@ -27,6 +27,7 @@ from tdtp.cli.live_stats import (
 from tdtp.cli.netem_view import netem_lines, netem_report
 from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
 from tdtp.cli.outcome import Outcome, Side, header_line, settings_report
+from tdtp.cli.paths_report import continuity
 from tdtp.cli.session_tasks import (
     _settle,
     _with_display,
@@ -62,6 +63,7 @@ async def _demo(
 ) -> None:
     duration = args.duration if args.duration is not None else 5.0
     ms_spec, sm_spec = netem_directions(args)
+    paths = args.path or []
     async with (
         listen(
             "127.0.0.1",
@@ -83,6 +85,9 @@ async def _demo(
             netem_seed=netem_seed(args, 0),
             key=keys.master,
             pcap=capture,
+            # --path: one socket per path on the master's side, each impaired both ways there.
+            local_addresses=["127.0.0.1"] * len(paths) if paths else None,
+            path_netem=paths or None,
         ) as master,
     ):
         slave = await server.accept()
@@ -156,6 +161,12 @@ async def _demo(
                     observed_at=both,
                     duration=spent,
                     latency=slave_side.latency_counts(),
+                )
+                | continuity(
+                    sender=master,
+                    receiver=slave.stats,
+                    counter=slave_side.continuity,
+                    end=start + spent,
                 ),
                 "slave_to_master": direction_report(
                     sender=slave.stats,
@@ -163,6 +174,12 @@ async def _demo(
                     observed_at=both,
                     duration=spent,
                     latency=master_side.latency_counts(),
+                )
+                | continuity(
+                    sender=slave,
+                    receiver=master.stats,
+                    counter=master_side.continuity,
+                    end=start + spent,
                 ),
             }
             for key, ep in (("master_to_slave", master), ("slave_to_master", slave)):
@@ -214,6 +231,15 @@ def demo_table(summary: dict[str, Any]) -> str:
             f"latency p50 {latency.get('p50', math.nan):.3f} ms p99 "
             f"{latency.get('p99', math.nan):.3f} ms, age p50 {age.get('p50', math.nan):.3f} ms p99 "
             f"{age.get('p99', math.nan):.3f} ms, header bytes {d['header_bytes']}, "
-            f"ACK packets {d['ack_packets_sent_back']}"
+            f"ACK packets {d['ack_packets_sent_back']}, dropouts {d.get('dropouts_100ms')}"
         )
+        if d.get("paths"):
+            rows.append(
+                f"{label}: duplicates {d['duplicates']}, paths "
+                + "; ".join(
+                    f"{p['id']}: {p['state']}, sent {p['sent']}, first {p['first_delivered']}, "
+                    f"srtt {p['srtt_ms']:.3f} ms"
+                    for p in d["paths"]
+                )
+            )
     return "\n".join(rows)

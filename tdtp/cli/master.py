@@ -19,6 +19,7 @@ from tdtp.cli.live_stats import (
 )
 from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
 from tdtp.cli.outcome import EXIT_FAILED, Outcome, Side, close_info, header_line, settings_report
+from tdtp.cli.paths_report import continuity
 from tdtp.cli.session_tasks import (
     _with_display,
     every_second,
@@ -55,6 +56,7 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
         key=args.session_keys.master,
         pcap=capture,
         reconnect=ReconnectPolicy(after_silence=args.reconnect_after) if args.reconnect else False,
+        local_addresses=args.local_address,
     ) as ep:
         start = monotonic()
         until = start + (args.duration or math.inf)
@@ -114,13 +116,17 @@ async def _master(args: argparse.Namespace, outcome: Outcome, capture: PcapWrite
                     observed_at=["master"],
                     duration=elapsed,
                     latency=None,
-                ),
+                )
+                | continuity(sender=ep, receiver=None, counter=None, end=start + elapsed),
                 "slave_to_master": direction_report(
                     sender=None,
                     receiver=ep.stats,
                     observed_at=["master"],
                     duration=elapsed,
                     latency=side.latency_counts(),
+                )
+                | continuity(
+                    sender=None, receiver=ep.stats, counter=side.continuity, end=start + elapsed
                 ),
                 "samples_received": side.received,
                 "reconnects": reconnect_report(ep, start),

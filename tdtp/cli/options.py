@@ -12,7 +12,7 @@ from tdtp.cli.keys import (
     add_key_arguments,
 )
 from tdtp.cli.parser import CommandParser
-from tdtp.config import MAX_PAYLOAD, AckMode, ConnectionConfig
+from tdtp.config import MAX_PAYLOAD, AckMode, ConnectionConfig, MultipathConfig
 from tdtp.control.fixed import FixedConfig
 from tdtp.control.registry import DEFAULT_CONTROLLER, available_controllers
 from tdtp.errors import (
@@ -222,6 +222,13 @@ def build_parser() -> argparse.ArgumentParser:
     netem.add_argument(
         "--netem-seed", type=_integer(0, MAX_SEED - 1), help="seed for reproducible impairment"
     )
+    common.add_argument(
+        "--multipath",
+        choices=("redundant", "adaptive"),
+        help="a session over several paths (master: with --local-address; demo: with --path; "
+        "slave: how it sends in such sessions): every sample on every path, or on the best one "
+        "while it behaves (default redundant once there are paths)",
+    )
 
     parser = CommandParser(
         prog="tdtp",
@@ -235,6 +242,14 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", parents=[common], help="master and slave on localhost, live statistics"
     )
     demo.set_defaults(duration=None)
+    demo.add_argument(
+        "--path",
+        type=_netem_spec,
+        action="append",
+        metavar="NETEM",
+        help="add a path with its own impairment, both ways (netem syntax; repeat for each path, "
+        'e.g. --path "delay 20ms loss 2%%" --path "delay 35ms"): a multipath session',
+    )
     add_key_arguments(demo, demo=True)
     slave = commands.add_parser("slave", parents=[common], help="serve masters on a UDP port")
     slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
@@ -285,6 +300,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=3.0,
         metavar="SECONDS",
         help="silence from the slave after which a reconnecting master opens a new session (3)",
+    )
+    master.add_argument(
+        "--local-address",
+        action="append",
+        metavar="ADDR",
+        help="open a path from this local address (IP, IP:PORT, %%IFACE or IP%%IFACE, optionally "
+        "=HOST:PORT for another of the slave's addresses); repeat for each path, the first "
+        "carries the session's opening: a multipath session",
     )
     master.add_argument(
         "--takeover",
@@ -359,11 +382,35 @@ def session_config(args: argparse.Namespace) -> ConnectionConfig:
             encrypt=not getattr(args, "no_encrypt", False),
             takeover=takeover,
             control_max_rate=control_max_rate,
+            multipath=multipath_config(args),
         )
     except InvalidArgumentError as exc:
         field = str(exc).split(" ", 1)[0]
         option = _OPTION_OF_FIELD.get(field, "--" + field.replace("_", "-"))
         raise UsageError(f"{option}: {exc}") from None
+
+
+def multipath_config(args: argparse.Namespace) -> MultipathConfig | None:
+    """A multipath session's config when the command line asks for one (``--multipath``,
+    ``--path`` or ``--local-address``), else ``None``."""
+    scheduler = getattr(args, "multipath", None)
+    paths = getattr(args, "path", None)
+    local = getattr(args, "local_address", None)
+    if scheduler is None and not paths and not local:
+        return None
+    if args.command == "demo":
+        if not paths:
+            raise UsageError("--multipath in the demo needs its paths: --path NETEM for each one")
+        if any(getattr(args, name, None) is not None for name in ("netem", "netem_ms", "netem_sm")):
+            raise UsageError("--path gives each path its impairment: drop --netem/--netem-ms/-sm")
+        if args.pcap is not None:
+            raise UsageError("--pcap captures one socket: it is not available with --path")
+    if args.command == "master" and local and (args.netem or args.netem_ms or args.pcap):
+        raise UsageError(
+            "--local-address opens one socket per path: --netem, --netem-ms and --pcap work "
+            "on one socket only; drop them"
+        )
+    return MultipathConfig(scheduler=scheduler or "redundant")
 
 
 _OPTION_OF_FIELD = {"max_payload": "--size", "min_peer_payload": "--size"}

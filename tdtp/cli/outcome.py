@@ -15,6 +15,7 @@ from tdtp.cli.live_stats import (
     LatencyRecorder,
 )
 from tdtp.cli.options import netem_directions
+from tdtp.cli.paths_report import DropoutCounter
 from tdtp.cli.summary import LatencyCounts
 from tdtp.session.events import DataReceived
 from tdtp.teleop.deadband import DeadbandSender
@@ -43,6 +44,8 @@ class Side:
     slave: the force)."""
     control: ControlCounter | None = None
     """``--control-rate HZ``: this side's counter on the control channel."""
+    continuity: DropoutCounter = field(default_factory=DropoutCounter)
+    """The 100 ms windows without a sample (``dropouts_100ms``)."""
 
     def deadband_report(self, unit: str) -> dict[str, Any] | None:
         """The ``deadband`` entry of the direction this side sends, ``None`` without a deadband."""
@@ -62,6 +65,7 @@ class Side:
 
     def on_data(self, event: DataReceived) -> None:
         self.received += 1
+        self.continuity.arrived(event.received_at)
         sample = HapticSample.decode(event.payload)
         if sample is None:
             self.not_haptic += 1
@@ -126,4 +130,8 @@ def settings_report(args: argparse.Namespace, ep: Endpoint) -> dict[str, Any]:
         "encrypted": ep.connection.encrypted,
         "netem_ms": None if ms is None else str(ms),
         "netem_sm": None if sm is None else str(sm),
+        "multipath": (getattr(args, "multipath", None) or "redundant")
+        if ep.connection.multipath is not None
+        else None,
+        "paths_netem": [str(spec) for spec in getattr(args, "path", None) or []] or None,
     }

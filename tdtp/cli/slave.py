@@ -25,6 +25,7 @@ from tdtp.cli.live_stats import (
 )
 from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
 from tdtp.cli.outcome import Outcome, Side, close_info
+from tdtp.cli.paths_report import continuity
 from tdtp.cli.session_tasks import (
     every_second,
     open_capture,
@@ -120,10 +121,17 @@ def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
             observed_at=["slave"],
             duration=duration,
             latency=side.latency_counts() if side is not None else None,
+        )
+        | continuity(
+            sender=None,
+            receiver=ep.stats,
+            counter=side.continuity if side is not None else None,
+            end=monotonic(),
         ),
         "slave_to_master": direction_report(
             sender=ep.stats, receiver=None, observed_at=["slave"], duration=duration, latency=None
-        ),
+        )
+        | continuity(sender=ep, receiver=None, counter=None, end=monotonic()),
     }
     if side is not None and side.deadband is not None:
         session["slave_to_master"]["deadband"] = side.deadband_report("N")

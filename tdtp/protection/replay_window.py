@@ -39,3 +39,35 @@ class ReplayWindow:
             self.highest = number
         else:
             self._mask |= 1 << -ahead
+
+
+class WideReplayWindow(ReplayWindow):
+    """A replay window ``width`` packet numbers wide (a power of two), for a multipath session.
+
+    Its datagrams travel paths whose delays differ by tens or hundreds of milliseconds, so one
+    path's datagrams arrive far behind the packet numbers another path has already delivered: a
+    64-number window would refuse them as replays. Each of ``width`` slots holds the full number
+    that last used it (``number % width``), so a number within the window was accepted exactly
+    when its slot holds it; the work per packet does not grow with the width."""
+
+    __slots__ = ("_slots", "_width")
+
+    def __init__(self, width: int) -> None:
+        super().__init__()
+        if width < WINDOW or width & (width - 1):
+            raise ValueError(f"a replay window's width is a power of two >= {WINDOW}, not {width}")
+        self._width = width
+        self._slots = [-1] * width
+
+    def seen(self, number: int) -> bool:
+        behind = self.highest - number
+        if behind < 0:
+            return False
+        if behind >= self._width:
+            return True
+        return self._slots[number & (self._width - 1)] == number
+
+    def accept(self, number: int) -> None:
+        if number > self.highest:
+            self.highest = number
+        self._slots[number & (self._width - 1)] = number

@@ -17,7 +17,9 @@
   :mod:`~tdtp.session.control_channel` (the reliable, ordered control messages beside the samples),
   :mod:`~tdtp.session.event_queue` (the bounded event queue), :mod:`~tdtp.session.timer_hint`,
   :mod:`~tdtp.session.reset_guard` (a master's recent datagrams, which a RESET must echo),
-  :mod:`~tdtp.session.path` (the peer's address: validated, or under the 3x amplification limit);
+  :mod:`~tdtp.session.path` (the peer's address: validated, or under the 3x amplification limit),
+  :mod:`~tdtp.session.multipath` (a multipath session's paths, scheduler and per-path congestion
+  control);
 * :mod:`tdtp.session.state`: :class:`State`, where a session is in its life;
 * :mod:`tdtp.session.view`: :class:`~tdtp.session.view.ConnectionView`, the connection's read-only
   properties (its base class).

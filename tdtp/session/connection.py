@@ -1,18 +1,13 @@
 """The sans-IO TDTP connection: a state machine that never touches a socket or reads a clock.
 
-The caller owns I/O and time. It feeds datagrams in with :meth:`Connection.receive_datagram`, timer
-expiries with :meth:`Connection.handle_timer` and samples with :meth:`Connection.send`, always passing
-``now`` (seconds on one monotonic clock). After every input it collects
-:meth:`Connection.datagrams_to_send` and re-arms a single timer at :meth:`Connection.get_timer`. What
-happened comes out of :meth:`Connection.next_event`. The asyncio endpoints, the impairment emulator and
-the virtual-time simulator all drive this one class. The watchdog's reactions (PeerSilent, PeerResumed,
-the idle timeout: docs/PROTOCOL.md section 5.2) and path migration (5.8) live here too.
-
-:class:`Connection` holds the session's state machine: it checks the caller's input against the state,
-takes every datagram in (address, size, packet protection, type) and dispatches it, and carries out
-what the opening and the watchdog decide. The pieces with state of their own (listed in
-:mod:`tdtp.session`) live beside it, each owning that state and importing nothing of the connection.
-
+The caller owns I/O and time: datagrams in (:meth:`Connection.receive_datagram`), timer expiries
+(:meth:`Connection.handle_timer`), samples (:meth:`Connection.send`), each with ``now``; after every
+input it collects :meth:`Connection.datagrams_to_send`, re-arms one timer at
+:meth:`Connection.get_timer` and takes :meth:`Connection.next_event`. The asyncio endpoints, the
+emulator and the simulator all drive this one class. It checks input against the state, takes every
+datagram in (address, size, protection, type), dispatches it, and carries out what the opening, the
+watchdog (PROTOCOL.md 5.2) and path migration (5.8) decide; the pieces with state of their own (listed
+in :mod:`tdtp.session`, a multipath session's paths in :mod:`tdtp.session.multipath`) live beside it.
 Peer input never raises: anything malformed, unexpected or hostile is dropped and counted in
 ``stats.drops`` by reason. Misuse by the caller raises a :class:`~tdtp.errors.TdtpError` subclass.
 """
@@ -47,6 +42,7 @@ from tdtp.session.events import (
 )
 from tdtp.session.handshake import Handshake, Reaction
 from tdtp.session.liveness import Liveness
+from tdtp.session.multipath.paths import Multipath
 from tdtp.session.one_way import STAMP_CODES, STAMP_SIZE, TIMED
 from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
@@ -174,6 +170,7 @@ class Connection(ConnectionView):
             config, events=self._events, stats=stats, rtt=recovery.rtt, one_way=sender.one_way
         )
         self._ages = delivery.ages
+        self.multipath: Multipath | None = None  # a multipath session's paths (PROTOCOL.md 5.11)
 
     # ------------------------------------------------------------------ caller API
 
@@ -216,15 +213,15 @@ class Connection(ConnectionView):
     ) -> bool:
         """:meth:`send` for the common case, with the datagram handed straight to ``transmit``.
 
-        When the sample may leave at once as the only datagram due (established, the pacer and the
-        socket allow it, no control packet, held ACK or separate ACK waiting), it is encoded and
+        When the sample may leave at once as the only datagram due (established, one path, the
+        pacer and the socket allow it, no control packet, held ACK or separate ACK waiting), it is
         passed to ``transmit(datagram, addr)`` (``addr`` ``None`` when ``connected``, else the
         peer's: ``transport.sendto`` fits) *before* the bookkeeping. An :class:`OSError` from it
         counts in :attr:`transmit_errors` (the datagram is lost like any other). It raises what
         :meth:`send` raises; False: not sent, the sample offered as by :meth:`send` (then
         :meth:`datagrams_to_send` must run)."""
         peer = self._peer
-        if self._state is not ESTABLISHED or peer is None or self._path.limited:
+        if self._state is not ESTABLISHED or peer is None or self._path.limited or self.multipath:
             self.send(payload, now=now)
             return False
         if not self._sender.send_direct(payload, transmit, peer, connected, now):
@@ -296,10 +293,9 @@ class Connection(ConnectionView):
         ecn: int | None = None,
     ) -> None:
         """Take one datagram from the network. Never raises on its content. Optional inputs a
-        driver may know: ``rx_time``, when the kernel received it (on the same clock as ``now``;
-        kept as :attr:`last_rx_time`, what the peer's send times are read against), and ``ecn``,
-        the IP header's ECN field (0-3; ``3``, Congestion Experienced, counts in ``stats.ecn_ce``).
-        The core reads no clock for either."""
+        driver may know (the core reads no clock for either): ``rx_time``, when the kernel received
+        it (on ``now``'s clock; :attr:`last_rx_time`, what the peer's send times are read against),
+        and ``ecn``, the IP header's ECN field (``3``, Congestion Experienced: ``stats.ecn_ce``)."""
         stats = self._stats
         stats.datagrams_in += 1
         if self._state is CLOSED:
@@ -307,8 +303,10 @@ class Connection(ConnectionView):
             return
         peer = self._peer
         if peer is not None and addr != peer and (addr[0] != peer[0] or addr[1] != peer[1]):
-            stats.count_drop(DropReason.WRONG_ADDRESS)
-            return
+            paths = self.multipath  # another of a multipath session's paths, or a new one?
+            if paths is None or not paths.admits(data, addr):
+                stats.count_drop(DropReason.WRONG_ADDRESS)
+                return
         self.last_rx_time = rx_time
         if ecn == 3:
             stats.ecn_ce += 1
@@ -343,6 +341,9 @@ class Connection(ConnectionView):
         if ptype > _CONTROL:
             stats.count_drop(DropReason.UNKNOWN_TYPE)
             return
+        paths = self.multipath
+        if paths is not None and paths.intercept(data, addr, ptype, now):
+            return  # multipath control, or a copy of a sample taken in already
         if peer is None:
             # A listening slave answers with a RESET (its master's session died with a restart).
             self._handshake.on_stranger(data, addr, now)
@@ -385,7 +386,7 @@ class Connection(ConnectionView):
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
-        elif size > HEADER_SIZE and data[HEADER_SIZE] in STAMP_CODES:  # PROTOCOL.md 5.11
+        elif size > HEADER_SIZE and data[HEADER_SIZE] in STAMP_CODES:  # PROTOCOL.md 5.12
             kind = self._sender.one_way.take(data, self.last_rx_time, now)
             if kind == TIMED:
                 self._on_data(data[:5] + data[5 + STAMP_SIZE :], seq, ack, sack, hold, now)
@@ -705,19 +706,16 @@ class Connection(ConnectionView):
         outbox.sealer, self._opener = keys
         outbox.overhead = self._overhead = PROTECTION_OVERHEAD
 
-    def _peer_address(self) -> Address:
-        peer = self._peer
-        assert peer is not None  # set by connect() or at the OPEN
-        return peer
-
     def _establish(self, now: float) -> None:
         self._state = State.ESTABLISHED
         self._hint.value = -math.inf
         self._handshake.confirming = False
-        self._sender.one_way.start(now, self._handshake.timestamps)
+        self._sender.one_way.start(now, self._handshake.stamps)
         liveness = self._liveness
         liveness.last_receive = now
         liveness.last_send = now
+        if self._handshake.multipath:
+            self.multipath = Multipath.attach(self, now)
         self._push_other_event(ConnectionEstablished(self._peer_address()))
 
     # ------------------------------------------------------------------ timers
@@ -814,6 +812,8 @@ class Connection(ConnectionView):
             self._emit_session(out, now)
         if path.limited:
             path.on_sent(out)
+        if self.multipath is not None:
+            return self.multipath.route(out, now)  # spread over the paths
         return out
 
     def _emit_session(self, out: list[tuple[bytes, Address]], now: float) -> None:

@@ -2,8 +2,9 @@
 
 A peer can fill it (every data packet is an event), so it is bounded by ``max_pending_events``. When the
 application does not keep up, stale supermedia data is worth least: the oldest :class:`DataReceived`
-goes first. Watchdog events (:class:`PeerSilent`, :class:`PeerResumed`) share the bound: with no data
-event left to drop, the oldest watchdog event goes. Lifecycle events (established, closed) are never
+goes first. Watchdog events (:class:`PeerSilent`, :class:`PeerResumed`) and a multipath session's
+path events (:class:`PathChanged`) share the bound: with no data event left to drop, the oldest of
+them goes. Lifecycle events (established, closed) are never
 dropped; there is at most one of each. Control messages (:class:`ControlReceived`) are never dropped
 either: they must arrive exactly once, so the control channel bounds them itself (it takes no more
 from the peer while ``control_window`` of them wait here or in the driver).
@@ -19,7 +20,14 @@ from __future__ import annotations
 
 from collections import deque
 
-from tdtp.session.events import ControlReceived, DataReceived, Event, PeerResumed, PeerSilent
+from tdtp.session.events import (
+    ControlReceived,
+    DataReceived,
+    Event,
+    PathChanged,
+    PeerResumed,
+    PeerSilent,
+)
 from tdtp.session.stats import ConnectionStats
 
 
@@ -77,13 +85,13 @@ class EventQueue:
         """A lifecycle event: always kept."""
         self._unsolo().append(event)
 
-    def push_watchdog(self, event: PeerSilent | PeerResumed) -> None:
-        """A watchdog event: within the bound, making room by dropping the oldest data event, or
-        failing that the oldest watchdog event."""
+    def push_watchdog(self, event: PeerSilent | PeerResumed | PathChanged) -> None:
+        """A watchdog (or multipath path) event: within the bound, making room by dropping the
+        oldest data event, or failing that the oldest watchdog or path event."""
         events = self._unsolo()
         if len(events) >= self.max_events and not self._discard_oldest_data():
             for index, pending in enumerate(events):
-                if isinstance(pending, PeerSilent | PeerResumed):
+                if isinstance(pending, PeerSilent | PeerResumed | PathChanged):
                     del events[index]
                     self._stats.events_discarded += 1
                     break

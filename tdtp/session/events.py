@@ -238,6 +238,30 @@ class ControlExpired:
     expired_at: float
 
 
+@mypyc_attr(native_class=False)  # a plain frozen dataclass: pickled and copied as one
+@dataclass(frozen=True, slots=True)
+class PathChanged:
+    """Multipath: one of the session's paths came, went or degraded (docs/PROTOCOL.md 5.11).
+
+    The session survives any path's failure as long as one path works; the watchdog
+    (:class:`PeerSilent`) still speaks for the whole session. ``ep.paths`` has each path's figures."""
+
+    path_id: int
+    """The path's number in the session (0: the path the session opened on)."""
+    state: str
+    """What it is now: ``"active"`` (validated and carrying traffic), ``"degraded"`` (its recent
+    one-way delay or loss is out of bounds), ``"failed"`` (nothing heard on it for the path
+    timeout; it is probed until it answers), ``"closed"`` (abandoned by either side or refused)."""
+    previous: str
+    """What it was before (``"probing"`` for a path just validated)."""
+    remote: Address
+    """The peer's address on the path."""
+    detail: str
+    """In words: why it changed."""
+    at: float
+    """The ``now`` it changed."""
+
+
 Event = (
     ConnectionEstablished
     | DataReceived
@@ -246,4 +270,5 @@ Event = (
     | PeerResumed
     | ControlReceived
     | ControlExpired
+    | PathChanged
 )

@@ -45,6 +45,7 @@ from tdtp.wire.control import (
     KeepaliveBody,
     MessageAckBody,
     MessageBody,
+    MpReportBody,
     OpenAckBody,
     OpenBody,
     OpenFlags,
@@ -137,6 +138,9 @@ class Handshake:
         """Whether this session is keyed: the master's choice, adopted by the slave at the open."""
         self.encrypt = config.encrypt
         self.suite = config.cipher_suite if self.keyed else CipherSuite.NONE
+        self.multipath = self._master and config.multipath is not None
+        """Whether the session may run over several paths (the OPEN's MULTIPATH flag): the
+        master's choice, adopted by the slave at the open (PROTOCOL.md 5.11)."""
         self.confirming = False
         """A slave that answered OPEN_ACK and waits for the master's first packet of the session."""
         self.open_attempt = 0
@@ -156,10 +160,10 @@ class Handshake:
         """Why the slave refused us (:attr:`Reaction.REJECTED`)."""
         self.reject_reason: int | None = None
         """The REJECT's reason code (:attr:`Reaction.REJECTED`)."""
-        self.timestamps = role is Role.MASTER and wants_timestamps(config)
-        """The session stamps send times (the TIMESTAMPS flag, PROTOCOL.md 5.11): a master's
-        choice (its controller reads one-way delays and ``timestamp_interval`` is not 0), a
-        slave's from the OPEN."""
+        self.timestamps = role is Role.MASTER and wants_timestamps(config) and not self.multipath
+        """The TIMESTAMPS flag (PROTOCOL.md 5.12): a master's choice (its controller reads one-way
+        delays, ``timestamp_interval`` is not 0, and the session is single-path), a slave's from
+        the OPEN. Stamps leave only in a session without MULTIPATH (:attr:`stamps`)."""
         self._open_tagger: Direction | None = None  # a keyed master's OPEN key
         self._cookie = NO_COOKIE
         self._cookie_answered_at = -math.inf
@@ -169,6 +173,12 @@ class Handshake:
         """Bytes of the tag a keyed OPEN or OPEN_ACK ends in."""
         return TAG_SIZE if self.keyed else 0
 
+    @property
+    def stamps(self) -> bool:
+        """Whether the session stamps send times: TIMESTAMPS, and not MULTIPATH (a path's own
+        controller is fed by its MP_REPORTs; PROTOCOL.md 5.12)."""
+        return self.timestamps and not self.multipath
+
     def open_flags(self, ack_mode: AckMode) -> int:
         flags = OpenFlags.SEPARATE_ACKS if ack_mode is AckMode.SEPARATE else OpenFlags.NONE
         if self.timestamps:
@@ -177,6 +187,8 @@ class Handshake:
             flags |= OpenFlags.KEYED
             if self.encrypt:
                 flags |= OpenFlags.ENCRYPTED
+        if self.multipath:
+            flags |= OpenFlags.MULTIPATH
         return int(flags)
 
     # ------------------------------------------------------------------ master
@@ -257,7 +269,8 @@ class Handshake:
             | MessageBody
             | MessageAckBody
             | TimestampBody
-            | TimedDataBody,
+            | TimedDataBody
+            | MpReportBody,
         ):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
         elif body.nonce != self.master_nonce:
@@ -413,6 +426,7 @@ class Handshake:
         body = admitted.body
         self.master_nonce = body.nonce
         self.timestamps = bool(body.flags & OpenFlags.TIMESTAMPS)
+        self.multipath = bool(body.flags & OpenFlags.MULTIPATH)
         if admitted.key is not None:
             self.key = admitted.key
             self.keyed = True

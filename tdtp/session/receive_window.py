@@ -267,6 +267,10 @@ class ReceiveWindow:
             self.unreported_since = now
         return LATE
 
+    def arrived(self, seq: int) -> bool:
+        """Whether the full sequence number ``seq`` arrived and is still within the window."""
+        return 0 <= self.highest - seq < WINDOW and self._seen[seq & _SLOT] == seq
+
     def _plausible(self, distance: int, now: float) -> bool:
         """Whether the peer can have sent ``distance`` packets since the highest arrived (the jump
         check of an unkeyed session; a re-anchored packet always passes)."""

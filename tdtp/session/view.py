@@ -73,6 +73,11 @@ class ConnectionView:
         """An established slave: may follow its master to a new address (PROTOCOL.md 5.8)."""
         return self.role is Role.SLAVE and self._state is State.ESTABLISHED
 
+    def _peer_address(self) -> Address:
+        peer = self._peer
+        assert peer is not None  # set by connect() or at the OPEN
+        return peer
+
     def quiet_for(self, now: float) -> float:
         """Seconds since the last datagram from the peer's address."""
         return now - self._liveness.last_receive

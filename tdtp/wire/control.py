@@ -16,6 +16,12 @@ Four kinds of control packet exist:
   authenticated datagram instead).
 * **RESET** (a restarted slave's "no session for you") is stateless and in the clear: an echo of the
   datagram that found no session and, keyed, tags under the slave's keys.
+* **Multipath** (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON; version 4, sessions opened with
+  the ``MULTIPATH`` flag): the validation and probing of a session's further paths, each path's
+  receiver report, and the end of a path. MP_CHALLENGE and MP_RESPONSE carry the master's nonce in
+  the clear after the code byte (a server finds the session by it before it knows the address); the
+  rest is sealed like session control in a keyed session (``header | code | nonce | PN | sealed |
+  tag``). MP_REPORT and MP_ABANDON are plain session control.
 * **Session control** (KEEPALIVE, CLOSE, and the reliable control channel's MESSAGE and MESSAGE_ACK)
   uses the session's packet protection when keyed, exactly like
   DATA and ACK: ``header | code | PN | sealed body | tag`` (``tdtp.protection``). Unkeyed, it is
@@ -36,8 +42,8 @@ from tdtp.wire.protected import TAG_SIZE
 
 PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
-had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3's MESSAGE and
-MESSAGE_ACK carried no nonce, and it had no send timestamps: TIMESTAMP and TIMED_DATA)."""
+had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 had no multipath
+and no send timestamps (TIMESTAMP, TIMED_DATA), and its MESSAGE and MESSAGE_ACK carried no nonce)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -90,6 +96,18 @@ class ControlCode(enum.IntEnum):
     """either way, sessions with the TIMESTAMPS flag: a DATA packet (its header consumes a data
     sequence number and carries the acknowledgement as DATA's does) with the sender's clock when it
     left, in microseconds, before the payload."""
+    MP_CHALLENGE = 17
+    """either way, multipath sessions: on a path, "answer this token on the same path": validates a
+    new path (its opener's first datagram on it; the other side's proof that the opener receives at
+    that address) and probes an idle or failed one (its round trip)."""
+    MP_RESPONSE = 18
+    """either way, multipath sessions: the challenge's token echoed on the path it came on, with
+    a token of the responder's own to validate the path the other way (zeros: none)."""
+    MP_REPORT = 19
+    """either way, multipath sessions: a receiver report for one path: what arrived on it (count,
+    first copies, the newest sequence number and how long ago) and how far it lags the first copy."""
+    MP_ABANDON = 20
+    """either way, multipath sessions: this path is no longer used (reason code)."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -109,8 +127,22 @@ MESSAGE_CODES: Final = frozenset(
 STAMP_CODES: Final = frozenset(
     int(code) for code in (ControlCode.TIMESTAMP, ControlCode.TIMED_DATA)
 )
-"""Packets that carry their sender's clock (docs/PROTOCOL.md section 5.11): session traffic, sealed
+"""Packets that carry their sender's clock (docs/PROTOCOL.md section 5.12): session traffic, sealed
 when keyed."""
+MULTIPATH_CODES: Final = frozenset(
+    int(code)
+    for code in (
+        ControlCode.MP_CHALLENGE,
+        ControlCode.MP_RESPONSE,
+        ControlCode.MP_REPORT,
+        ControlCode.MP_ABANDON,
+    )
+)
+"""Multipath (docs/PROTOCOL.md section 5.11): taken by the session's paths, sealed when keyed."""
+PROBE_CODES: Final = frozenset(
+    int(code) for code in (ControlCode.MP_CHALLENGE, ControlCode.MP_RESPONSE)
+)
+"""The two multipath codes that carry the master's nonce in the clear before their sealed body."""
 
 
 class OpenFlags(enum.IntFlag):
@@ -125,8 +157,12 @@ class OpenFlags(enum.IntFlag):
     """OPEN only, keyed only: an exclusive slave hands control to this master at once, ending the
     session of the master that had it (docs/PROTOCOL.md 5.9). Never echoed in the OPEN_ACK."""
     TIMESTAMPS = 0x20
-    """Both ends time a share of their packets (TIMESTAMP, TIMED_DATA: docs/PROTOCOL.md 5.11), so
+    """Both ends time a share of their packets (TIMESTAMP, TIMED_DATA: docs/PROTOCOL.md 5.12), so
     that each learns the one-way delay of its own direction. Echoed in the OPEN_ACK."""
+    MULTIPATH = 0x40
+    """The session may run over several paths at once (docs/PROTOCOL.md 5.11): either side may
+    validate further paths with MP_CHALLENGE, DATA may travel on several of them, and receivers
+    take the first copy of each sequence number. Echoed in the OPEN_ACK."""
 
 
 KNOWN_FLAGS: Final = int(
@@ -135,6 +171,7 @@ KNOWN_FLAGS: Final = int(
     | OpenFlags.ENCRYPTED
     | OpenFlags.TAKEOVER
     | OpenFlags.TIMESTAMPS
+    | OpenFlags.MULTIPATH
 )
 
 
@@ -182,6 +219,12 @@ class CloseReason(enum.IntEnum):
     """CLOSE: the sender is stopping but expects to be back soon (a service restart: ``tdtp slave``
     stopped by Ctrl-C or SIGTERM). A master should reopen at once, at its usual OPEN pacing
     (docs/PROTOCOL.md 5.2). ``NORMAL`` says the opposite: the session is over for good."""
+    PATH_CLOSED = 19
+    """MP_ABANDON: the sender stopped using this path (the application removed it, its interface
+    went away)."""
+    PATH_LIMIT = 20
+    """MP_ABANDON: the path was refused: the session has as many paths as the receiver allows, or
+    new paths come faster than it takes them."""
 
 
 class OpenBody(NamedTuple):
@@ -349,6 +392,79 @@ class TimedDataBody(NamedTuple):
         return ControlCode.TIMED_DATA
 
 
+class MpChallengeBody(NamedTuple):
+    """MP_CHALLENGE (either way, multipath sessions)."""
+
+    nonce: bytes
+    """The master's nonce (in the clear: names the session)."""
+    path_id: int
+    token: bytes
+    """8 random bytes the answer must echo on the same path."""
+
+    @property
+    def code(self) -> ControlCode:
+        """The control code this body is sent under."""
+        return ControlCode.MP_CHALLENGE
+
+
+class MpResponseBody(NamedTuple):
+    """MP_RESPONSE (either way, multipath sessions)."""
+
+    nonce: bytes
+    """The master's nonce (in the clear)."""
+    path_id: int
+    echo: bytes
+    """The challenge's token."""
+    token: bytes
+    """The responder's own challenge for the same path (zeros: none)."""
+
+    @property
+    def code(self) -> ControlCode:
+        """The control code this body is sent under."""
+        return ControlCode.MP_RESPONSE
+
+
+class MpReportBody(NamedTuple):
+    """MP_REPORT (either way, multipath sessions): what one path delivered to the sender of this
+    report."""
+
+    nonce: bytes
+    """The master's nonce (a blind attacker does not know it)."""
+    path_id: int
+    """The path the report is about (and travels on)."""
+    seq: int
+    """The low 12 bits of the highest data sequence number received on the path (a u16 whose top
+    four bits senders set to zero and receivers ignore)."""
+    hold: int
+    """HOLD code: how long ago that packet arrived (255: nothing has arrived on the path)."""
+    received: int
+    """DATA datagrams received on the path so far, copies included (mod 2^32)."""
+    first: int
+    """Of those, the first copies of their sequence number (mod 2^32)."""
+    lag: int
+    """How far the path recently lagged the first copy, in units of 100 us (65535: saturated)."""
+
+    @property
+    def code(self) -> ControlCode:
+        """The control code this body is sent under."""
+        return ControlCode.MP_REPORT
+
+
+class MpAbandonBody(NamedTuple):
+    """MP_ABANDON (either way, multipath sessions)."""
+
+    nonce: bytes
+    """The master's nonce (a blind attacker cannot abandon a path, as it cannot CLOSE)."""
+    path_id: int
+    reason: int
+    """A close reason (PATH_CLOSED, PATH_LIMIT)."""
+
+    @property
+    def code(self) -> ControlCode:
+        """The control code this body is sent under."""
+        return ControlCode.MP_ABANDON
+
+
 ControlBody = (
     ResetBody
     | OpenBody
@@ -362,6 +478,10 @@ ControlBody = (
     | MessageAckBody
     | TimestampBody
     | TimedDataBody
+    | MpChallengeBody
+    | MpResponseBody
+    | MpReportBody
+    | MpAbandonBody
 )
 
 # Layouts, byte offsets from the code byte (the first byte after the base header).
@@ -379,6 +499,10 @@ _PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
 _MESSAGE: Final = struct.Struct(">B16sHH")  # code nonce seq ack, then the message
 _MESSAGE_ACK: Final = struct.Struct(">B16sH")  # code nonce ack
 _STAMP: Final = struct.Struct(">BI")  # code time (TIMESTAMP; TIMED_DATA's payload follows)
+_MP_CHALLENGE: Final = struct.Struct(">B16sB8s")  # code nonce path_id token
+_MP_RESPONSE: Final = struct.Struct(">B16sB8s8s")  # code nonce path_id echo token
+_MP_REPORT: Final = struct.Struct(">B16sBHBIIH")  # code nonce path_id seq hold received first lag
+_MP_ABANDON: Final = struct.Struct(">B16sBB")  # code nonce path_id reason
 
 OPEN_BODY_SIZE: Final = _OPEN.size
 """48 bytes: with the header an unkeyed OPEN is 53 bytes, a keyed one 69."""
@@ -420,6 +544,23 @@ STAMP_MODULUS: Final = 1 << 32
 """Send times travel as their low 32 bits, in microseconds (they wrap every 71.6 minutes)."""
 MESSAGE_SEQ_MODULUS: Final = 1 << 16
 """Message numbers travel as their low 16 bits."""
+MP_TOKEN_SIZE: Final = 8
+"""Bytes of a multipath challenge token (random; a path is validated by its echo)."""
+NO_MP_TOKEN: Final = bytes(MP_TOKEN_SIZE)
+MP_PROBE_PREFIX_SIZE: Final = 1 + NONCE_SIZE
+"""MP_CHALLENGE and MP_RESPONSE: the code byte and the master's nonce, in the clear before the
+(keyed: sealed) rest; with the header, the 22-byte prefix a keyed session authenticates."""
+MP_CHALLENGE_BODY_SIZE: Final = _MP_CHALLENGE.size
+"""26 bytes: an unkeyed MP_CHALLENGE is 31 bytes, a keyed one 49."""
+MP_RESPONSE_BODY_SIZE: Final = _MP_RESPONSE.size
+"""34 bytes: an unkeyed MP_RESPONSE is 39 bytes, a keyed one 57."""
+MP_REPORT_BODY_SIZE: Final = _MP_REPORT.size
+"""31 bytes: an unkeyed MP_REPORT is 36 bytes, a keyed one 54."""
+MP_ABANDON_BODY_SIZE: Final = _MP_ABANDON.size
+"""19 bytes: an unkeyed MP_ABANDON is 24 bytes, a keyed one 42."""
+MP_LAG_UNIT: Final = 0.0001
+"""Seconds per unit of MP_REPORT's lag (100 us)."""
+MP_LAG_MAX: Final = 0xFFFF
 OPEN_NONCE_OFFSET: Final = struct.calcsize(">BBBBHH")
 """Where an OPEN body carries the master's nonce (after code, version, flags, suite, max_payload and
 attempt): 8."""
@@ -517,6 +658,67 @@ def encode_timestamp(code: ControlCode, time_us: int) -> bytes:
     return _STAMP.pack(code, time_us & 0xFFFFFFFF)
 
 
+def encode_mp_challenge(nonce: bytes, path_id: int, token: bytes) -> bytes:
+    """An MP_CHALLENGE body (code byte included)."""
+    return _MP_CHALLENGE.pack(ControlCode.MP_CHALLENGE, nonce, path_id, token)
+
+
+def encode_mp_response(nonce: bytes, path_id: int, echo: bytes, token: bytes) -> bytes:
+    """An MP_RESPONSE body (code byte included)."""
+    return _MP_RESPONSE.pack(ControlCode.MP_RESPONSE, nonce, path_id, echo, token)
+
+
+def encode_mp_report(body: MpReportBody) -> bytes:
+    """An MP_REPORT body (code byte included); counters wrap at 2^32, the lag saturates."""
+    return _MP_REPORT.pack(
+        ControlCode.MP_REPORT,
+        body.nonce,
+        body.path_id,
+        body.seq & 0xFFF,
+        body.hold,
+        body.received & 0xFFFFFFFF,
+        body.first & 0xFFFFFFFF,
+        min(body.lag, MP_LAG_MAX),
+    )
+
+
+def encode_mp_abandon(nonce: bytes, path_id: int, reason: int) -> bytes:
+    """An MP_ABANDON body (code byte included)."""
+    return _MP_ABANDON.pack(ControlCode.MP_ABANDON, nonce, path_id, reason)
+
+
+def _decode_multipath(code: ControlCode, body: bytes | memoryview) -> ControlBody:
+    """The four multipath bodies (code byte included), unprotected."""
+    size = len(body)
+    if code is ControlCode.MP_CHALLENGE:
+        if size != MP_CHALLENGE_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"MP_CHALLENGE body is {size} bytes, not {MP_CHALLENGE_BODY_SIZE}"
+            )
+        _, nonce, path_id, token = _MP_CHALLENGE.unpack(body)
+        return MpChallengeBody(nonce, path_id, token)
+    if code is ControlCode.MP_RESPONSE:
+        if size != MP_RESPONSE_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"MP_RESPONSE body is {size} bytes, not {MP_RESPONSE_BODY_SIZE}"
+            )
+        _, nonce, path_id, echo, token = _MP_RESPONSE.unpack(body)
+        return MpResponseBody(nonce, path_id, echo, token)
+    if code is ControlCode.MP_REPORT:
+        if size != MP_REPORT_BODY_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"MP_REPORT body is {size} bytes, not {MP_REPORT_BODY_SIZE}"
+            )
+        _, nonce, path_id, seq, hold, received, first, lag = _MP_REPORT.unpack(body)
+        return MpReportBody(nonce, path_id, seq & 0xFFF, hold, received, first, lag)
+    if size != MP_ABANDON_BODY_SIZE:
+        raise MalformedPacketError(
+            "bad_control", f"MP_ABANDON body is {size} bytes, not {MP_ABANDON_BODY_SIZE}"
+        )
+    _, nonce, path_id, reason = _MP_ABANDON.unpack(body)
+    return MpAbandonBody(nonce, path_id, reason)
+
+
 def _tagged(body: bytes | memoryview, size: int, name: str) -> bytes | memoryview:
     """The fixed part of a handshake body whose KEYED flag (its third byte) says whether a tag
     follows."""
@@ -534,7 +736,8 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
     """Decode the body after the base header; raises :class:`MalformedPacketError` on anything else.
 
     Handshake messages are checked in full (a keyed OPEN or OPEN_ACK must carry its tag, which is
-    not verified here). For KEEPALIVE and CLOSE this reads the *unprotected* form: a keyed session
+    not verified here). For KEEPALIVE, CLOSE, MESSAGE and the multipath codes this reads the
+    *unprotected* form: a keyed session
     removes the packet protection first.
     """
     if not body:
@@ -595,6 +798,8 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
                 "bad_control", f"TIMED_DATA body of {len(body)} bytes carries no payload"
             )
         return TimedDataBody(_STAMP.unpack_from(body)[1], bytes(body[STAMP_SIZE:]))
+    if raw in MULTIPATH_CODES:
+        return _decode_multipath(code, body)
     if code is ControlCode.PATH_CHALLENGE:
         if len(body) != PATH_CHALLENGE_BODY_SIZE:
             raise MalformedPacketError(

@@ -74,3 +74,11 @@ class DropReason(enum.Enum):
     """Unkeyed session: a DATA packet numbered further ahead of the highest received than the peer
     can have sent in the time since (a blind forgery; taking it would make us acknowledge numbers
     the peer never sent and drop the real packets as late)."""
+    PATH_LIMIT = "path_limit"
+    """Multipath: a new path refused: the session has ``max_paths`` already, or new paths came
+    faster than ``new_paths_per_second`` (PROTOCOL.md 5.11)."""
+    UNKNOWN_PATH = "unknown_path"
+    """Multipath: a datagram from an address (or on a local socket) that is none of the session's
+    paths, or a multipath packet naming a path that arrived on another one."""
+    BAD_TOKEN = "bad_token"
+    """Multipath: an MP_RESPONSE echoing a token no challenge of ours on that path carried."""

@@ -29,6 +29,7 @@ from construct.core import stream_size, stream_tell
 from tdtp.wire.control import (
     COOKIE_SIZE,
     KEY_ID_SIZE,
+    MP_TOKEN_SIZE,
     NONCE_SIZE,
     PATH_TOKEN_SIZE,
     RESET_ECHO_SIZE,
@@ -95,6 +96,30 @@ TimestampBody: Any = Struct("time" / Int32ub)
 """TIMESTAMP: the sender's clock (microseconds, low 32 bits) when it left."""
 TimedDataBody: Any = Struct("time" / Int32ub, "payload" / GreedyBytes)
 """TIMED_DATA: the sender's clock as TIMESTAMP's, then the sample (at least one byte)."""
+MpChallengeBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "token" / Bytes(MP_TOKEN_SIZE)
+)
+"""MP_CHALLENGE (multipath): the master's nonce (in the clear even when keyed), the path's id, a
+random token the answer echoes on the same path."""
+MpResponseBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE),
+    "path_id" / Int8ub,
+    "echo" / Bytes(MP_TOKEN_SIZE),
+    "token" / Bytes(MP_TOKEN_SIZE),
+)
+"""MP_RESPONSE (multipath): the challenge's token echoed, and a token of the responder's own
+(zeros: none)."""
+MpReportBody: Any = Struct(
+    "nonce" / Bytes(NONCE_SIZE),
+    "path_id" / Int8ub,
+    "seq" / Int16ub,
+    "hold" / Int8ub,
+    "received" / Int32ub,
+    "first" / Int32ub,
+    "lag" / Int16ub,
+)
+"""MP_REPORT (multipath): the master's nonce and one path's receiver report."""
+MpAbandonBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "reason" / Int8ub)
 
 ControlBody: Any = Struct(
     "code" / Int8ub,
@@ -115,6 +140,10 @@ ControlBody: Any = Struct(
             int(ControlCode.MESSAGE_ACK): MessageAckBody,
             int(ControlCode.TIMESTAMP): TimestampBody,
             int(ControlCode.TIMED_DATA): TimedDataBody,
+            int(ControlCode.MP_CHALLENGE): MpChallengeBody,
+            int(ControlCode.MP_RESPONSE): MpResponseBody,
+            int(ControlCode.MP_REPORT): MpReportBody,
+            int(ControlCode.MP_ABANDON): MpAbandonBody,
         },
     ),
 )
@@ -146,8 +175,19 @@ ProtectedControl: Any = Struct(
     "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
     "tag" / Bytes(TAG_SIZE),
 )
-"""A keyed session's KEEPALIVE, CLOSE, MESSAGE, MESSAGE_ACK, TIMESTAMP or TIMED_DATA: as ProtectedData, with the control code in the clear
-after the header."""
+"""A keyed session's KEEPALIVE, CLOSE, MESSAGE, MESSAGE_ACK, TIMESTAMP, TIMED_DATA, MP_REPORT or
+MP_ABANDON: as ProtectedData, with the control code in the clear after the header."""
+
+ProtectedProbe: Any = Struct(
+    "header" / Header,
+    "code" / Int8ub,
+    "nonce" / Bytes(NONCE_SIZE),
+    "packet_number" / Int16ub,
+    "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
+    "tag" / Bytes(TAG_SIZE),
+)
+"""A keyed session's MP_CHALLENGE or MP_RESPONSE: the code and the master's nonce in the clear (a
+server finds the session by it), then the packet number, the sealed rest and the tag."""
 
 __all__ = [
     "CloseBody",
@@ -157,12 +197,17 @@ __all__ = [
     "KeepaliveBody",
     "MessageAckBody",
     "MessageBody",
+    "MpAbandonBody",
+    "MpChallengeBody",
+    "MpReportBody",
+    "MpResponseBody",
     "OpenAckBody",
     "OpenBody",
     "PathChallengeBody",
     "PathResponseBody",
     "ProtectedControl",
     "ProtectedData",
+    "ProtectedProbe",
     "ResetBody",
     "TimedDataBody",
     "TimestampBody",

@@ -263,3 +263,32 @@ def test_demo_deadband_reports_what_it_held_back() -> None:
         assert band["sent"] == direction["samples_offered"] > 0
         assert band["offered"] >= band["sent"] and band["reconstruction_rmse"] >= 0.0
         assert band["sent_fraction"] == round(band["sent"] / band["offered"], 4)
+
+
+def test_demo_over_two_paths_reports_each_path_and_the_copies() -> None:
+    """``tdtp demo --path NETEM --path NETEM``: a multipath session; per direction the dropouts,
+    the copies dropped as duplicates, and the sender's paths."""
+    summary = _demo("--path", "delay 5ms", "--path", "delay 10ms", "--multipath", "redundant")
+    assert summary["multipath"] == "redundant"
+    assert summary["paths_netem"] == ["delay 5ms", "delay 10ms"]
+    for key in ("master_to_slave", "slave_to_master"):
+        direction = summary[key]
+        assert isinstance(direction, dict)
+        assert isinstance(direction["dropouts_100ms"], int)
+        paths = direction["paths"]
+        assert [path["id"] for path in paths] == [0, 1]
+        for path in paths:
+            assert set(path) >= {"sent", "first_delivered", "srtt_ms", "state"}
+            assert 0 <= path["first_delivered"] <= path["sent"]
+        # Every sample went on both paths once the second was validated: the receiver dropped
+        # the later copies, and each delivered sample came first on one path or the other.
+        assert 0 < direction["duplicates"] <= paths[1]["sent"]
+        assert sum(p["first_delivered"] for p in paths) <= direction["packets_sent"]
+
+
+def test_a_single_path_demo_reports_dropouts_and_no_paths() -> None:
+    summary = _demo()
+    direction = summary["master_to_slave"]
+    assert isinstance(direction, dict)
+    assert isinstance(direction["dropouts_100ms"], int)
+    assert direction["paths"] is None and direction["duplicates"] == 0

@@ -111,6 +111,16 @@ MISUSES: list[tuple[list[str], str]] = [
     ),
     (["netem-relay", "loss 200%", "--listen", ":0", "--forward", "127.0.0.1:1"], "200%"),
     (["simulate", "paper", "--out", "/proc/no/such/dir"], "--out"),
+    (["demo", "--multipath", "adaptive"], "--multipath in the demo needs its paths"),
+    (["demo", "--path", "delay 1ms", "--netem", "loss 1%"], "--path gives each path"),
+    (["demo", "--path", "delay 20xs"], "20xs"),
+    (["demo", "--multipath", "sideways"], "invalid choice: 'sideways'"),
+    (["master", "127.0.0.1:9", "--local-address", "10.0.0.1:99999"], "the local address"),
+    (["master", "127.0.0.1:9", "--local-address", "192.0.2.1"], "not an address of this host"),
+    (
+        ["master", "127.0.0.1:9", "--local-address", "127.0.0.1", "--netem", "loss 1%"],
+        "--local-address opens one socket per path",
+    ),
     ([], "the following arguments are required"),
 ]
 

@@ -17,6 +17,7 @@ from tdtp import (
     ConnectionConfig,
     ControlReceived,
     DataReceived,
+    MultipathConfig,
     Role,
     State,
 )
@@ -44,14 +45,20 @@ ADDRESSES: dict[str, tuple[str, int]] = {
     "master": ("192.0.2.1", 40001),
     "slave": ("192.0.2.2", 40002),
     "stranger": ("198.51.100.7", 666),
+    "master_socket2": ("192.0.2.1", 40003),
     "master_moved": ("192.0.2.1", 50001),
     "master2": ("203.0.113.9", 40009),
     "master3": ("203.0.113.10", 40010),
 }
-"""The named addresses of the scripts: the endpoint suite uses the first three, the server suite
-all of them (a master after a NAT rebinding: same host, another port; two more masters, each a
-source of its own)."""
+"""The named addresses of the scripts: the endpoint suite uses the first three and (multipath) the
+master's second socket, the server suite all but that (a master after a NAT rebinding: same host,
+another port; two more masters, each a source of its own)."""
 COOKIE_PLACEHOLDER = "{cookie}"
+TOKEN_PLACEHOLDER = "{token}"
+"""In a multipath script: the 8-byte token of the last MP_CHALLENGE or MP_RESPONSE the endpoint sent
+with one (random: a runner echoes what it got)."""
+_MP_TOKEN = slice(5 + 1 + 16 + 1, 5 + 1 + 16 + 1 + 8)  # an unkeyed MP_CHALLENGE's token
+_MP_OWN_TOKEN = slice(5 + 1 + 16 + 1 + 8, 5 + 1 + 16 + 1 + 16)  # an MP_RESPONSE's own token
 _MAX_TIMER_RUNS = 16
 
 
@@ -91,6 +98,7 @@ def make_config(config: dict[str, Any]) -> ConnectionConfig:
         # The reorder wait is the receiver's local choice (PROTOCOL.md 5.5): the scripts pin
         # delivery without one, each new sample at once.
         max_reorder_wait=config.get("max_reorder_wait", 0.0),
+        multipath=MultipathConfig(**config["multipath"]) if "multipath" in config else None,
     )
 
 
@@ -143,12 +151,17 @@ class ScriptRunner(_Runner):
             keys=[key] if key is not None and role is Role.SLAVE else None,
         )
         self.cookie: bytes | None = None
+        self.token: bytes | None = None
 
     def _datagram(self, text: str) -> bytes:
         if COOKIE_PLACEHOLDER in text:
             if self.cookie is None:
                 raise ValueError("the script uses {cookie} before the endpoint sent a COOKIE")
             text = text.replace(COOKIE_PLACEHOLDER, self.cookie.hex())
+        if TOKEN_PLACEHOLDER in text:
+            if self.token is None:
+                raise ValueError("the script uses {token} before the endpoint sent a token")
+            text = text.replace(TOKEN_PLACEHOLDER, self.token.hex())
         return bytes.fromhex(text)
 
     def step(self, step: dict[str, Any]) -> dict[str, Any]:
@@ -192,6 +205,10 @@ class ScriptRunner(_Runner):
             if datagram[0] >> 6 == PacketType.CONTROL:
                 if datagram[5] == ControlCode.COOKIE:
                     self.cookie = datagram[-16:]
+                elif datagram[5] == ControlCode.MP_CHALLENGE:
+                    self.token = datagram[_MP_TOKEN]
+                elif datagram[5] == ControlCode.MP_RESPONSE and any(datagram[_MP_OWN_TOKEN]):
+                    self.token = datagram[_MP_OWN_TOKEN]
                 control.append(control_name(datagram, conn.keyed))
                 control_hex.append(datagram.hex())
         new = [

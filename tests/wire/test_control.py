@@ -78,6 +78,10 @@ UNKEYED_SIZES = {
     ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
     ControlCode.MESSAGE: 22,  # the smallest: code, nonce, seq, ack and a one-byte message
     ControlCode.MESSAGE_ACK: 19,
+    ControlCode.MP_CHALLENGE: 26,
+    ControlCode.MP_RESPONSE: 34,
+    ControlCode.MP_REPORT: 31,
+    ControlCode.MP_ABANDON: 19,
 }
 
 # Whole CONTROL datagrams, derived by hand field by field (docs/PROTOCOL.md section 7 shows the same).
@@ -225,6 +229,10 @@ def test_codes_and_constants_are_pinned() -> None:
         "PATH_RESPONSE": 9,
         "MESSAGE": 10,
         "MESSAGE_ACK": 11,
+        "MP_CHALLENGE": 17,
+        "MP_RESPONSE": 18,
+        "MP_REPORT": 19,
+        "MP_ABANDON": 20,
     }
     assert {r.name: int(r) for r in CloseReason} == {
         "NORMAL": 0,
@@ -243,6 +251,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "TAKEN_OVER": 13,
         "EVICTED": 14,
         "RESTARTING": 15,
+        "PATH_CLOSED": 19,
+        "PATH_LIMIT": 20,
     }
     assert int(OpenFlags.NONE) == 0
     assert {f.name: int(f) for f in OpenFlags if f.name} == {
@@ -250,6 +260,7 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEYED": 2,
         "ENCRYPTED": 4,
         "TAKEOVER": 8,
+        "MULTIPATH": 0x40,
     }
     assert {s.name: int(s) for s in CipherSuite} == {
         "NONE": 0,

@@ -13,6 +13,7 @@ from tdtp.wire import (
     CipherSuite,
     CloseReason,
     ControlCode,
+    MpReportBody,
     OpenAckBody,
     OpenBody,
     encode_close,
@@ -21,6 +22,10 @@ from tdtp.wire import (
     encode_keepalive,
     encode_message,
     encode_message_ack,
+    encode_mp_abandon,
+    encode_mp_challenge,
+    encode_mp_report,
+    encode_mp_response,
     encode_open,
     encode_open_ack,
     encode_path_challenge,
@@ -28,7 +33,10 @@ from tdtp.wire import (
     encode_reset,
 )
 
-from tdtp_adapter import COOKIE_PLACEHOLDER  # tests/vectors: generate.py puts it on the path
+from tdtp_adapter import (  # tests/vectors: generate.py puts it on the path
+    COOKIE_PLACEHOLDER,
+    TOKEN_PLACEHOLDER,
+)
 
 MASTER_NONCE = bytes.fromhex("00112233445566778899aabbccddeeff")
 SLAVE_NONCE = bytes.fromhex("f0e1d2c3b4a5968778695a4b3c2d1e0f")
@@ -700,6 +708,99 @@ def slave_control_channel() -> dict[str, Any]:
     }
 
 
+def _mp(body: bytes) -> str:
+    """A multipath control datagram (unkeyed) from the master (hex): header, then ``body``."""
+    return _hex(encode_header(2, MASTER_ISN + 2, 0, 0, 255) + body)
+
+
+def slave_multipath() -> dict[str, Any]:
+    """A multipath slave (PROTOCOL.md 5.11): the master opens path 1 from its second socket, the
+    slave validates it; copies, forged and refused multipath packets."""
+    s = MASTER_ISN
+    token = bytes.fromhex("0102030405060708")
+    flags = 0x40  # MULTIPATH
+    steps = [
+        _step(0.0, "master", _open(flags=flags)),
+        _step(0.010, "master", _open(cookie=True, attempt=1, flags=flags)),
+        _step(
+            0.020,
+            "master",
+            _hex(encode_header(2, s, 0, 0, 255) + encode_keepalive(MASTER_NONCE)),
+            note="the master's first packet of the session",
+        ),
+        _step(0.021, "master", _data(s, b"s1")),
+        _step(
+            0.022,
+            "master_socket2",
+            _mp(encode_mp_challenge(MASTER_NONCE, 1, token)),
+            note="a new path from the master's second socket: answered on it with the echo and a "
+            "token of the slave's own (within three times the challenge's bytes)",
+        ),
+        _step(0.023, "master_socket2", _data(s + 1, b"s2"), note="data on the new path: taken in"),
+        _step(0.024, "master", _data(s + 1, b"s2"), note="its copy on path 0: a duplicate"),
+        _step(
+            0.025,
+            "master_socket2",
+            _mp(encode_mp_response(MASTER_NONCE, 1, bytes.fromhex("ffeeddccbbaa9988"), bytes(8))),
+            note="an echo of a token the slave never sent",
+        ),
+        _step(
+            0.026,
+            "master_socket2",
+            _mp(encode_mp_response(MASTER_NONCE, 1, bytes(8), bytes(8))).replace(
+                "00" * 8 + "00" * 8, TOKEN_PLACEHOLDER + "00" * 8
+            ),
+            note="the master echoes the slave's token: path 1 is validated at the slave",
+        ),
+        _step(
+            0.027,
+            "master",
+            _mp(encode_mp_report(MpReportBody(MASTER_NONCE, 1, SLAVE_ISN, 255, 0, 0, 0))),
+            note="a report naming path 1 that came on path 0",
+        ),
+        _step(
+            0.028,
+            "stranger",
+            _mp(encode_mp_challenge(MASTER_NONCE, 2, token)),
+            note="a third path: over this slave's max_paths (2), refused with MP_ABANDON "
+            "PATH_LIMIT",
+        ),
+        _step(
+            0.029,
+            "stranger",
+            _mp(encode_mp_challenge(OTHER_NONCE, 3, token)),
+            note="another session's nonce from an address no path has",
+        ),
+        _step(
+            0.030,
+            "master_socket2",
+            _mp(encode_mp_challenge(MASTER_NONCE, 1, token)[:-1]),
+            note="a challenge one byte short",
+        ),
+        _step(
+            0.031,
+            "master",
+            _mp(encode_mp_abandon(OTHER_NONCE, 1, 19)),
+            note="an abandon with another nonce",
+        ),
+        _step(
+            0.032,
+            "master",
+            _mp(encode_mp_abandon(MASTER_NONCE, 1, 19)),
+            note="the master abandons path 1 (on path 0)",
+        ),
+        _step(0.033, "master_socket2", _data(s + 2, b"s3"), note="from path 1's address, gone now"),
+        _step(0.034, "master", _data(s + 2, b"s3")),
+    ]
+    return {
+        "name": "slave: a multipath session's second path, copies and forgeries",
+        "role": "slave",
+        "config": {"max_payload": 1200, "multipath": {"max_paths": 2}},
+        "random": _slave_random(),
+        "steps": steps,
+    }
+
+
 def master_path_challenge() -> dict[str, Any]:
     """Section 5.8: an established unkeyed master answers its slave's PATH_CHALLENGE with a
     PATH_RESPONSE (the token and its nonce), at most one per 5 ms; neither is a sign of life nor
@@ -888,4 +989,5 @@ def all_scripts() -> list[dict[str, Any]]:
         keyed_master_takeover_flags(),
         slave_keepalive_and_idle(),
         slave_opened_by_a_message(),
+        slave_multipath(),
     ]

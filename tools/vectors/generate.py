@@ -41,6 +41,7 @@ from tdtp.wire import (  # noqa: E402
     CipherSuite,
     CloseReason,
     ControlCode,
+    MpReportBody,
     OpenAckBody,
     OpenBody,
     decode_control,
@@ -53,6 +54,10 @@ from tdtp.wire import (  # noqa: E402
     encode_keepalive,
     encode_message,
     encode_message_ack,
+    encode_mp_abandon,
+    encode_mp_challenge,
+    encode_mp_report,
+    encode_mp_response,
     encode_open,
     encode_open_ack,
     encode_path_challenge,
@@ -76,6 +81,7 @@ from server_scripts import all_server_scripts  # noqa: E402  (beside this file)
 
 from tdtp_adapter import ADDRESSES, ScriptRunner, ServerRunner  # noqa: E402  (tests/vectors/)
 
+MP_TOKEN = bytes.fromhex("0102030405060708")
 FORMAT = "tdtp-conformance-vectors"
 FORMAT_VERSION = 1
 PROTOCOL_VERSION = WIRE_VERSION
@@ -387,6 +393,29 @@ def control_vectors() -> dict[str, Any]:
             "RESET, keyed: the echo and two tags (a slave holding two keys)",
             encode_reset(bytes(range(16)), (bytes(range(16, 32)), bytes(range(32, 48)))),
         ),
+        (
+            "OPEN asking for a multipath session (flag MULTIPATH, 0x40)",
+            encode_open(
+                OpenBody(WIRE_VERSION, 0x40, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16))
+            ),
+        ),
+        ("MP_CHALLENGE on path 1", encode_mp_challenge(MASTER_NONCE, 1, MP_TOKEN)),
+        (
+            "MP_RESPONSE on path 1: the echo and a token of the responder's",
+            encode_mp_response(MASTER_NONCE, 1, MP_TOKEN, MP_TOKEN[::-1]),
+        ),
+        (
+            "MP_RESPONSE with no token of its own (zeros)",
+            encode_mp_response(MASTER_NONCE, 1, MP_TOKEN, bytes(8)),
+        ),
+        (
+            "MP_REPORT for path 2: the nonce, newest 0xabc held 512 us, 1000 received, 600 first, lag 15 ms",
+            encode_mp_report(MpReportBody(MASTER_NONCE, 2, 0xABC, 0x40, 1000, 600, 150)),
+        ),
+        (
+            "MP_ABANDON of path 1, PATH_CLOSED",
+            encode_mp_abandon(MASTER_NONCE, 1, CloseReason.PATH_CLOSED),
+        ),
     ]
     valid = []
     for name, body in bodies:
@@ -434,6 +463,18 @@ def control_vectors() -> dict[str, Any]:
             encode_path_challenge(COOKIE_BYTES)[:1].replace(b"\x08", b"\x09") + COOKIE_BYTES,
         ),
         ("CLOSE without its reason", encode_close(ControlCode.CLOSE, MASTER_NONCE, 0)[:-1]),
+        ("code 16 (unassigned)", b"\x10" + bytes(20)),
+        ("code 21 (unassigned)", b"\x15" + bytes(20)),
+        ("MP_CHALLENGE one byte short", encode_mp_challenge(MASTER_NONCE, 1, MP_TOKEN)[:-1]),
+        (
+            "MP_RESPONSE without its own token",
+            encode_mp_response(MASTER_NONCE, 1, MP_TOKEN, MP_TOKEN)[:-8],
+        ),
+        (
+            "MP_REPORT one byte long",
+            encode_mp_report(MpReportBody(MASTER_NONCE, 1, 0, 0, 0, 0, 0)) + b"\x00",
+        ),
+        ("MP_ABANDON without its reason", encode_mp_abandon(MASTER_NONCE, 1, 19)[:-1]),
         ("REJECT one byte long", encode_close(ControlCode.REJECT, MASTER_NONCE, 0) + b"\x00"),
     ]
     invalid = []
@@ -890,6 +931,17 @@ def keyed_vectors() -> dict[str, Any]:
             "CLOSE",
             encode_header(2, 0x0ABD, 0, 0, 255) + b"\x04",
             encode_close(ControlCode.CLOSE, MASTER_NONCE, CloseReason.NORMAL)[1:],
+        ),
+        (
+            "MP_CHALLENGE: the code and the master's nonce are the 22-byte prefix",
+            encode_header(2, 0x0ABD, 0, 0, 255)
+            + encode_mp_challenge(MASTER_NONCE, 1, MP_TOKEN)[:17],
+            encode_mp_challenge(MASTER_NONCE, 1, MP_TOKEN)[17:],
+        ),
+        (
+            "MP_REPORT",
+            encode_header(2, 0x0ABD, 0, 0, 255) + b"\x13",
+            encode_mp_report(MpReportBody(MASTER_NONCE, 1, 0x123, 0x40, 7, 5, 3))[1:],
         ),
     ]
     for suite in (CipherSuite.AES_128_GCM, CipherSuite.CHACHA20_POLY1305):

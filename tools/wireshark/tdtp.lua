@@ -8,14 +8,16 @@
 -- What it decodes: the 5-byte base header (TYPE, SEQ, ACK, SACK, HOLD with the hold time in
 -- microseconds, and which peer packets the ACK/SACK fields report received or absent), DATA
 -- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, RESET,
--- PATH_CHALLENGE, PATH_RESPONSE, and the reliable control channel's MESSAGE and MESSAGE_ACK), and
+-- PATH_CHALLENGE, PATH_RESPONSE, the reliable control channel's MESSAGE and MESSAGE_ACK, and the
+-- multipath MP_CHALLENGE, MP_RESPONSE, MP_REPORT and MP_ABANDON), and
 -- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
 -- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
 -- expert info (Analyze > Expert Information; tshark: -z expert).
 --
 -- How it finds TDTP: TDTP has no port of its own (UDP 47000, which tdtp's examples use, belongs to
 -- HCrt in Wireshark). A heuristic claims any UDP datagram that is a well-formed TDTP handshake
--- message (code, exact size, version 4), and then every datagram of that address pair. For a
+-- message (code, exact size, version 4), and then every datagram of that address pair; a multipath
+-- session's further paths are claimed by their MP_CHALLENGE (right size, HOLD 255). For a
 -- capture that starts mid-session, list the slave's port in the preference "tdtp.ports"
 -- (tshark -o tdtp.ports:47000), or let heuristics run first (-o udp.try_heuristic_first:TRUE).
 -- Whether a session is keyed is learnt from its OPEN or OPEN_ACK; preference "tdtp.keyed" forces it.
@@ -28,6 +30,7 @@ local CODE_NAMES = {
     [7] = "RESET",
     [8] = "PATH_CHALLENGE", [9] = "PATH_RESPONSE",
     [10] = "MESSAGE", [11] = "MESSAGE_ACK",
+    [17] = "MP_CHALLENGE", [18] = "MP_RESPONSE", [19] = "MP_REPORT", [20] = "MP_ABANDON",
 }
 local SUITE_NAMES = { [0] = "none", [1] = "AES-128-GCM", [2] = "ChaCha20-Poly1305" }
 local REASON_NAMES = {
@@ -35,6 +38,7 @@ local REASON_NAMES = {
     [4] = "REFUSED", [5] = "BUSY", [6] = "KEY_REQUIRED", [7] = "KEY_UNKNOWN",
     [8] = "PAYLOAD_TOO_SMALL", [9] = "SUITE_UNSUPPORTED", [10] = "REPLACED", [11] = "KEY_EXHAUSTED",
     [12] = "IN_USE", [13] = "TAKEN_OVER", [14] = "EVICTED", [15] = "RESTARTING",
+    [19] = "PATH_CLOSED", [20] = "PATH_LIMIT",
 }
 local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknowledgement" }
 
@@ -50,6 +54,7 @@ local MESSAGE_ACK = 19
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
     [8] = { 22 }, [9] = { 38 },
+    [17] = { 31, 49 }, [18] = { 39, 57 }, [19] = { 36, 54 }, [20] = { 24, 42 },
 }
 
 local f = tdtp.fields
@@ -71,7 +76,8 @@ f.flag_separate = ProtoField.bool("tdtp.flags.separate_acks", "SEPARATE_ACKS", 8
 f.flag_keyed = ProtoField.bool("tdtp.flags.keyed", "KEYED", 8, nil, 0x02)
 f.flag_encrypted = ProtoField.bool("tdtp.flags.encrypted", "ENCRYPTED", 8, nil, 0x04)
 f.flag_takeover = ProtoField.bool("tdtp.flags.takeover", "TAKEOVER", 8, nil, 0x08)
-f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0xF0)
+f.flag_multipath = ProtoField.bool("tdtp.flags.multipath", "MULTIPATH", 8, nil, 0x40)
+f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0xB0)
 f.suite = ProtoField.uint8("tdtp.suite", "Cipher suite", base.DEC, SUITE_NAMES)
 f.max_payload = ProtoField.uint16("tdtp.max_payload", "Max payload", base.DEC)
 f.attempt = ProtoField.uint16("tdtp.attempt", "Attempt", base.DEC)
@@ -93,6 +99,14 @@ f.msg_seq = ProtoField.uint16("tdtp.message.seq", "Message number (low 16 bits)"
 f.msg_ack = ProtoField.uint16("tdtp.message.ack", "Next message expected from the peer (low 16 bits)", base.DEC_HEX)
 f.message = ProtoField.bytes("tdtp.message", "Control message")
 f.message_len = ProtoField.uint16("tdtp.message_len", "Control message length", base.DEC)
+f.path_id = ProtoField.uint8("tdtp.mp.path", "Path id", base.DEC)
+f.mp_token = ProtoField.bytes("tdtp.mp.token", "Token")
+f.mp_echo = ProtoField.bytes("tdtp.mp.echo", "Echo (the challenge's token)")
+f.mp_seq = ProtoField.uint16("tdtp.mp.seq", "Newest SEQ received on the path", base.DEC_HEX, nil, 0x0FFF)
+f.mp_hold = ProtoField.uint8("tdtp.mp.hold", "Its HOLD code", base.DEC, HOLD_NAMES)
+f.mp_received = ProtoField.uint32("tdtp.mp.received", "DATA received on the path", base.DEC)
+f.mp_first = ProtoField.uint32("tdtp.mp.first", "Of those, first copies", base.DEC)
+f.mp_lag = ProtoField.uint16("tdtp.mp.lag", "Lag behind the first copy (100 us)", base.DEC)
 
 local e = tdtp.experts
 e.truncated = ProtoExpert.new("tdtp.truncated", "Truncated: shorter than the 5-byte header",
@@ -134,6 +148,9 @@ tdtp.prefs.heuristic = Pref.bool("Find TDTP by its handshake", true,
 
 -- Address pairs known to carry TDTP: key -> list of {frame, keyed} changes in frame order.
 local sessions = {}
+-- Master nonces (hex) seen in OPEN / OPEN_ACK -> whether that session is keyed: a multipath
+-- session's new address pair learns its layout from the MP_CHALLENGE's nonce.
+local nonces = {}
 
 local function rshift(value, bits) return math.floor(value / 2 ^ bits) end
 local function low_bits(value, bits) return value % 2 ^ bits end
@@ -246,9 +263,10 @@ local function add_flags(tree, tvb, offset)
     item:add(f.flag_keyed, tvb(offset, 1))
     item:add(f.flag_encrypted, tvb(offset, 1))
     item:add(f.flag_takeover, tvb(offset, 1))
+    item:add(f.flag_multipath, tvb(offset, 1))
     item:add(f.flag_reserved, tvb(offset, 1))
     local flags = tvb(offset, 1):uint()
-    if flags >= 16 then item:add_proto_expert_info(e.reserved_flags) end
+    if low_bits(flags, 64) >= 16 or flags >= 128 then item:add_proto_expert_info(e.reserved_flags) end
     return flags, item
 end
 
@@ -339,6 +357,8 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
             tree:add_proto_expert_info(e.unverified_tag)
         end
         if flag_bit(flags, 1) then text = text .. " separate-acks" end
+        if flag_bit(flags, 64) then text = text .. " multipath" end
+        nonces[tvb(HEADER + 8, 16):bytes():tohex()] = is_keyed
         note_session(pinfo, is_keyed)
         return text
     end
@@ -381,6 +401,58 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         tree:add(f.path_token, tvb(HEADER + 1, 16))
         if code == 9 then tree:add(f.nonce, tvb(HEADER + 17, 16)) end
         return name
+    end
+    -- Multipath (section 5.11): a challenge or response carries the master's nonce in the clear.
+    if code == 17 or code == 18 then
+        local is_keyed = length == CONTROL_SIZES[code][2]
+        if not size_allowed(code, length) then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (wrong length)"
+        end
+        tree:add(f.nonce, tvb(HEADER + 1, 16))
+        note_session(pinfo, is_keyed)
+        if is_keyed then
+            local pn = add_sealed(tree, tvb, HEADER + 17, length)
+            return string.format("%s pn=%d", name, pn)
+        end
+        tree:add(f.path_id, tvb(HEADER + 17, 1))
+        local path = tvb(HEADER + 17, 1):uint()
+        if code == 17 then
+            tree:add(f.mp_token, tvb(HEADER + 18, 8))
+            return string.format("MP_CHALLENGE path=%d", path)
+        end
+        tree:add(f.mp_echo, tvb(HEADER + 18, 8))
+        tree:add(f.mp_token, tvb(HEADER + 26, 8))
+        return string.format("MP_RESPONSE path=%d", path)
+    end
+    if code == 19 or code == 20 then
+        if keyed then
+            if length ~= CONTROL_SIZES[code][2] then tree:add_proto_expert_info(e.bad_control) end
+            if length < HEADER + 1 + PN + TAG then return name .. " (truncated)" end
+            local pn = add_sealed(tree, tvb, HEADER + 1, length)
+            return string.format("%s pn=%d", name, pn)
+        end
+        if length ~= CONTROL_SIZES[code][1] then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (wrong length)"
+        end
+        if code == 20 then
+            tree:add(f.nonce, tvb(HEADER + 1, 16))
+            tree:add(f.path_id, tvb(HEADER + 17, 1))
+            tree:add(f.reason, tvb(HEADER + 18, 1))
+            local reason = tvb(HEADER + 18, 1):uint()
+            return string.format("MP_ABANDON path=%d %s", tvb(HEADER + 17, 1):uint(),
+                REASON_NAMES[reason] or tostring(reason))
+        end
+        tree:add(f.nonce, tvb(HEADER + 1, 16))
+        tree:add(f.path_id, tvb(HEADER + 17, 1))
+        tree:add(f.mp_seq, tvb(HEADER + 18, 2))
+        tree:add(f.mp_hold, tvb(HEADER + 20, 1))
+        tree:add(f.mp_received, tvb(HEADER + 21, 4))
+        tree:add(f.mp_first, tvb(HEADER + 25, 4))
+        tree:add(f.mp_lag, tvb(HEADER + 29, 2))
+        return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 17, 1):uint(),
+            tvb(HEADER + 21, 4):uint(), tvb(HEADER + 25, 4):uint())
     end
     -- The reliable control channel (section 5.10): session control, protected in a keyed session.
     if code == 10 or code == 11 then
@@ -459,7 +531,7 @@ function tdtp.dissector(tvb, pinfo, tree)
     if ptype == 2 and length > HEADER then
         local code = tvb(HEADER, 1):uint()
         handshake = code == 1 or code == 2 or code == 5 or code == 6 or code == 7 or code == 8
-            or code == 9
+            or code == 9 or code == 17 or code == 18
     end
     if not handshake then root:add(f.keyed, keyed):set_generated() end
     if ptype == 3 then
@@ -523,6 +595,16 @@ local function heuristic(tvb, pinfo, tree)
     local first = tvb(0, 1):uint()
     if rshift(first, 6) ~= 2 then return false end
     local code = tvb(HEADER, 1):uint()
+    if code == 17 and size_allowed(code, length) and tvb(4, 1):uint() == 255 then
+        -- A multipath session's new path: claimed when its nonce is a session's seen before (or
+        -- when nothing was seen: a capture of the new path alone).
+        local nonce = tvb(HEADER + 1, 16):bytes():tohex()
+        local keyed = nonces[nonce]
+        if keyed == nil then keyed = length == CONTROL_SIZES[17][2] end
+        note_session(pinfo, keyed)
+        tdtp.dissector(tvb, pinfo, tree)
+        return true
+    end
     if code ~= 1 and code ~= 2 and code ~= 5 and code ~= 6 then return false end
     if not size_allowed(code, length) or tvb(4, 1):uint() ~= 255 then return false end
     if code ~= 5 and tvb(HEADER + 1, 1):uint() ~= VERSION then return false end
@@ -546,4 +628,5 @@ end
 
 function tdtp.init()
     sessions = {}
+    nonces = {}
 end
