@@ -316,7 +316,8 @@ class ConnectionConfig:
     the TIMESTAMPS flag: both ends then stamp their send time on a packet at most this often, so
     that each measures the queue of its own direction and the true one-way age of a sample on an
     asymmetric path (docs/PROTOCOL.md 5.12; 5 bytes on about one packet in four at 1 kHz). ``0``:
-    no stamps (controllers judge by round trips, ages are half of one); a slave follows its master."""
+    no stamps (controllers judge by round trips, ages are half of one). A slave follows its master
+    (with 0 of its own it stamps every 4 ms); a multipath session never stamps."""
     admission: AdmissionConfig = field(default_factory=AdmissionConfig)
     """A slave's policy for OPENs: cookies and rate limits."""
     multipath: MultipathConfig | None = None

@@ -51,6 +51,8 @@ _WRAP_HALF: Final = STAMP_MODULUS // 2
 _TIMESTAMP: Final = int(ControlCode.TIMESTAMP)
 TIMED: Final = int(ControlCode.TIMED_DATA)
 __all__ = ["STAMP_CODES", "STAMP_SIZE", "TIMED", "OneWayDelay", "WindowMin", "wants_timestamps"]
+DEFAULT_INTERVAL: Final = 0.004
+"""Seconds between stamps of an end whose ``timestamp_interval`` is 0 in a session with stamps."""
 BASE_WINDOW: Final = 10.0
 """Seconds over which each direction's smallest delay is its base (the teleop controller's
 ``base_window``)."""
@@ -131,7 +133,8 @@ class OneWayDelay:
         recovery: LossRecovery,
         stats: ConnectionStats,
     ) -> None:
-        self._interval = config.timestamp_interval
+        # A slave follows its master's choice; with 0 of its own it stamps at the default pace.
+        self._interval = config.timestamp_interval or DEFAULT_INTERVAL
         self._controller = controller
         # A controller that reads one-way delays holds its rate through a silence of the peer
         # (the way back may be what failed): it waits for the watchdog's verdict first.

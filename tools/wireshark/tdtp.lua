@@ -9,7 +9,8 @@
 -- microseconds, and which peer packets the ACK/SACK fields report received or absent), DATA
 -- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, RESET,
 -- PATH_CHALLENGE, PATH_RESPONSE, the reliable control channel's MESSAGE and MESSAGE_ACK, and the
--- multipath MP_CHALLENGE, MP_RESPONSE, MP_REPORT and MP_ABANDON), and
+-- multipath MP_CHALLENGE, MP_RESPONSE, MP_REPORT and MP_ABANDON, the send timestamps TIMESTAMP and
+-- TIMED_DATA), and
 -- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
 -- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
 -- expert info (Analyze > Expert Information; tshark: -z expert).
@@ -30,6 +31,7 @@ local CODE_NAMES = {
     [7] = "RESET",
     [8] = "PATH_CHALLENGE", [9] = "PATH_RESPONSE",
     [10] = "MESSAGE", [11] = "MESSAGE_ACK",
+    [15] = "TIMESTAMP", [16] = "TIMED_DATA",
     [17] = "MP_CHALLENGE", [18] = "MP_RESPONSE", [19] = "MP_REPORT", [20] = "MP_ABANDON",
 }
 local SUITE_NAMES = { [0] = "none", [1] = "AES-128-GCM", [2] = "ChaCha20-Poly1305" }
@@ -50,6 +52,8 @@ local RESET_ECHO = 16
 -- MESSAGE: code, the master's nonce, seq, ack before the message; MESSAGE_ACK: code, nonce, ack.
 local MESSAGE_PREFIX = 21
 local MESSAGE_ACK = 19
+-- TIMESTAMP: code, the sender's clock (u32, microseconds); TIMED_DATA: the same, then the sample.
+local STAMP = 5
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
@@ -76,8 +80,9 @@ f.flag_separate = ProtoField.bool("tdtp.flags.separate_acks", "SEPARATE_ACKS", 8
 f.flag_keyed = ProtoField.bool("tdtp.flags.keyed", "KEYED", 8, nil, 0x02)
 f.flag_encrypted = ProtoField.bool("tdtp.flags.encrypted", "ENCRYPTED", 8, nil, 0x04)
 f.flag_takeover = ProtoField.bool("tdtp.flags.takeover", "TAKEOVER", 8, nil, 0x08)
+f.flag_timestamps = ProtoField.bool("tdtp.flags.timestamps", "TIMESTAMPS", 8, nil, 0x20)
 f.flag_multipath = ProtoField.bool("tdtp.flags.multipath", "MULTIPATH", 8, nil, 0x40)
-f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0xB0)
+f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0x90)
 f.suite = ProtoField.uint8("tdtp.suite", "Cipher suite", base.DEC, SUITE_NAMES)
 f.max_payload = ProtoField.uint16("tdtp.max_payload", "Max payload", base.DEC)
 f.attempt = ProtoField.uint16("tdtp.attempt", "Attempt", base.DEC)
@@ -107,6 +112,7 @@ f.mp_hold = ProtoField.uint8("tdtp.mp.hold", "Its HOLD code", base.DEC, HOLD_NAM
 f.mp_received = ProtoField.uint32("tdtp.mp.received", "DATA received on the path", base.DEC)
 f.mp_first = ProtoField.uint32("tdtp.mp.first", "Of those, first copies", base.DEC)
 f.mp_lag = ProtoField.uint16("tdtp.mp.lag", "Lag behind the first copy (100 us)", base.DEC)
+f.stamp = ProtoField.uint32("tdtp.stamp", "Sender's clock (us, low 32 bits)", base.DEC)
 
 local e = tdtp.experts
 e.truncated = ProtoExpert.new("tdtp.truncated", "Truncated: shorter than the 5-byte header",
@@ -263,10 +269,12 @@ local function add_flags(tree, tvb, offset)
     item:add(f.flag_keyed, tvb(offset, 1))
     item:add(f.flag_encrypted, tvb(offset, 1))
     item:add(f.flag_takeover, tvb(offset, 1))
+    item:add(f.flag_timestamps, tvb(offset, 1))
     item:add(f.flag_multipath, tvb(offset, 1))
     item:add(f.flag_reserved, tvb(offset, 1))
     local flags = tvb(offset, 1):uint()
-    if low_bits(flags, 64) >= 16 or flags >= 128 then item:add_proto_expert_info(e.reserved_flags) end
+    -- Bits 4 and 7 are reserved.
+    if low_bits(rshift(flags, 4), 1) == 1 or flags >= 128 then item:add_proto_expert_info(e.reserved_flags) end
     return flags, item
 end
 
@@ -305,7 +313,8 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         tree:add_proto_expert_info(e.unknown_code)
         return string.format("CONTROL code %d", code)
     end
-    if code ~= 3 and hold ~= 255 then tree:add_proto_expert_info(e.hold_control) end
+    -- KEEPALIVE, TIMESTAMP and TIMED_DATA carry an acknowledgement; the others HOLD 255.
+    if code ~= 3 and code ~= 15 and code ~= 16 and hold ~= 255 then tree:add_proto_expert_info(e.hold_control) end
     if code == 1 or code == 2 then
         -- OPEN / OPEN_ACK: fields in the clear, a 16-byte tag when KEYED.
         if length < HEADER + 3 then
@@ -453,6 +462,33 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         tree:add(f.mp_lag, tvb(HEADER + 29, 2))
         return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 17, 1):uint(),
             tvb(HEADER + 21, 4):uint(), tvb(HEADER + 25, 4):uint())
+    end
+    -- Send timestamps (section 5.12): an ACK's or a DATA's stand-in, protected in a keyed session.
+    if code == 15 or code == 16 then
+        if keyed then
+            if length < HEADER + 1 + PN + TAG then
+                tree:add_proto_expert_info(e.keyed_short)
+                return name .. " (truncated)"
+            end
+            local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
+            if (code == 15 and sealed ~= STAMP - 1) or (code == 16 and sealed < STAMP) then
+                tree:add_proto_expert_info(e.bad_control)
+            end
+            return string.format("%s pn=%d", name, pn)
+        end
+        if (code == 15 and length ~= HEADER + STAMP) or (code == 16 and length <= HEADER + STAMP) then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (wrong length)"
+        end
+        tree:add(f.stamp, tvb(HEADER + 1, 4))
+        local stamp = tvb(HEADER + 1, 4):uint()
+        if code == 15 then
+            return string.format("TIMESTAMP time=%d", stamp)
+        end
+        local data = length - HEADER - STAMP
+        tree:add(f.payload_len, data):set_generated()
+        tree:add(f.payload, tvb(HEADER + STAMP, data))
+        return string.format("TIMED_DATA time=%d len=%d", stamp, data)
     end
     -- The reliable control channel (section 5.10): session control, protected in a keyed session.
     if code == 10 or code == 11 then
