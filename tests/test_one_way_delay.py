@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import random
 
-from pair import MASTER_ADDR, SLAVE_ADDR, Direction, Pair
-
 from tdtp import Connection, ConnectionConfig, Role
 from tdtp.config import MultipathConfig
 from tdtp.wire import HEADER_SIZE, ControlCode, OpenFlags, PacketType, encode_header
 from tdtp.wire.control import encode_timestamp
 from tdtp.wire.hold import HOLD_NO_ACK
+
+from pair import MASTER_ADDR, SLAVE_ADDR, Direction, Pair
 
 
 def _open_flags(config: ConnectionConfig) -> int:
