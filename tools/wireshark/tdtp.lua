@@ -294,6 +294,16 @@ local function add_sealed(tree, tvb, offset, length)
 end
 
 -- CLOSE (unkeyed) and REJECT: the master's nonce and a reason.
+-- A keyed session's control packet (code in the clear): its packet number and the length of its
+-- sealed body, or nil and the summary when it is too short to hold them.
+local function keyed_control(tree, tvb, length, name)
+    if length < HEADER + 1 + PN + TAG then
+        tree:add_proto_expert_info(e.keyed_short)
+        return nil, name .. " (truncated)"
+    end
+    return add_sealed(tree, tvb, HEADER + 1, length)
+end
+
 local function close_fields(tree, tvb, length, name)
     if length ~= CONTROL_SIZES[5][1] then
         tree:add_proto_expert_info(e.bad_control)
@@ -466,11 +476,8 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
     -- Send timestamps (section 5.12): an ACK's or a DATA's stand-in, protected in a keyed session.
     if code == 15 or code == 16 then
         if keyed then
-            if length < HEADER + 1 + PN + TAG then
-                tree:add_proto_expert_info(e.keyed_short)
-                return name .. " (truncated)"
-            end
-            local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
+            local pn, sealed = keyed_control(tree, tvb, length, name)
+            if pn == nil then return sealed end
             if (code == 15 and sealed ~= STAMP - 1) or (code == 16 and sealed < STAMP) then
                 tree:add_proto_expert_info(e.bad_control)
             end
@@ -493,11 +500,8 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
     -- The reliable control channel (section 5.10): session control, protected in a keyed session.
     if code == 10 or code == 11 then
         if keyed then
-            if length < HEADER + 1 + PN + TAG then
-                tree:add_proto_expert_info(e.keyed_short)
-                return name .. " (truncated)"
-            end
-            local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
+            local pn, sealed = keyed_control(tree, tvb, length, name)
+            if pn == nil then return sealed end
             -- Sealed: the nonce and the numbers (MESSAGE: and at least one message byte).
             if (code == 10 and sealed < MESSAGE_PREFIX) or (code == 11 and sealed ~= MESSAGE_ACK - 1) then
                 tree:add_proto_expert_info(e.bad_control)
@@ -529,11 +533,8 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
     end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then
-        if length < HEADER + 1 + PN + TAG then
-            tree:add_proto_expert_info(e.keyed_short)
-            return name .. " (truncated)"
-        end
-        local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
+        local pn, sealed = keyed_control(tree, tvb, length, name)
+        if pn == nil then return sealed end
         -- What is sealed: the body after the code byte, less the packet number and the tag.
         if sealed ~= CONTROL_SIZES[code][2] - HEADER - 1 - PN - TAG then
             tree:add_proto_expert_info(e.bad_control)
