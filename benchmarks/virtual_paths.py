@@ -56,7 +56,14 @@ def _percentile(values: list[float], q: float) -> float:
 
 
 def run(
-    profile: str, controller: str, *, seed: int, duration: float, rate: float, size: int
+    profile: str,
+    controller: str,
+    *,
+    seed: int,
+    duration: float,
+    rate: float,
+    size: int,
+    warmup: float = 1.0,
 ) -> dict[str, Any]:
     forward, _, backward = profile.partition("|")
     spec = parse_netem(forward.strip())
@@ -79,7 +86,7 @@ def run(
     master.conn.connect(SLAVE, now=now)
     established_at: float | None = None
     next_tick = 0.0
-    measure_from = 1.0  # skip the opening second
+    measure_from = warmup  # skip the opening (the default: its first second)
 
     def flush(side: Side, t: float) -> None:
         for datagram, _addr in side.conn.datagrams_to_send(now=t):
@@ -182,6 +189,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--rate", type=float, default=1000.0)
     parser.add_argument("--size", type=int, default=100)
+    parser.add_argument(
+        "--warmup", type=float, default=1.0, help="seconds not measured (1; 0: the start-up counts)"
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -196,6 +206,7 @@ def main(argv: list[str] | None = None) -> int:
                     duration=args.duration,
                     rate=args.rate,
                     size=args.size,
+                    warmup=args.warmup,
                 )
                 for s in seeds
             ]
