@@ -21,8 +21,9 @@ MARK_BUILT := find tdtp -name '_core__mypyc.*' -exec touch {} +
 # conformance vectors and the packaging checks (the asyncio layer and the simulator run on the
 # compiled build, with the rest of the suite).
 # (The benchmark smoke tests run on the compiled build only: they start the pure build's variants
-# themselves.)
-PURE_TESTS := $(filter-out tests/test_benchmarks_smoke.py tests/test_kernel_bottleneck.py,$(wildcard tests/test_*.py)) tests/wire tests/control
+# themselves. So do the kernel tests of whole CLI processes in network namespaces, bottleneck and
+# NAT: the sans-IO parts they drive have their fake-time tests on both builds.)
+PURE_TESTS := $(filter-out tests/test_benchmarks_smoke.py tests/test_kernel_bottleneck.py tests/test_nat_kernel.py,$(wildcard tests/test_*.py)) tests/wire tests/control
 PURE_REST := $(filter-out tests/wire/ tests/control/,$(wildcard tests/*/))
 
 CLOSED_LOOP_ARGS ?=

@@ -13,6 +13,7 @@ from tdtp._moved_modules import install as _install_moved_modules
 from tdtp.aio.api import Server, ServerStats, connect, listen
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.reconnect import ReconnectPolicy, ReconnectRecord
+from tdtp.aio.rendezvous_relay import Relay, relay
 from tdtp.aio.ticker import Ticker, TickHandle
 from tdtp.aio.timer import monotonic
 from tdtp.config import (
@@ -44,6 +45,7 @@ from tdtp.errors import (
 )
 from tdtp.protection.key_file import load_key, load_keys, write_key_file
 from tdtp.protection.keys import KeyRing, PresharedKey
+from tdtp.rendezvous.settings import RelayConfig, Rendezvous
 from tdtp.session.connection import Connection
 from tdtp.session.events import (
     Address,
@@ -118,6 +120,9 @@ __all__ = [
     "ReconnectPolicy",
     "ReconnectRecord",
     "ReconnectingError",
+    "Relay",
+    "RelayConfig",
+    "Rendezvous",
     "Role",
     "Server",
     "ServerClosedError",
@@ -133,6 +138,7 @@ __all__ = [
     "load_key",
     "load_keys",
     "monotonic",
+    "relay",
     "write_key_file",
 ]
 

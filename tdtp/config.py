@@ -41,12 +41,14 @@ a slot is reclaimed from a master that is gone, never from one the watchdog saw 
 
 
 class Role(enum.Enum):
-    """Which end of a session a connection is: the master opens it, the slave accepts it."""
+    """Which end of a session a connection is: the master commands, the slave obeys. By default the
+    master dials (sends the OPEN) and the slave listens; either may dial (``dials=``,
+    ``tdtp.connect(role=...)``, ``tdtp.listen(role=...)``)."""
 
     MASTER = "master"
-    """Opens the connection (the operator's side: joystick, haptic device)."""
+    """The operator's side (joystick, haptic device)."""
     SLAVE = "slave"
-    """Accepts it (the remote robot or crane)."""
+    """The remote robot or crane."""
 
 
 class AckMode(enum.Enum):
@@ -315,7 +317,7 @@ class ConnectionConfig:
     """A master whose rate controller judges one-way delays (``teleop``) opens its sessions with
     the TIMESTAMPS flag: both ends then stamp their send time on a packet at most this often, so
     that each measures the queue of its own direction and the true one-way age of a sample on an
-    asymmetric path (docs/PROTOCOL.md 5.12; 5 bytes on about one packet in four at 1 kHz). ``0``:
+    asymmetric path (docs/PROTOCOL.md 5.13; 5 bytes on about one packet in four at 1 kHz). ``0``:
     no stamps (controllers judge by round trips, ages are half of one). A slave follows its master
     (with 0 of its own it stamps every 4 ms); a multipath session never stamps."""
     admission: AdmissionConfig = field(default_factory=AdmissionConfig)

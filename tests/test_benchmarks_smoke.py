@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import shutil
 import socket
 import subprocess
@@ -58,14 +59,25 @@ def test_codec() -> None:
 @needs_uvloop
 def test_throughput() -> None:
     report = _run("throughput.py", "--variants", "raw-uvloop", "tdtp-uvloop")
-    _assert_rows(report, 3)
+    runs = report["details"]["runs"]
+    # A window in which nothing moved (a neighbour stalled the machine for the whole 0.1 s) has no
+    # CPU per packet: the run says so with NaN and the capacity row has no repetition, instead of
+    # failing. Which case this is comes from what the run recorded, not from the clock.
+    stalled = any(
+        math.isnan(us) for r in runs.values() for run in r for us in run["cpu_us_per_packet"]
+    )
+    capacity = next(r for r in report["rows"] if "capacity" in r["figure"])
+    _assert_rows({"rows": [r for r in report["rows"] if not (stalled and r is capacity)]}, 2)
     tdtp = next(r for r in report["rows"] if r["figure"].startswith("tdtp"))
     assert tdtp["ratio"]["n"] == 1 and tdtp["target"]
     # The capacity ratio stands next to the measured one: raw's bottleneck CPU per packet over
     # tdtp's, from the same repetition.
-    capacity = next(r for r in report["rows"] if "capacity" in r["figure"])
-    assert capacity["ratio"]["n"] == 1 and capacity["target"] == tdtp["target"]
-    (run,) = report["details"]["runs"]["tdtp-uvloop"]
+    assert capacity["target"] == tdtp["target"]
+    if stalled:
+        assert capacity["reps"] == 0 and capacity["ratio"]["n"] == 0
+        return
+    assert capacity["ratio"]["n"] == 1 and capacity["reps"] == 1
+    (run,) = runs["tdtp-uvloop"]
     assert run["bottleneck_us"] == max(run["cpu_us_per_packet"]) > 0
 
 

@@ -7,6 +7,7 @@ here until the vectors are regenerated on purpose (tools/vectors/generate.py) an
 
 from __future__ import annotations
 
+import hmac
 import json
 import sys
 from collections.abc import Callable
@@ -21,7 +22,10 @@ from tdtp.protection.derivation import (
     derive_open_secret,
     derive_session_secrets,
 )
+from tdtp.protection.keys import PresharedKey
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
+from tdtp.rendezvous.relay import RelayCore
+from tdtp.rendezvous.settings import meeting
 from tdtp.session.receive_window import ReceiveWindow
 from tdtp.session.recovery import loss_delay_of
 from tdtp.session.rtt import RttEstimator
@@ -38,6 +42,14 @@ from tdtp.wire import (
     expand_seq,
 )
 from tdtp.wire.errors import MalformedPacketError
+from tdtp.wire.rendezvous import (
+    PROBE,
+    REGISTER,
+    ReferralKind,
+    decode_probe,
+    decode_referral,
+    decode_register,
+)
 
 VECTORS = Path(__file__).resolve().parent / "vectors"
 sys.path.insert(0, str(VECTORS))
@@ -55,6 +67,7 @@ SUITES = (
     "keyed",
     "endpoint",
     "server",
+    "rendezvous",
 )
 
 
@@ -333,6 +346,48 @@ def test_the_endpoint_scripts_cover_every_drop_reason() -> None:
     assert covered == {reason.value for reason in DropReason}
 
 
+def check_rendezvous(data: dict[str, Any]) -> int:
+    checked = 0
+    for vector in data["names"]:
+        key = None if vector["psk_hex"] is None else PresharedKey(bytes.fromhex(vector["psk_hex"]))
+        met = meeting(key, vector["rendezvous_name"])
+        assert met.rendezvous_id.hex() == vector["rendezvous_id_hex"], vector["name"]
+        assert met.probe_key.hex() == vector["probe_key_hex"], vector["name"]
+        checked += 1
+    probe_key = meeting(None, "robot-7").probe_key
+    for vector in data["probes"]:
+        body = decode_probe(bytes.fromhex(vector["datagram_hex"]))
+        tag = b"P" if body.code == PROBE else b"A"
+        mac = hmac.digest(probe_key, tag + bytes([vector["side"]]) + body.token, "sha256")[:16]
+        assert (body.token.hex(), body.mac) == (vector["token_hex"], mac), vector["name"]
+        checked += 1
+    for vector in data["valid"]:
+        raw = bytes.fromhex(vector["datagram_hex"])
+        body = decode_register(raw) if raw[5] == REGISTER else decode_referral(raw)
+        fields = vector["fields"]
+        for name, raw_value in body._asdict().items():
+            value = raw_value
+            if isinstance(raw_value, bytes):
+                value = raw_value.hex()
+            elif isinstance(raw_value, tuple):
+                value = [list(item) if isinstance(item, tuple) else item for item in raw_value]
+            assert value == fields[name], (vector["name"], name)
+        checked += 1
+    relay = RelayCore()
+    for number, vector in enumerate(data["relay_answers"]):
+        answers = relay.receive(
+            bytes.fromhex(vector["datagram_hex"]), ("198.51.100.9", number), 0.0
+        )
+        if vector["answer_kind"] is None:
+            assert answers == [], vector["name"]
+        else:
+            ((reply, _),) = answers
+            assert ReferralKind(decode_referral(reply).kind).name == vector["answer_kind"]
+            assert len(reply) == vector["answer_size"], vector["name"]
+        checked += 1
+    return checked
+
+
 CHECKS: dict[str, Callable[[dict[str, Any]], int]] = {
     "header": check_header,
     "hold": check_hold,
@@ -343,6 +398,7 @@ CHECKS: dict[str, Callable[[dict[str, Any]], int]] = {
     "keyed": check_keyed,
     "endpoint": check_endpoint,
     "server": check_server,
+    "rendezvous": check_rendezvous,
 }
 
 

@@ -116,7 +116,7 @@ def test_misuse_raises_specific_errors_that_say_what_to_do() -> None:
     with pytest.raises(ConnectionStateError, match="wait for the ConnectionEstablished"):
         master.send(b"x", now=0.0)
     slave = Connection(role=Role.SLAVE)
-    with pytest.raises(ConnectionStateError, match="for the master"):
+    with pytest.raises(ConnectionStateError, match="for the side that dials"):
         slave.connect(MASTER_ADDR, now=0.0)
     master.connect(SLAVE_ADDR, now=0.0)
     with pytest.raises(ConnectionStateError, match="already called"):

@@ -35,6 +35,7 @@ LAYERS: dict[str, int] = {
     "tdtp.config": 2,
     "tdtp.admission": 4,
     "tdtp.session": 5,
+    "tdtp.rendezvous": 5,
     # sans-IO pieces beside the core, for its drivers and for applications
     "tdtp.netem": 1,
     "tdtp.teleop": 1,
@@ -51,7 +52,14 @@ LAYERS: dict[str, int] = {
 }
 """A module may import modules of a lower layer and of its own group, nothing above."""
 
-CORE = ("tdtp.wire", "tdtp.protection", "tdtp.control", "tdtp.admission", "tdtp.session")
+CORE = (
+    "tdtp.wire",
+    "tdtp.protection",
+    "tdtp.control",
+    "tdtp.admission",
+    "tdtp.session",
+    "tdtp.rendezvous",
+)
 CORE_MUST_NOT_IMPORT = (
     "asyncio",
     "uvloop",

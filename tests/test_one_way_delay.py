@@ -1,4 +1,4 @@
-"""Send timestamps (PROTOCOL.md 5.12): who stamps, what each end reads into each direction's queue,
+"""Send timestamps (PROTOCOL.md 5.13): who stamps, what each end reads into each direction's queue,
 the sample age on an asymmetric path, what a forged stamp can do, and a direction whose way back
 fails (CONTROL.md 9.8). Fake time: tests/pair.py."""
 

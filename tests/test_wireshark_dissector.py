@@ -343,3 +343,49 @@ def test_a_demo_session_capture_decodes_field_by_field(tmp_path: Path) -> None:
     data_frames = sum(1 for row in rows if row[2] == "0")
     assert data_frames >= sent  # the master's DATA, plus the slave's it received
     assert {"0", "1", "6", "2"} <= kinds  # DATA, OPEN, COOKIE, OPEN_ACK at least
+
+
+def test_the_rendezvous_messages_and_a_relayed_session_decode(tmp_path: Path) -> None:
+    """REGISTER claims an endpoint's address pair with its relay (so the sessions it forwards are
+    TDTP too); every rendezvous message decodes field by field, the SLAVE_DIALS flag included."""
+    from tdtp.wire.control import OpenBody, OpenFlags, encode_open
+    from tdtp.wire.rendezvous import (
+        PROBE,
+        PROBE_ACK,
+        ReferralBody,
+        RegisterBody,
+        encode_probe,
+        encode_referral,
+        encode_register,
+    )
+
+    endpoint, relay = ("192.0.2.9", 40009), ("192.0.2.10", 7700)
+    nonce, rid = bytes(range(16)), bytes(range(16, 32))
+    register = encode_register(RegisterBody(1, nonce, rid, bytes(16), (("192.168.1.2", 40009),)))
+    peer = ReferralBody(2, 0, nonce, bytes(16), 30, endpoint, ("203.0.113.2", 5000), False, ())
+    opening = encode_header(2, 7, 0, 0, 255) + encode_open(
+        OpenBody(
+            PROTOCOL_VERSION, int(OpenFlags.SLAVE_DIALS), 0, 1200, 0, nonce, bytes(8), bytes(16)
+        )
+    )
+    datagrams = [
+        (endpoint, relay, register),
+        (relay, endpoint, encode_referral(peer)),
+        (endpoint, ("203.0.113.2", 5000), encode_probe(PROBE, b"t" * 16, b"m" * 16)),
+        (("203.0.113.2", 5000), endpoint, encode_probe(PROBE_ACK, b"t" * 16, b"n" * 16)),
+        (relay, endpoint, opening),  # a session forwarded by the relay
+    ]
+    path = tmp_path / "rendezvous.pcap"
+    with PcapWriter(path) as writer:
+        for number, (src, dst, datagram) in enumerate(datagrams):
+            writer.write_udp(src, dst, datagram, 1.0 + number / 1000)
+    fields = ["frame.protocols", "_ws.expert.message", "tdtp.code", "tdtp.rendezvous_id",
+              "tdtp.referral.kind", "tdtp.probe.token", "tdtp.flags.slave_dials", "_ws.col.Info"]  # fmt: skip
+    rows = tshark_fields(path, fields, *HEURISTICS_FIRST, home=tmp_path)
+    assert [row[2] for row in rows] == ["21", "22", "23", "24", "1"]
+    assert all(row[0].endswith(":tdtp") for row in rows[:2] + rows[4:]), rows
+    assert rows[0][3] == rid.hex(":") or rows[0][3] == rid.hex()
+    assert rows[1][4] == "2" and "PEER" in rows[1][7]
+    assert "REGISTER listener" in rows[0][7]
+    assert rows[4][6] in ("True", "1")
+    assert not any("Malformed" in row[1] or "Reserved" in row[1] for row in rows), rows

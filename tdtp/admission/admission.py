@@ -29,7 +29,7 @@ from typing import Final, NamedTuple
 from tdtp.admission.cookie import CookieJar
 from tdtp.admission.path_migration import PathMigration
 from tdtp.admission.rate_limit import SourceRateLimiter, TokenBucket
-from tdtp.config import ConnectionConfig
+from tdtp.config import ConnectionConfig, Role
 from tdtp.protection.derivation import derive_open_secret, reset_tag
 from tdtp.protection.keys import KeyRing, PresharedKey
 from tdtp.protection.packet_protection import Direction
@@ -132,9 +132,13 @@ class Admission:
         keys: KeyRing | None = None,
         *,
         rng: random.Random | None = None,
+        role: Role = Role.SLAVE,
     ) -> None:
         self.config = config if config is not None else ConnectionConfig()
         self.keys = keys
+        self.role = role
+        """The listener's own role: an OPEN from a dialer of the same role is refused
+        (``ROLE_CONFLICT``)."""
         policy = self.config.admission
         rng = rng if rng is not None else random.SystemRandom()
         self._cookies = CookieJar(rng.randbytes(32), policy.cookie_lifetime)
@@ -264,6 +268,8 @@ class Admission:
                 now,
             )
         # The master receives at this address: answers to it are no longer reflections.
+        if bool(body.flags & OpenFlags.SLAVE_DIALS) != (self.role is Role.MASTER):
+            return _refuse(body.nonce, CloseReason.ROLE_CONFLICT)
         key: PresharedKey | None = None
         keys = self.keys
         if keys is not None and not keyed:

@@ -37,14 +37,22 @@ from tdtp.aio.opening import (
     _released,
     address_error,
     established,
+    refused_text,
 )
 from tdtp.aio.reconnect import ReconnectPolicy, as_policy
 from tdtp.aio.server import Server, ServerStats, listen
 from tdtp.aio.timer import TimerPreference, monotonic
+from tdtp.aio.traversal import dial_via_rendezvous
 from tdtp.config import ConnectionConfig, Role
-from tdtp.errors import ConnectError, InvalidArgumentError, PortUnreachableError
+from tdtp.errors import (
+    ArgumentTypeError,
+    ConnectError,
+    InvalidArgumentError,
+    PortUnreachableError,
+)
 from tdtp.netem import NetemSpec
 from tdtp.protection.keys import OneKeyInput, PresharedKey, as_key
+from tdtp.rendezvous.settings import Rendezvous, meeting
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
 from tdtp.session.state import State
@@ -63,10 +71,11 @@ __all__ = [
 logger = logging.getLogger("tdtp")
 
 
-class _MasterProtocol(asyncio.DatagramProtocol):
+class _DialerProtocol(asyncio.DatagramProtocol):
     def __init__(self) -> None:
         self.endpoint: Endpoint | None = None
         self.where = ""
+        self.peer_role = Role.SLAVE
         self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
 
     def datagram_received(self, data: bytes, addr: Address) -> None:
@@ -79,16 +88,7 @@ class _MasterProtocol(asyncio.DatagramProtocol):
         if endpoint is None:
             return
         if isinstance(exc, ConnectionRefusedError) and endpoint.connection.state is State.OPENING:
-            # The slave's host answered our OPEN with ICMP port unreachable: nobody listens.
-            endpoint.fail_open(
-                PortUnreachableError(
-                    f"nothing listens at {self.where} (the host refused the OPEN with ICMP port "
-                    "unreachable); start the slave there, or check the host and port. A slave "
-                    "started with tdtp.listen() binds 127.0.0.1 unless given a host: to be "
-                    'reached from other machines it listens on "0.0.0.0" or its own address '
-                    "(tdtp slave binds 0.0.0.0)"
-                )
-            )
+            endpoint.fail_open(PortUnreachableError(refused_text(self.where, self.peer_role)))
             return
         # Once established, an ICMP error alone does not end the session (a slave restarting, a
         # route flapping): the watchdog and the outage limit decide.
@@ -108,9 +108,11 @@ class _MasterProtocol(asyncio.DatagramProtocol):
 
 
 def connect(
-    host: str,
-    port: int,
+    host: str | None = None,
+    port: int | None = None,
     *,
+    rendezvous: Rendezvous | None = None,
+    role: Role = Role.MASTER,
     config: ConnectionConfig | None = None,
     local_addr: tuple[str, int] | None = None,
     timer: TimerPreference = "auto",
@@ -125,9 +127,14 @@ def connect(
     local_addresses: Sequence[str | tuple[str, int] | LocalAddress] | None = None,
     path_netem: Sequence[NetemSpec | str | None] | None = None,
 ) -> Opener[Endpoint]:
-    """Open a master connection to the slave at ``host``:``port`` and wait until it is accepted.
+    """Dial the peer listening at ``host``:``port`` and wait until it accepts the session.
 
     ``async with tdtp.connect(host, port) as ep:`` (or ``ep = await tdtp.connect(host, port)``).
+    By default this end is the master and dials a slave (``tdtp.listen``). ``role=Role.SLAVE``
+    makes it a slave (a robot) that dials its master (``tdtp.listen(role=Role.MASTER)``): the way
+    to reach a robot behind a NAT or firewall that takes no incoming datagrams. Either way the
+    listening side validates the dialer's address, checks its key and may be exclusive exactly
+    as a listening slave does; a listener of the same role refuses with ``role_conflict``.
     Arguments are checked at once (:class:`~tdtp.InvalidArgumentError`). Raises
     :class:`~tdtp.AddressError` when ``host`` cannot be resolved, :class:`~tdtp.PortUnreachableError`
     as soon as the slave's host reports that nothing listens on ``port``, and
@@ -162,19 +169,32 @@ def connect(
     behaves), the first copy wins, and the session rides out any path's failure. ``ep.paths`` has
     each path's figures and events. ``path_netem`` (one per local address) impairs each path both
     ways in-process (``netem`` is then not allowed).
+
+    ``rendezvous=tdtp.Rendezvous(relay_host, relay_port)`` (instead of ``host`` and ``port``) meets
+    a peer that listens with the same rendezvous (``tdtp.listen(rendezvous=...)``) through a relay
+    (``tdtp relay``): both may sit behind NATs. The session opens on a direct path when one works
+    within ``direct_wait``, else through the relay, and moves between them as they come and go
+    (``ep.rendezvous.report()``; docs/NAT.md). A keyed pair meets under a name derived from its
+    key; an unkeyed one gives ``Rendezvous(..., name=...)``. Not with ``netem`` or ``pcap``.
     """
     policy = as_policy(reconnect)
+    if not isinstance(role, Role):
+        raise ArgumentTypeError(f"role must be tdtp.Role.MASTER or tdtp.Role.SLAVE, got {role!r}")
+    if rendezvous is not None:
+        if local_addresses is not None or path_netem is not None:
+            raise InvalidArgumentError(
+                "rendezvous= meets the peer on one socket: not with local_addresses or path_netem"
+            )
+        return _connect_rendezvous(
+            host, port, rendezvous, role, config, local_addr, timer, on_data, on_watchdog, rng,
+            netem, key, pcap, policy,
+        )  # fmt: skip
     if not isinstance(host, str) or not host:
         raise InvalidArgumentError(f"host must be a host name or address, got {host!r}")
-    _check_port(port, allow_zero=False)
-    if local_addr is not None:
-        if not (isinstance(local_addr, tuple) and len(local_addr) == 2):
-            raise InvalidArgumentError(
-                f"local_addr must be a (host, port) tuple, got {local_addr!r}"
-            )
-        _check_port(local_addr[1], allow_zero=True)
+    port = _check_port(port, allow_zero=False)
+    _check_local(local_addr)
     spec = _check_common(config, timer, on_data, on_watchdog, netem)
-    master_key = as_key(key) if key is not None else None  # checked now, as the rest
+    dialer_key = as_key(key) if key is not None else None  # checked now, as the rest
     if local_addresses is not None or path_netem is not None:
         if isinstance(local_addresses, str) or not local_addresses:
             raise InvalidArgumentError(
@@ -201,7 +221,7 @@ def connect(
                 rng=rng,
                 path_netem=specs,
                 netem_seed=netem_seed,
-                key=master_key,
+                key=dialer_key,
                 reconnect=policy,
             )
         )
@@ -209,6 +229,7 @@ def connect(
         lambda: _connect(
             host,
             port,
+            role=role,
             config=config,
             local_addr=local_addr,
             timer=timer,
@@ -217,7 +238,7 @@ def connect(
             rng=rng,
             netem=spec,
             netem_seed=netem_seed,
-            key=master_key,
+            key=dialer_key,
             pcap=pcap,
             reconnect=policy,
         )
@@ -228,6 +249,7 @@ async def _connect(
     host: str,
     port: int,
     *,
+    role: Role,
     config: ConnectionConfig | None,
     local_addr: tuple[str, int] | None,
     timer: TimerPreference,
@@ -246,14 +268,14 @@ async def _connect(
     except OSError as exc:
         raise address_error(exc, "connect to", host, port) from exc
     family, _, _, _, remote = infos[0]
-    conn = Connection(config, role=Role.MASTER, rng=rng, key=key)
+    conn = Connection(config, role=role, dials=True, rng=rng, key=key)
     capture = open_capture(pcap) if pcap is not None else None
     # Both loops want (host, port) here and resolve it again themselves; the core compares only
     # host and port, so an IPv6 peer's 4-tuple source address still matches ``remote``.
     try:
         transport, protocol = await datagram_endpoint(
             loop,
-            _MasterProtocol,
+            _DialerProtocol,
             remote_addr=(str(remote[0]), int(remote[1])),
             local_addr=local_addr,
             family=family,
@@ -268,6 +290,7 @@ async def _connect(
         raise
     _limit_write_buffer(transport)
     protocol.where = format_address((host, port))
+    protocol.peer_role = Role.SLAVE if role is Role.MASTER else Role.MASTER
     socket_side: asyncio.DatagramTransport = transport
     recorder: CapturingTransport | None = None
     if capture is not None:
@@ -295,7 +318,7 @@ async def _connect(
         on_closed=_close_transport,
         transport_closed=_wait_transport_closed,
         reconnect=reconnect,
-        new_connection=lambda: Connection(config, role=Role.MASTER, rng=rng, key=key),
+        new_connection=lambda: Connection(config, role=role, dials=True, rng=rng, key=key),
         outbox=batched.outbox if batched is not None and direct else None,
     )
     protocol.endpoint = endpoint
@@ -307,6 +330,62 @@ async def _connect(
 
     def unreachable() -> None:
         transport.close()
-        logger.info("tdtp master: nothing listens at %s", protocol.where)
+        logger.info("tdtp %s: nothing listens at %s", role.value, protocol.where)
 
     return await established(endpoint, protocol.where, port, unreachable)
+
+
+def _check_local(local_addr: object) -> None:
+    if local_addr is not None:
+        if not (isinstance(local_addr, tuple) and len(local_addr) == 2):
+            raise InvalidArgumentError(
+                f"local_addr must be a (host, port) tuple, got {local_addr!r}"
+            )
+        _check_port(local_addr[1], allow_zero=True)
+
+
+def _connect_rendezvous(
+    host: object,
+    port: object,
+    rendezvous: object,
+    role: Role,
+    config: ConnectionConfig | None,
+    local_addr: tuple[str, int] | None,
+    timer: TimerPreference,
+    on_data: DataCallback | None,
+    on_watchdog: WatchdogCallback | None,
+    rng: random.Random | None,
+    netem: NetemSpec | str | None,
+    key: OneKeyInput | None,
+    pcap: CaptureTarget | None,
+    policy: ReconnectPolicy | None,
+) -> Opener[Endpoint]:
+    """``connect(rendezvous=...)``: the checks, then :func:`tdtp.aio.traversal.dial_via_rendezvous`."""
+    if not isinstance(rendezvous, Rendezvous):
+        raise ArgumentTypeError(
+            f"rendezvous must be a tdtp.Rendezvous(host, port, ...), got {rendezvous!r}"
+        )
+    if host is not None or port is not None:
+        raise InvalidArgumentError(
+            "give the peer's host and port, or rendezvous= (where both meet), not both"
+        )
+    if netem is not None or pcap is not None:
+        raise InvalidArgumentError("netem= and pcap= are not available with rendezvous=")
+    _check_local(local_addr)
+    _check_common(config, timer, on_data, on_watchdog, None)
+    chosen = as_key(key) if key is not None else None
+    meeting(chosen, rendezvous.name)  # an unkeyed rendezvous without a name fails here
+    return Opener(
+        lambda: dial_via_rendezvous(
+            rendezvous,
+            role=role,
+            config=config,
+            key=chosen,
+            local_addr=local_addr,
+            timer=timer,
+            on_data=on_data,
+            on_watchdog=on_watchdog,
+            rng=rng,
+            reconnect=policy,
+        )
+    )

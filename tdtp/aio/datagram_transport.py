@@ -34,6 +34,8 @@ __all__ = [
     "create_datagram_endpoint",
     "datagram_endpoint",
     "enabled",
+    "layer_description",
+    "layer_under",
 ]
 
 ENV: Final = "TDTP_DATAGRAM_LAYER"
@@ -49,6 +51,29 @@ def enabled() -> bool:
     if value == "":
         return datagram_build_info().compiled
     return value != "0"
+
+
+def layer_under(transport: object) -> DatagramLayer | None:
+    """The datagram layer under ``transport`` and any wrappers around it (a pcap capture,
+    in-process impairment: each holds the transport it wraps as ``_transport``), or ``None`` (the
+    loop's own transport): what ``Endpoint.sockets`` and ``Endpoint.datagram_layer_stats`` read."""
+    while transport is not None:
+        layer = getattr(transport, "layer", None)
+        if isinstance(layer, DatagramLayer):
+            return layer
+        transport = getattr(transport, "_transport", None)
+    return None
+
+
+def layer_description(layer: DatagramLayer | None) -> str:
+    """What carries an endpoint's datagrams, in words: ``"datagram layer (compiled, coalescing)"``
+    (the C engine, segmenting bursts), ``"datagram layer (compiled)"``, ``"datagram layer
+    (pure)"``, or ``"loop's transport"`` (``layer`` is ``None``)."""
+    if layer is None:
+        return "loop's transport"
+    if layer.engine == "compiled" and layer.stats.get("segmenting"):
+        return "datagram layer (compiled, coalescing)"
+    return f"datagram layer ({layer.engine})"
 
 
 def _engine() -> Literal["auto", "pure"]:

@@ -36,8 +36,9 @@ import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import Any, Final, Protocol
+from typing import TYPE_CHECKING, Final, Protocol
 
+from tdtp.aio.datagram_transport import layer_description, layer_under
 from tdtp.aio.loop_timers import TimerEntry, loop_timers
 from tdtp.aio.multipath import PathSet
 from tdtp.aio.outbox import SocketOutbox
@@ -67,6 +68,9 @@ from tdtp.session.events import (
 )
 from tdtp.session.state import CLOSED, ESTABLISHED, State
 from tdtp.session.stats import ConnectionStats
+
+if TYPE_CHECKING:
+    from tdtp.aio.traversal import Traversal
 
 __all__ = [
     "ControlCallback",
@@ -132,6 +136,7 @@ class Endpoint:
         reconnect: ReconnectPolicy | None = None,
         new_connection: Callable[[], Connection] | None = None,
         outbox: SocketOutbox | None = None,
+        reopen_to: Callable[[], Address | None] | None = None,
     ) -> None:
         self._conn = conn
         self._socket = transport
@@ -149,6 +154,8 @@ class Endpoint:
         self._on_watchdog = on_watchdog
         self._on_closed = on_closed
         self._on_established = on_established
+        self.rendezvous: Traversal | None = None
+        """Met through a rendezvous: its path, candidates tried (``.report()``); else ``None``."""
         self._transport_closed = transport_closed
         self._queue: deque[DataReceived] = deque()
         self._max_queue = conn.config.max_pending_events
@@ -168,7 +175,7 @@ class Endpoint:
         self._resumed: PeerResumed | None = None
         self._send_errors = 0
         self._reconnect = (
-            Reconnector(reconnect, new_connection, loop)
+            Reconnector(reconnect, new_connection, loop, reopen_to)
             if reconnect is not None and new_connection is not None
             else None
         )
@@ -240,24 +247,15 @@ class Endpoint:
         """What carries this endpoint's datagrams: ``"datagram layer (compiled, coalescing)"``
         (the C engine, segmenting bursts; :mod:`tdtp.aio.datagram`), ``"datagram layer
         (compiled)"``, ``"datagram layer (pure)"``, or ``"loop's transport"``."""
-        layer = self._datagram_layer()
-        if layer is None:
-            return "loop's transport"
-        engine: str = layer.engine
-        if engine == "compiled" and layer.stats.get("segmenting"):
-            return "datagram layer (compiled, coalescing)"
-        return f"datagram layer ({engine})"
+        return layer_description(layer_under(self._socket))
 
     @property
     def datagram_layer_stats(self) -> dict[str, int] | None:
         """The datagram layer's counters for this endpoint's socket (system calls, datagrams and
         bytes each way, coalesced sends and receives, errors by kind; shared by every session of
         a :class:`~tdtp.Server`), or ``None`` on the loop's transport."""
-        layer = self._datagram_layer()
-        if layer is None:
-            return None
-        stats: dict[str, int] = layer.stats
-        return stats
+        layer = layer_under(self._socket)
+        return None if layer is None else layer.stats
 
     @property
     def netem_link(self) -> NetemLink | None:
@@ -265,17 +263,6 @@ class Endpoint:
         ``None``: its ``stats``, and with a trace its ``trace_queue``."""
         link: NetemLink | None = getattr(getattr(self._socket, "line", None), "link", None)
         return link
-
-    def _datagram_layer(self) -> Any:
-        """The socket's datagram layer under any wrappers (a pcap capture, in-process impairment:
-        each holds the transport it wraps as ``_transport``), or ``None``."""
-        transport: object = self._transport
-        while transport is not None:
-            layer = getattr(transport, "layer", None)
-            if layer is not None:
-                return layer
-            transport = getattr(transport, "_transport", None)
-        return None
 
     @property
     def established(self) -> bool:
@@ -804,8 +791,7 @@ class Endpoint:
             if not self._established.done():
                 self._established.set_result(None)
             if self._on_established is not None:
-                callback, self._on_established = self._on_established, None
-                callback(self)
+                self._on_established(self)  # every session: a reconnecting one's next ones too
         else:
             reconnect = self._reconnect
             if reconnect is not None and reconnect.may_reopen(

@@ -14,10 +14,10 @@ import random
 import socket
 from collections.abc import Callable, Sequence
 
-from tdtp.aio.endpoint import DataCallback, Endpoint, WatchdogCallback
+from tdtp.aio.endpoint import DataCallback, Endpoint, WatchdogCallback, format_address
 from tdtp.aio.impairment import ImpairedTransport, impaired_receiver
 from tdtp.aio.multipath import LocalAddress, PathSet, open_socket
-from tdtp.aio.opening import address_error, established
+from tdtp.aio.opening import address_error, established, refused_text
 from tdtp.aio.reconnect import ReconnectPolicy
 from tdtp.aio.timer import TimerPreference, monotonic
 from tdtp.config import ConnectionConfig, MultipathConfig, Role
@@ -80,12 +80,8 @@ async def connect_multipath(
         # The slave's host answered our OPEN with ICMP port unreachable: nobody listens.
         opening = bool(holder) and holder[0].connection.state is State.OPENING
         if opening and isinstance(exc, ConnectionRefusedError):
-            holder[0].fail_open(
-                PortUnreachableError(
-                    f"nothing listens at {host}:{port} (the host refused the OPEN with ICMP "
-                    "port unreachable); start the slave there, or check the host and port"
-                )
-            )
+            where = format_address((host, port))
+            holder[0].fail_open(PortUnreachableError(refused_text(where, Role.SLAVE)))
 
     try:
         transport, _ = await open_socket(loop, first, remotes[0], receive0, refused)
@@ -124,4 +120,4 @@ async def connect_multipath(
         raise address_error(exc, f"bind {locals_[number]} and connect to", host, port) from exc
     conn.connect(remotes[0], now=monotonic())
     endpoint.flush()
-    return await established(endpoint, f"{host}:{port}", port, transport.close)
+    return await established(endpoint, format_address((host, port)), port, transport.close)

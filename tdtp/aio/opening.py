@@ -16,7 +16,7 @@ from tdtp.aio.capture import CapturingTransport
 from tdtp.aio.endpoint import Endpoint, format_address
 from tdtp.aio.impairment import as_spec
 from tdtp.aio.timer import check_timer_preference
-from tdtp.config import ConnectionConfig
+from tdtp.config import ConnectionConfig, Role
 from tdtp.errors import (
     AddressError,
     ArgumentTypeError,
@@ -148,29 +148,48 @@ async def _released(closed: asyncio.Future[None], transport: asyncio.DatagramTra
         await asyncio.shield(closed)
 
 
-def no_answer_hint(port: int) -> str:
-    """What to check when the slave never answered: the likely causes, in the order to check them."""
+def refused_text(where: str, peer_role: Role) -> str:
+    """What an ICMP port unreachable in answer to our OPEN means: nothing listens there, or a NAT
+    or firewall in front of the peer answered for it (it has no mapping for an unsolicited
+    datagram); what to do about either."""
+    peer = peer_role.value
     return (
-        ". Nothing came back: check that the slave runs and that this machine can reach it. "
-        "tdtp.listen() binds 127.0.0.1 unless given a host, so a slave meant for other machines "
+        f"nothing listens at {where}: the answer to our OPEN was ICMP port unreachable. Either no "
+        f"{peer} runs there (start it, or check the host and port; a {peer} started with "
+        "tdtp.listen() binds 127.0.0.1 unless given a host: to be reached from other machines it "
+        f'listens on "0.0.0.0" or its own address), or the {peer} sits behind a NAT or firewall '
+        "that answered for it: let it dial out to us instead, or meet through a relay "
+        "(docs/NAT.md, 'The robot behind NAT')"
+    )
+
+
+def no_answer_hint(port: int, peer_role: Role) -> str:
+    """What to check when the peer never answered: the likely causes, in the order to check them."""
+    peer = peer_role.value
+    us = "master" if peer_role is Role.SLAVE else "slave"
+    return (
+        f". Nothing came back: check that the {peer} runs and that this machine can reach it. "
+        f"tdtp.listen() binds 127.0.0.1 unless given a host, so a {peer} meant for other machines "
         'listens on "0.0.0.0" or its own address (tdtp slave binds 0.0.0.0); a firewall on the '
-        f"way must let UDP port {port} through; and a slave behind NAT needs UDP port {port} "
-        "forwarded to it (a master behind NAT needs nothing: its OPEN opens the way back)"
+        f"way must let UDP port {port} through; and a {peer} behind NAT needs UDP port {port} "
+        f"forwarded to it, or dials out itself, or meets us through a relay (docs/NAT.md) (a {us} "
+        "behind NAT needs nothing: its OPEN opens the way back)"
     )
 
 
 async def established(
     endpoint: Endpoint, where: str, port: int, unreachable: Callable[[], None]
 ) -> Endpoint:
-    """Wait until a master's session is established: :class:`~tdtp.ConnectError` if the slave
-    refused or never answered (with :func:`no_answer_hint` then), :class:`~tdtp.PortUnreachableError`
-    as soon as its host said nothing listens (``unreachable`` releases the socket then: nobody to
-    send a CLOSE to)."""
+    """Wait until a dialing endpoint's session is established: :class:`~tdtp.ConnectError` if the
+    peer refused or never answered (with :func:`no_answer_hint` then),
+    :class:`~tdtp.PortUnreachableError` as soon as its host said nothing listens (``unreachable``
+    releases the socket then: nobody to send a CLOSE to)."""
     try:
         await endpoint.wait_established()
     except EndpointClosedError as exc:
         await endpoint.close()
-        hint = no_answer_hint(port) if exc.event.cause is CloseCause.OPEN_TIMEOUT else ""
+        peer = Role.SLAVE if endpoint.connection.role is Role.MASTER else Role.MASTER
+        hint = no_answer_hint(port, peer) if exc.event.cause is CloseCause.OPEN_TIMEOUT else ""
         raise ConnectError(f"could not open a TDTP connection to {where}: {exc}{hint}") from exc
     except PortUnreachableError:
         # fail_open() released the endpoint already

@@ -199,6 +199,7 @@ class Reconnector:
         policy: ReconnectPolicy,
         new_connection: Callable[[], Connection],
         loop: asyncio.AbstractEventLoop,
+        reopen_to: Callable[[], Address | None] | None = None,
     ) -> None:
         self.policy = policy
         self.record = ReconnectRecord()
@@ -210,6 +211,7 @@ class Reconnector:
         """The endpoint closed its session itself after ``after_silence``: reopen."""
         self._handle: asyncio.TimerHandle | None = None
         self._remote: Address | None = None
+        self._reopen_to = reopen_to  # where the next session opens (default: the last peer)
 
     def may_reopen(self, event: ConnectionClosed, *, established: bool, closing: bool) -> bool:
         """Whether the session that ended with ``event`` leads to a reopening (counting a failed
@@ -256,7 +258,7 @@ class Reconnector:
     def open(self, conn: Connection, now: float) -> bool:
         """The back-off is over: connect ``conn`` (False: nothing to do, the endpoint closed)."""
         self._handle = None
-        remote = self._remote
+        remote = self._remote if self._reopen_to is None else self._reopen_to()
         if remote is None or conn.state is not State.IDLE:
             return False
         conn.connect(remote, now=now)

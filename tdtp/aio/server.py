@@ -44,6 +44,7 @@ from tdtp.aio.opening import (
 )
 from tdtp.aio.outbox import SocketOutbox
 from tdtp.aio.timer import TimerPreference, monotonic
+from tdtp.aio.traversal import Traversal, is_rendezvous, local_candidates, move_session
 from tdtp.config import ConnectionConfig, Role
 from tdtp.errors import (
     ArgumentTypeError,
@@ -54,6 +55,8 @@ from tdtp.errors import (
 )
 from tdtp.netem import NetemSpec
 from tdtp.protection.keys import KeyInput, KeyRing, KeysInput, as_key_ring
+from tdtp.rendezvous.client import PathChange, RendezvousClient
+from tdtp.rendezvous.settings import Meeting, Rendezvous, meeting
 from tdtp.session.connection import Connection
 from tdtp.session.events import Address
 from tdtp.wire.control import NONCE_SIZE, CloseReason, ControlCode, OpenFlags
@@ -165,7 +168,15 @@ class Server:
         keys: KeyRing | None = None,
         exclusive: bool = False,
         takeover_after: int = 3,
+        role: Role = Role.SLAVE,
     ) -> None:
+        if not isinstance(role, Role):
+            raise ArgumentTypeError(
+                f"role must be tdtp.Role.SLAVE or tdtp.Role.MASTER, got {role!r}"
+            )
+        self.role = role
+        """What this listening end is: a slave (robot) that masters dial, by default, or a master
+        (operator) that its slaves dial."""
         if isinstance(max_peers, bool) or not isinstance(max_peers, int) or max_peers < 1:
             raise InvalidArgumentError(f"max_peers must be an integer >= 1, got {max_peers!r}")
         if not isinstance(exclusive, bool):
@@ -189,7 +200,7 @@ class Server:
         self._timer = timer
         self._on_data = on_data
         self._on_watchdog = on_watchdog
-        self._admission = Admission(config, keys)
+        self._admission = Admission(config, keys, role=role)
         policy = self._admission.config
         self._slots = SessionSlots(policy, max_peers)
         self._notices = EvictionNotices(max_peers, policy.idle_timeout, policy.silence_timeout)
@@ -212,6 +223,10 @@ class Server:
         self._waiters: list[asyncio.Future[None]] = []
         """Tasks waiting in accept(): each one looks again when a master is established."""
         self._closed = False
+        self._traversal: Traversal | None = None
+        """Through a rendezvous (``listen(rendezvous=...)``): the client that meets the dialer."""
+        self._rendezvous_endpoint: Endpoint | None = None
+        """The session that came through the rendezvous (its paths are the client's)."""
         self.stats = ServerStats(
             admission=self._admission.stats,
             migration=self._admission.paths.stats,
@@ -235,6 +250,11 @@ class Server:
     def keyed(self) -> bool:
         """Whether this server accepts keyed sessions only."""
         return self._admission.keys is not None
+
+    @property
+    def rendezvous(self) -> Traversal | None:
+        """Listening through a rendezvous: its path, candidates tried (``.report()``); else None."""
+        return self._traversal
 
     @property
     def endpoints(self) -> list[Endpoint]:
@@ -287,6 +307,8 @@ class Server:
             raise ArgumentTypeError(f"restarting must be True or False, got {restarting!r}")
         if not self._closed:
             self._closed = True
+            if self._traversal is not None:
+                self._traversal.close()
             for endpoint in list(self._sessions):
                 await endpoint.close(restarting=restarting)
             if self._sender is not None:
@@ -333,6 +355,9 @@ class Server:
             # The connection ended on this OPEN: its master restarted and opens anew.
         if self._closed:
             return
+        traversal = self._traversal
+        if traversal is not None and self._through_rendezvous(traversal, data, addr):
+            return
         # Only an OPEN may lead to state, and only once admitted. Anything else may be a master
         # whose address changed (path migration, within a bounded budget) or, when no session
         # claims it, a master whose session died with a restart of ours: it gets a RESET.
@@ -347,6 +372,43 @@ class Server:
             self._sender.sendto(verdict.datagram, addr)
         elif isinstance(verdict, AdmittedOpen):
             self._open(verdict, key, addr, now)
+
+    def _rendezvous_received(self, data: bytes, addr: Address) -> None:
+        """The socket's receiver when listening through a rendezvous: the client's messages first,
+        whatever address they come from (a session's too), then as usual."""
+        traversal = self._traversal
+        if traversal is not None and is_rendezvous(data):
+            traversal.receive(data, addr)
+            return
+        self._datagram_received(data, addr)
+
+    def _through_rendezvous(self, traversal: Traversal, data: bytes, addr: Address) -> bool:
+        """A datagram of the rendezvous session from another of its paths (taken as from the path
+        in use). False: it is not."""
+        endpoint = self._rendezvous_endpoint
+        if endpoint is None or endpoint.is_closed or is_open(data):
+            return False
+        if (str(addr[0]), int(addr[1])) not in traversal.client.accepted:
+            return False
+        peer = endpoint.peer
+        assert peer is not None
+        now = monotonic()
+        endpoint.connection.receive_datagram(data, peer, now=now)
+        endpoint.flush(now)
+        return True
+
+    def _move_rendezvous_session(self, change: PathChange) -> None:
+        endpoint = self._rendezvous_endpoint
+        if endpoint is None or endpoint.is_closed:
+            return
+        old = endpoint.peer
+        move_session(endpoint, change)
+        new = endpoint.peer
+        if old is not None and new is not None and old != new:
+            # Keyed by the path in use: the other path's datagrams come in through the rendezvous.
+            if self._peers.get(_peer_key(old)) is endpoint:
+                del self._peers[_peer_key(old)]
+            self._peers[_peer_key(new)] = endpoint
 
     def _learn_path(self, data: bytes, key: tuple[object, object], addr: Address) -> bool:
         """An MP_CHALLENGE from an address no session holds: the master of a multipath session
@@ -484,7 +546,7 @@ class Server:
         if placement.holder is not None:
             self._evict(placement.holder, placement.detail, now)
         self._notices.forget(key)
-        conn = Connection(self._config, role=Role.SLAVE, admission=self._admission)
+        conn = Connection(self._config, role=self.role, dials=False, admission=self._admission)
         endpoint = Endpoint(
             conn,
             self._sender,
@@ -498,6 +560,9 @@ class Server:
         )
         self._peers[key] = endpoint
         self._sessions[endpoint] = None
+        traversal = self._traversal
+        if traversal is not None and (str(addr[0]), int(addr[1])) in traversal.client.accepted:
+            self._rendezvous_endpoint = endpoint
         pending = self._pending
         if len(pending) >= self._backlog:
             # Callback style (on_data): the session is served either way; accept() sees the
@@ -522,6 +587,10 @@ class Server:
 
     def _on_established(self, endpoint: Endpoint) -> None:
         self.stats.peers_accepted += 1
+        if self._traversal is not None and endpoint is self._rendezvous_endpoint:
+            peer = endpoint.peer
+            assert peer is not None
+            self._traversal.in_session(peer)
         self._wake()
 
     def _forget(self, endpoint: Endpoint) -> None:
@@ -554,6 +623,8 @@ def listen(
     reuse_port: bool = False,
     exclusive: bool = False,
     takeover_after: int = 3,
+    role: Role = Role.SLAVE,
+    rendezvous: Rendezvous | None = None,
 ) -> Opener[Server]:
     """Bind a slave's UDP socket. ``port=0`` picks a free port (see :attr:`Server.port`).
 
@@ -589,6 +660,17 @@ def listen(
     ``takeover_after`` watchdog periods (``silence_timeout`` each; 1 to 1000, default 3), or the new
     one is keyed and connects with ``ConnectionConfig(takeover=True)``: then the old session ends with
     the cause ``taken_over`` and the new master takes control.
+
+    ``role=Role.MASTER`` makes this end the master (the operator's station) that its slaves dial
+    (``tdtp.connect(..., role=Role.SLAVE)``): a robot behind a NAT reaches it without any port
+    forward at its end. Admission, keys, ``max_peers`` and ``exclusive`` work as above with the
+    roles swapped (an exclusive master takes one slave at a time).
+
+    ``rendezvous=tdtp.Rendezvous(relay_host, relay_port)`` also waits for the dialer at a relay
+    (``tdtp relay``), so that a peer behind a NAT reaches this end behind another: the session runs
+    on a direct path when the two can punch one, else through the relay (docs/NAT.md). It meets one
+    peer: keyed, give one key (the name is derived from it) or a name; unkeyed, a name. ``host``
+    then defaults to every interface.
     """
     if host is not None and not isinstance(host, str):
         raise InvalidArgumentError(f"host must be an address, a host name or None, got {host!r}")
@@ -605,6 +687,22 @@ def listen(
         raise InvalidKeyError("pass key= (one key) or keys= (several), not both")
     chosen = keys if keys is not None else key
     ring = as_key_ring(chosen) if chosen is not None else None
+    met: Meeting | None = None
+    if rendezvous is not None:
+        if not isinstance(rendezvous, Rendezvous):
+            raise ArgumentTypeError(
+                f"rendezvous must be a tdtp.Rendezvous(host, port, ...), got {rendezvous!r}"
+            )
+        if netem is not None or pcap is not None:
+            raise InvalidArgumentError("netem= and pcap= are not available with rendezvous=")
+        if ring is not None and len(ring) != 1 and rendezvous.name is None:
+            raise InvalidKeyError(
+                "a rendezvous meets one peer: give the listener one key (the name is derived from "
+                "it), or Rendezvous(..., name=...)"
+            )
+        met = meeting(next(iter(ring)) if ring is not None else None, rendezvous.name)
+        if host == "127.0.0.1":
+            host = None  # the default: the relay and the peer are elsewhere
     server = Server(
         config=config,
         max_peers=max_peers,
@@ -615,8 +713,46 @@ def listen(
         keys=ring,
         exclusive=exclusive,
         takeover_after=takeover_after,
+        role=role,
     )
-    return Opener(lambda: _listen(server, host, port, spec, netem_seed, timer, pcap, reuse_port))
+    bound_host = host
+
+    async def start() -> Server:
+        opened = await _listen(server, bound_host, port, spec, netem_seed, timer, pcap, reuse_port)
+        if rendezvous is not None and met is not None:
+            await _meet(opened, rendezvous, met)
+        return opened
+
+    return Opener(start)
+
+
+async def _meet(server: Server, settings: Rendezvous, met: Meeting) -> None:
+    """Register the listening socket at the relay and start hole punching from it."""
+    loop = asyncio.get_running_loop()
+    try:
+        infos = await loop.getaddrinfo(settings.host, settings.port, type=socket.SOCK_DGRAM)
+    except OSError as exc:
+        await server.close()
+        raise address_error(exc, "reach the relay at", settings.host, settings.port) from exc
+    remote = infos[0][4]
+    relay_addr: Address = (str(remote[0]), int(remote[1]))
+    sender = server._sender
+    transport = server._transport
+    protocol = server._protocol
+    assert sender is not None and transport is not None and protocol is not None
+    # Per datagram through the rendezvous's receiver (no batch demultiplexer): its messages can
+    # come from a session's own address.
+    if isinstance(transport, BatchedDatagramTransport):
+        transport.batch_receiver = None
+    _deliver_to(protocol, server._rendezvous_received, None)
+    local = local_candidates(relay_addr, server.sockname)
+    client = RendezvousClient(settings, met, listener=True, relay=relay_addr, local=local)
+    traversal = Traversal(client, sender.sendto, server._move_rendezvous_session)
+    server._traversal = traversal
+    traversal.start()
+    logger.info(
+        "tdtp %s: waiting at the rendezvous %s", server.role.value, format_address(relay_addr)
+    )
 
 
 async def _listen(
@@ -668,6 +804,9 @@ async def _listen(
             server._peers, server._datagram_received, server._outbox
         )
     logger.info(
-        "tdtp slave: listening on %s%s", server._where(), " (keyed)" if server.keyed else ""
+        "tdtp %s: listening on %s%s",
+        server.role.value,
+        server._where(),
+        " (keyed)" if server.keyed else "",
     )
     return server

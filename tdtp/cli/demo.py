@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+import secrets
+from dataclasses import replace
 from typing import Any
 
 from tdtp.aio.api import connect, listen
@@ -25,7 +27,13 @@ from tdtp.cli.live_stats import (
     LiveDisplay,
 )
 from tdtp.cli.netem_view import netem_lines, netem_report
-from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
+from tdtp.cli.options import (
+    netem_directions,
+    netem_seed,
+    rendezvous_settings,
+    session_config,
+    side_deadband,
+)
 from tdtp.cli.outcome import Outcome, Side, header_line, settings_report
 from tdtp.cli.paths_report import continuity
 from tdtp.cli.session_tasks import (
@@ -63,11 +71,15 @@ async def _demo(
 ) -> None:
     duration = args.duration if args.duration is not None else 5.0
     ms_spec, sm_spec = netem_directions(args)
+    meet = rendezvous_settings(args)
+    if meet is not None and meet.name is None and not keys.keyed:
+        meet = replace(meet, name=secrets.token_hex(16))  # both ends are ours: any secret name
     paths = args.path or []
     async with (
         listen(
-            "127.0.0.1",
+            "127.0.0.1" if meet is None else "0.0.0.0",
             0,
+            rendezvous=meet,
             config=config,
             timer=args.timer,
             on_data=slave_side.on_data,
@@ -76,8 +88,9 @@ async def _demo(
             keys=keys.slave,
         ) as server,
         connect(
-            "127.0.0.1",
-            server.port,
+            "127.0.0.1" if meet is None else None,
+            server.port if meet is None else None,
+            rendezvous=meet,
             config=config,
             timer=args.timer,
             on_data=master_side.on_data,
@@ -182,6 +195,11 @@ async def _demo(
                     end=start + spent,
                 ),
             }
+            if master.rendezvous is not None and server.rendezvous is not None:
+                outcome.summary["rendezvous"] = {
+                    "master": master.rendezvous.report(master_side.first_sample_at),
+                    "slave": server.rendezvous.report(slave_side.first_sample_at),
+                }
             for key, ep in (("master_to_slave", master), ("slave_to_master", slave)):
                 if (link := netem_report(ep)) is not None:
                     outcome.summary[key]["emulated_link"] = link

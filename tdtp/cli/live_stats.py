@@ -122,7 +122,7 @@ class DirectionMeter:
         if sender.rate_limit:
             parts.append(f"limit: {sender.rate_limit}")
         if sender.timestamps:
-            # This direction's own queue, from the receiver's send times (PROTOCOL.md 5.12).
+            # This direction's own queue, from the receiver's send times (PROTOCOL.md 5.13).
             parts.append(f"queue {sender.queue_delay_out * 1e3:5.1f} ms")
         if latency:
             parts.append(

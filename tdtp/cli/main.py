@@ -33,9 +33,10 @@ from tdtp.cli.keys import (
 )
 from tdtp.cli.master import run_master
 from tdtp.cli.netem_relay import run_relay
-from tdtp.cli.options import UsageError, build_parser, session_config
+from tdtp.cli.options import UsageError, build_parser, rendezvous_settings, session_config
 from tdtp.cli.outcome import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED, Outcome
 from tdtp.cli.parser import EXIT_USAGE
+from tdtp.cli.relay import run_rendezvous_relay
 from tdtp.cli.simulate import simulate_main
 from tdtp.cli.slave import run_slave
 from tdtp.cli.summary import summary_text
@@ -70,6 +71,7 @@ RUNNERS: dict[str, Runner] = {
     "master": run_master,
     "slave": run_slave,
     "netem-relay": run_relay,
+    "relay": run_rendezvous_relay,
 }
 _USAGE_ERRORS = (
     UsageError,
@@ -81,6 +83,40 @@ _USAGE_ERRORS = (
     PayloadTooLargeError,
 )
 """Errors that a different command line fixes: exit status 2."""
+
+
+def check_command_line(args: argparse.Namespace) -> None:
+    """What argparse cannot say: which ways to find the peer go together."""
+    meet = getattr(args, "rendezvous", None) is not None
+    if args.command == "master":
+        ways = [args.address is not None, args.listen is not None, meet]
+        if sum(ways) != 1:
+            raise UsageError(
+                "give the slave's HOST:PORT to dial it, --listen PORT to let it dial this master, "
+                "or --rendezvous HOST:PORT to meet it at a relay (one of the three)"
+            )
+    if args.command == "slave":
+        if args.connect is not None and meet:
+            raise UsageError("give --connect HOST:PORT or --rendezvous HOST:PORT, not both")
+        if args.port is None and args.connect is None and not meet:
+            raise UsageError(
+                "give --port N to listen, --connect HOST:PORT to dial the master, or "
+                "--rendezvous HOST:PORT to meet it at a relay"
+            )
+    if meet and args.command in ("demo", "master", "slave"):
+        if getattr(args, "netem", None) or getattr(args, "netem_ms", None) or args.pcap:
+            raise UsageError("--netem and --pcap are not available with --rendezvous")
+        if getattr(args, "path", None) or getattr(args, "local_address", None):
+            raise UsageError(
+                "--rendezvous meets the peer on one socket: not with --path or --local-address"
+            )
+        rendezvous_settings(args)
+        unkeyed = getattr(args, "key_file", None) is None and not getattr(args, "keyed", False)
+        if unkeyed and args.rendezvous_name is None and args.command != "demo":
+            raise UsageError(
+                "an unkeyed --rendezvous needs --rendezvous-name NAME (the same on both "
+                "sides); with --key-file the name is derived from the key"
+            )
 
 
 async def _run(runner: Runner, args: argparse.Namespace, outcome: Outcome) -> None:
@@ -120,6 +156,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return bandwidth_main(arguments[1:])
     args = build_parser().parse_args(arguments)  # exits 2 with argparse's message on its own
     try:
+        check_command_line(args)
         if args.command in ("demo", "master", "slave"):
             args.session_keys = session_keys(args)
         if hasattr(args, "timer"):
@@ -145,7 +182,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(exc, EXIT_FAILED)
     if outcome.summary is not None:
         try:
-            if args.json or args.command == "netem-relay":
+            if args.json or args.command in ("netem-relay", "relay"):
                 print(json.dumps(outcome.summary, indent=2))
             elif args.command == "demo":
                 print(demo_table(outcome.summary))

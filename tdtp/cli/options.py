@@ -20,6 +20,7 @@ from tdtp.errors import (
 )
 from tdtp.netem import NetemSpec, parse_netem
 from tdtp.netem.spec import MAX_SEED
+from tdtp.rendezvous.settings import Rendezvous
 from tdtp.teleop.deadband import DeadbandConfig, DeadbandSender
 from tdtp.teleop.haptic_sample import SAMPLE_SIZE
 from tdtp.wire.header import HEADER_SIZE
@@ -137,6 +138,31 @@ def _positive_seconds(text: str) -> float:
     return value
 
 
+def _add_reconnect_arguments(parser: argparse.ArgumentParser, peer: str) -> None:
+    parser.add_argument(
+        "--reconnect",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help=f"when dialing: open a new session when the {peer} restarts (its CLOSE says "
+        f"RESTARTING, or a RESET says it restarted), evicts this end (after a back-off), the "
+        f"session idles out, or the {peer} is silent for --reconnect-after seconds (default: on)",
+    )
+    parser.add_argument(
+        "--reconnect-after",
+        type=_positive_seconds,
+        default=3.0,
+        metavar="SECONDS",
+        help=f"silence from the {peer} after which a dialer that reconnects opens a new session (3)",
+    )
+
+
+def _listen_address(text: str) -> tuple[str, int]:
+    """``--listen``: ``PORT``, ``:PORT`` or ``HOST:PORT`` (port 0 picks a free one)."""
+    if text.isdigit():
+        text = ":" + text
+    return _host_port_or_port(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     common = CommandParser(add_help=False)
     common.add_argument(
@@ -195,6 +221,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds of silence after which the session is given up (30)",
     )
     common.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    meet = common.add_argument_group(
+        "rendezvous", "meet the peer through a relay (tdtp relay) when both sit behind NATs"
+    )
+    meet.add_argument(
+        "--rendezvous",
+        type=host_port,
+        metavar="HOST:PORT",
+        help="the relay to meet at: the session runs on a direct path when the NATs let one "
+        "through, else through the relay (docs/NAT.md)",
+    )
+    meet.add_argument(
+        "--rendezvous-name",
+        metavar="NAME",
+        help="what both sides meet under (keyed: derived from the key unless given; unkeyed: "
+        "required, and anyone who knows it can meet you there)",
+    )
     common.add_argument(
         "--pcap",
         metavar="FILE",
@@ -251,11 +293,20 @@ def build_parser() -> argparse.ArgumentParser:
         'e.g. --path "delay 20ms loss 2%%" --path "delay 35ms"): a multipath session',
     )
     add_key_arguments(demo, demo=True)
-    slave = commands.add_parser("slave", parents=[common], help="serve masters on a UDP port")
-    slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
-    slave.add_argument(
-        "--port", type=_integer(0, 65535), required=True, help="UDP port (0: any free port)"
+    slave = commands.add_parser(
+        "slave", parents=[common], help="serve masters on a UDP port, or dial one (--connect)"
     )
+    slave.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
+    where = slave.add_mutually_exclusive_group()
+    where.add_argument("--port", type=_integer(0, 65535), help="UDP port (0: any free port)")
+    where.add_argument(
+        "--connect",
+        type=host_port,
+        metavar="HOST:PORT",
+        help="dial the master listening there (tdtp master --listen PORT) instead of listening: "
+        "a robot behind a NAT or firewall reaches its operator without a port forward",
+    )
+    _add_reconnect_arguments(slave, "master")
     slave.add_argument(
         "--max-peers", type=_integer(1, 1 << 20), default=256, help="masters served at once (256)"
     )
@@ -284,22 +335,21 @@ def build_parser() -> argparse.ArgumentParser:
         "always says shutdown",
     )
     add_key_arguments(slave)
-    master = commands.add_parser("master", parents=[common], help="connect to a slave")
-    master.add_argument("address", type=host_port, help="the slave, HOST:PORT")
-    master.add_argument(
-        "--reconnect",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="open a new session when the slave restarts (its CLOSE says RESTARTING, or a RESET "
-        "says it restarted), evicts this master (after a back-off), the session idles out, or the "
-        "slave is silent for --reconnect-after seconds (default: on)",
+    master = commands.add_parser(
+        "master", parents=[common], help="connect to a slave, or let one dial in (--listen)"
     )
     master.add_argument(
-        "--reconnect-after",
-        type=_positive_seconds,
-        default=3.0,
-        metavar="SECONDS",
-        help="silence from the slave after which a reconnecting master opens a new session (3)",
+        "address",
+        type=host_port,
+        nargs="?",
+        help="the slave, HOST:PORT (or --listen, --rendezvous)",
+    )
+    master.add_argument(
+        "--listen",
+        type=_listen_address,
+        metavar="[HOST:]PORT",
+        help="listen there for a slave that dials this master (tdtp slave --connect) instead of "
+        "dialing one; a bare PORT listens on every interface",
     )
     master.add_argument(
         "--local-address",
@@ -309,6 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
         "=HOST:PORT for another of the slave's addresses); repeat for each path, the first "
         "carries the session's opening: a multipath session",
     )
+    _add_reconnect_arguments(master, "slave")
     master.add_argument(
         "--takeover",
         action="store_true",
@@ -316,6 +367,28 @@ def build_parser() -> argparse.ArgumentParser:
         "that has it (needs --key-file)",
     )
     add_key_arguments(master)
+    rendezvous_relay = commands.add_parser(
+        "relay",
+        help="a rendezvous relay for masters and slaves behind NATs (--rendezvous)",
+        description="Meet masters and slaves that register under the same name, tell them each "
+        "other's addresses to punch through their NATs, and relay their datagrams while they "
+        "cannot (docs/NAT.md).",
+    )
+    rendezvous_relay.add_argument("--host", default="0.0.0.0", help="address to bind (0.0.0.0)")
+    rendezvous_relay.add_argument(
+        "--port", type=_integer(0, 65535), required=True, help="UDP port (0: any free port)"
+    )
+    rendezvous_relay.add_argument("--duration", type=_duration, help="seconds to run")
+    rendezvous_relay.add_argument(
+        "--max-registrations",
+        type=_integer(2, 1 << 20),
+        default=4096,
+        help="registrations held at once, two per rendezvous (4096)",
+    )
+    rendezvous_relay.add_argument(
+        "--json", action="store_true", help="print one JSON summary at the end"
+    )
+    rendezvous_relay.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
     relay = commands.add_parser(
         "netem-relay",
         help="an impairing UDP relay for any application",
@@ -428,3 +501,17 @@ def netem_directions(args: argparse.Namespace) -> tuple[NetemSpec | None, NetemS
 def netem_seed(args: argparse.Namespace, offset: int) -> int | None:
     seed: int | None = getattr(args, "netem_seed", None)
     return None if seed is None else seed + offset
+
+
+def rendezvous_settings(args: argparse.Namespace) -> Rendezvous | None:
+    """The ``--rendezvous`` (and ``--rendezvous-name``) of a run, or None."""
+    where: tuple[str, int] | None = getattr(args, "rendezvous", None)
+    name: str | None = getattr(args, "rendezvous_name", None)
+    if where is None:
+        if name is not None:
+            raise UsageError("--rendezvous-name needs --rendezvous HOST:PORT")
+        return None
+    try:
+        return Rendezvous(where[0], where[1], name=name)
+    except InvalidArgumentError as exc:
+        raise UsageError(f"--rendezvous: {exc}") from None

@@ -44,6 +44,8 @@ class Side:
     slave: the force)."""
     control: ControlCounter | None = None
     """``--control-rate HZ``: this side's counter on the control channel."""
+    first_sample_at: float | None = None
+    """``monotonic()`` when the first sample arrived (``--rendezvous``: time to first sample)."""
     continuity: DropoutCounter = field(default_factory=DropoutCounter)
     """The 100 ms windows without a sample (``dropouts_100ms``)."""
 
@@ -64,6 +66,8 @@ class Side:
         }
 
     def on_data(self, event: DataReceived) -> None:
+        if not self.received:
+            self.first_sample_at = event.received_at
         self.received += 1
         self.continuity.arrived(event.received_at)
         sample = HapticSample.decode(event.payload)

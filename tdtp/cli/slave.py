@@ -1,4 +1,7 @@
-"""``tdtp slave --port N``: a slave serving every master that connects, answering each with feedback."""
+"""``tdtp slave --port N``: a slave serving every master that connects, answering each with feedback.
+
+``tdtp slave --connect HOST:PORT`` dials its master instead (``tdtp master --listen PORT``): a robot
+behind a NAT or firewall that takes no incoming datagrams reaches its operator that way."""
 
 from __future__ import annotations
 
@@ -10,8 +13,9 @@ from collections import deque
 from dataclasses import asdict
 from typing import Any
 
-from tdtp.aio.api import Server, listen
+from tdtp.aio.api import Server, connect, listen
 from tdtp.aio.endpoint import Endpoint, format_address
+from tdtp.aio.reconnect import ReconnectPolicy
 from tdtp.aio.timer import monotonic
 from tdtp.capture.pcap import PcapWriter
 from tdtp.cli.control_counter import ControlCounter, control_loop, control_report
@@ -23,17 +27,27 @@ from tdtp.cli.live_stats import (
     LiveDisplay,
     age_text,
 )
-from tdtp.cli.options import netem_directions, netem_seed, session_config, side_deadband
-from tdtp.cli.outcome import Outcome, Side, close_info
+from tdtp.cli.options import (
+    netem_directions,
+    netem_seed,
+    rendezvous_settings,
+    session_config,
+    side_deadband,
+)
+from tdtp.cli.outcome import EXIT_FAILED, Outcome, Side, close_info
 from tdtp.cli.paths_report import continuity
 from tdtp.cli.session_tasks import (
+    _with_display,
     every_second,
     open_capture,
+    reconnect_report,
     send_loop,
     silence_note,
     watchdog_logger,
 )
 from tdtp.cli.summary import direction_report
+from tdtp.config import Role
+from tdtp.session.events import CloseCause
 
 SESSIONS_KEPT = 256
 """Finished sessions a long-running slave remembers for its summary."""
@@ -42,7 +56,71 @@ SESSIONS_KEPT = 256
 async def run_slave(args: argparse.Namespace, outcome: Outcome) -> None:
     keys: SessionKeys = args.session_keys
     with open_capture(args, outcome) as capture:
-        await _slave(args, outcome, keys, capture)
+        if args.connect is not None:
+            await _dialing_slave(args, outcome, keys, capture)
+        else:
+            await _slave(args, outcome, keys, capture)
+
+
+async def _dialing_slave(
+    args: argparse.Namespace, outcome: Outcome, keys: SessionKeys, capture: PcapWriter | None
+) -> None:
+    """``--connect``: one session with the master listening there, reopened as a master's would be
+    (``--reconnect``), answered with feedback until ``--duration``."""
+    host, port = args.connect
+    start = monotonic()
+    until = math.inf if args.duration is None else start + args.duration
+    _, sm_spec = netem_directions(args)
+    side = Side(
+        f"master {format_address((host, port))}",
+        started=start,
+        deadband=side_deadband(args, master=False),
+    )
+    if args.control_rate is not None:
+        side.control = ControlCounter()
+    async with connect(
+        host,
+        port,
+        role=Role.SLAVE,
+        config=session_config(args),
+        timer=args.timer,
+        on_data=side.on_data,
+        netem=sm_spec,
+        netem_seed=netem_seed(args, 1),
+        key=keys.master,
+        pcap=capture,
+        reconnect=ReconnectPolicy(after_silence=args.reconnect_after) if args.reconnect else False,
+    ) as ep:
+        display = None if args.json else LiveDisplay()
+        if display is not None:
+            display.message(f"tdtp slave dialed the master at {format_address((host, port))}")
+        if side.control is not None:
+            ep.set_control_callback(side.control.on_control)
+        ep.set_watchdog_callback(watchdog_logger(display, start, "slave", "master"))
+        sides = {id(ep): (ep, side)}
+        loops = [send_loop(ep, side, args.rate, args.size, until, master=False)]
+        if side.control is not None:
+            loops.append(control_loop(ep, side.control, args.control_rate, until))
+        try:
+            work = asyncio.gather(*loops)
+            if display is None:
+                await work
+            else:
+                await _with_display(
+                    work, every_second(until, lambda _: _show_slave(display, [ep], sides))
+                )
+        finally:
+            outcome.summary = {
+                "command": "slave",
+                "connected_to": format_address((host, port)),
+                "masters_served": 1,
+                "reconnects": reconnect_report(ep, start),
+                "sessions": [_session(ep, side)],
+            }
+            event = ep.close_event
+            if event is not None and event.cause is not CloseCause.PEER_CLOSE:
+                outcome.status = EXIT_FAILED
+                outcome.failure = f"session lost ({event.cause.value}): {event.detail}"
 
 
 async def _slave(
@@ -54,7 +132,8 @@ async def _slave(
     _, sm_spec = netem_directions(args)
     async with listen(
         args.host,
-        args.port,
+        args.port or 0,
+        rendezvous=rendezvous_settings(args),
         config=session_config(args),
         max_peers=args.max_peers,
         timer=args.timer,
@@ -75,7 +154,9 @@ async def _slave(
             _accept_loop(server, sides, args, until, tasks, finished, display)
         )
         try:
-            await every_second(until, lambda interval: _show_slave(display, server, sides))
+            await every_second(
+                until, lambda interval: _show_slave(display, server.endpoints, sides)
+            )
         except asyncio.CancelledError:
             # Ctrl-C or SIGTERM: the masters are told whether to come back (--on-stop), before
             # the summary is made; the end of --duration closes them NORMAL (listen's exit).
@@ -98,6 +179,10 @@ async def _slave(
                 "admission": asdict(server.stats.admission),
                 "sessions": sessions,
             }
+            if server.rendezvous is not None:
+                firsts = [side.first_sample_at for _, side in sides.values()]
+                first = min((at for at in firsts if at is not None), default=None)
+                outcome.summary["rendezvous"] = server.rendezvous.report(first)
 
 
 def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
@@ -201,12 +286,12 @@ async def _serve_one(
 
 
 def _show_slave(
-    display: LiveDisplay | None, server: Server, sides: dict[int, tuple[Endpoint, Side]]
+    display: LiveDisplay | None, endpoints: list[Endpoint], sides: dict[int, tuple[Endpoint, Side]]
 ) -> None:
     if display is None:
         return
-    lines = [f"{len(server.endpoints)} master(s) connected"]
-    for ep in server.endpoints:
+    lines = [f"{len(endpoints)} master(s) connected"]
+    for ep in endpoints:
         entry = sides.get(id(ep))
         side = entry[1] if entry is not None else None
         stats = ep.stats

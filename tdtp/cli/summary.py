@@ -94,7 +94,7 @@ def sender_view(stats: ConnectionStats) -> dict[str, Any]:
         "spurious_losses": stats.spurious_losses,
         "packets_reordered": stats.packets_reordered,
         "rate_limit": stats.rate_limit or None,
-        # This direction's own queue, as the peer's send times measure it (PROTOCOL.md 5.12).
+        # This direction's own queue, as the peer's send times measure it (PROTOCOL.md 5.13).
         "queue_delay_ms": _ms(stats.queue_delay_out) if stats.timestamps else None,
         "srtt_ms": _ms(stats.srtt),
         "rttvar_ms": _ms(stats.rttvar),

@@ -12,7 +12,7 @@ on the caller's monotonic clock) as a keyword argument. The connection calls
   has arrived from the peer for ``silence_timeout`` (an outage, not congestion), and when it is heard
   again (optional: the default does nothing);
 * :meth:`RateController.on_one_way_delay` when the peer's send time, stamped on one of its packets,
-  timed our own direction alone (sessions with timestamps, docs/PROTOCOL.md 5.12; optional);
+  timed our own direction alone (sessions with timestamps, docs/PROTOCOL.md 5.13; optional);
 
 and asks :meth:`RateController.next_send_time` (the earliest moment the next data packet may leave) and
 :attr:`RateController.rate` (the allowed rate, packets per second).

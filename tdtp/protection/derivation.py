@@ -82,3 +82,17 @@ def derive_session_secrets(
         TrafficSecret(material[:size], material[size:half]),
         TrafficSecret(material[half : half + size], material[half + size :]),
     )
+
+
+RENDEZVOUS_SECRET_SIZE: Final = 32
+
+
+def derive_rendezvous_secret(psk: bytes) -> bytes:
+    """The secret a keyed pair meets under at a relay (docs/PROTOCOL.md 5.12): the relay sees only an
+    id derived from it, and the pair's path probes are MACed with another key derived from it."""
+    return _hkdf(psk, b"", b"tdtp4 rendezvous", RENDEZVOUS_SECRET_SIZE)
+
+
+def expand_rendezvous(secret: bytes, label: bytes, length: int) -> bytes:
+    """``HKDF(secret, info = "tdtp4 " + label)``: the rendezvous id, the probe key."""
+    return _hkdf(secret, b"", b"tdtp4 " + label, length)

@@ -23,7 +23,7 @@ from tdtp.admission.admission import Admission, AdmittedOpen
 from tdtp.admission.path_migration import NOT_OURS, OURS, ROAMED
 from tdtp.config import AckMode, ConnectionConfig, Role
 from tdtp.control.registry import create_controller
-from tdtp.errors import ArgumentTypeError, ConnectionStateError
+from tdtp.errors import ConnectionStateError
 from tdtp.protection.keys import KeysInput, OneKeyInput
 from tdtp.protection.packet_protection import PacketOpener
 from tdtp.session import ending
@@ -50,7 +50,7 @@ from tdtp.session.receive_window import FAR_AHEAD, LATE, NEW, STALE
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.sender import SampleSender
-from tdtp.session.state import CLOSED, ESTABLISHED, OPENING, State, refusal
+from tdtp.session.state import CLOSED, ESTABLISHED, OPENING, State, dialing, refusal
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.session.timer_hint import TimerHint
 from tdtp.session.view import ConnectionView
@@ -79,19 +79,12 @@ _LARGEST_CONTROL: Final = OPEN_BODY_SIZE + TAG_SIZE
 
 
 class Connection(ConnectionView):
-    """One TDTP association between a master and a slave.
-
-    Unkeyed by default. A master given ``key=`` (a :class:`~tdtp.protection.PresharedKey` or its
-    secret bytes) opens a keyed session; a slave given ``keys=`` (one key, several, or a
-    :class:`~tdtp.protection.KeyRing`) accepts keyed sessions only, from masters holding one of them.
-    A slave validates every master's address with a cookie before it keeps any state
-    (:mod:`tdtp.admission`); a server sharing one socket among many slave connections passes them one
-    shared ``admission``.
-
-    ``rng`` supplies the nonces and the initial sequence number; pass a seeded
-    :class:`random.Random` for reproducible runs (the default draws from the operating system's
-    CSPRNG, which a keyed session needs: its nonces must be unpredictable).
-    """
+    """One TDTP association. ``role``: the master commands, the slave obeys; ``dials``: this end
+    sends the OPEN (by default the master; a slave dials a master behind a NAT, PROTOCOL.md 5.1).
+    A dialer's ``key=`` opens a keyed session; a listener's ``keys=`` (one, several, a KeyRing)
+    accepts keyed sessions only, after a cookie validated the dialer's address (``admission=``: a
+    server's shared one). ``rng``: nonces and initial sequence number (seeded: reproducible runs;
+    the default, the system's CSPRNG, is what a keyed session needs)."""
 
     def __init__(
         self,
@@ -102,9 +95,9 @@ class Connection(ConnectionView):
         key: OneKeyInput | None = None,
         keys: KeysInput | None = None,
         admission: Admission | None = None,
+        dials: bool | None = None,
     ) -> None:
-        if not isinstance(role, Role):
-            raise ArgumentTypeError(f"role must be Role.MASTER or Role.SLAVE, got {role!r}")
+        self.dials = dials = dialing(role, dials)  # whether this end sends the OPEN
         self.config = config = config if config is not None else ConnectionConfig()
         self.role = role
         rng = rng if rng is not None else random.SystemRandom()
@@ -116,6 +109,7 @@ class Connection(ConnectionView):
             config,
             role,
             rng,
+            dials=dials,
             key=key,
             keys=keys,
             admission=admission,
@@ -123,7 +117,7 @@ class Connection(ConnectionView):
             outbox=outbox,
             liveness=liveness,
         )
-        self._state = State.IDLE if role is Role.MASTER else State.LISTENING
+        self._state = State.IDLE if dials else State.LISTENING
         self._peer: Address | None = None
         self.last_rx_time: float | None = None  # receive_datagram(rx_time=) of the last one
         self._path = PeerPath(config, stats)  # the peer's address: validated, or under the 3x limit
@@ -175,11 +169,11 @@ class Connection(ConnectionView):
     # ------------------------------------------------------------------ caller API
 
     def connect(self, addr: Address, *, now: float) -> None:
-        """Master only: start opening towards the slave at ``addr``."""
-        if self.role is not Role.MASTER:
+        """The dialing side only: start opening towards the peer at ``addr``."""
+        if not self.dials:
             raise ConnectionStateError(
-                "connect() is for the master; a slave connection opens when its master's OPEN "
-                "arrives through receive_datagram()"
+                "connect() is for the side that dials (dials=True); a listening connection opens "
+                "when its peer's OPEN arrives through receive_datagram()"
             )
         if self._state is not State.IDLE:
             raise ConnectionStateError(
@@ -267,10 +261,11 @@ class Connection(ConnectionView):
         """Slave only: take an OPEN that a shared :class:`~tdtp.admission.Admission` already
         admitted for ``addr`` (a server demultiplexing many masters on one socket does this; a
         stand-alone slave gets its OPENs through :meth:`receive_datagram`)."""
-        if self.role is not Role.SLAVE or self._state is not State.LISTENING:
+        if self.dials or self._state is not State.LISTENING:
             raise ConnectionStateError(
-                f"accept_open() is for a listening slave (this is a {self.role.value} in state "
-                f"{self._state.value}); create a new Connection for each master"
+                f"accept_open() is for a listening connection (this is a {self.role.value} "
+                f"that {'dials' if self.dials else 'listens'}, in state {self._state.value}); "
+                "create a new Connection for each peer"
             )
         self._stats.datagrams_in += 1
         self._hint.value = -math.inf
@@ -331,7 +326,7 @@ class Connection(ConnectionView):
                 self._on_reset(data, now)
                 return
             if code in PATH_CODES:  # an unkeyed master answers a PATH_CHALLENGE
-                established = self._state is State.ESTABLISHED and self.role is Role.MASTER
+                established = self._state is State.ESTABLISHED and self.dials
                 nonce = self._handshake.master_nonce
                 answer = self._path.answer(data, now, established and not self.keyed, nonce)
                 if answer is not None:
@@ -386,7 +381,7 @@ class Connection(ConnectionView):
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
-        elif size > HEADER_SIZE and data[HEADER_SIZE] in STAMP_CODES:  # PROTOCOL.md 5.12
+        elif size > HEADER_SIZE and data[HEADER_SIZE] in STAMP_CODES:  # PROTOCOL.md 5.13
             kind = self._sender.one_way.take(data, self.last_rx_time, now)
             if kind == TIMED:
                 self._on_data(data[:5] + data[5 + STAMP_SIZE :], seq, ack, sack, hold, now)
@@ -462,6 +457,13 @@ class Connection(ConnectionView):
         self._hint.value = -math.inf
         self.receive_datagram(data, addr, now=now)
         return True
+
+    def use_path(self, addr: Address) -> None:
+        """Send to ``addr``: a path to the peer proven outside the session (PROTOCOL.md 5.12)."""
+        if self._state is not ESTABLISHED:
+            raise ConnectionStateError(f"use_path() needs an established session, not {self!r}")
+        self._peer = addr
+        self._hint.value = -math.inf
 
     def _on_unopened(self, opener: PacketOpener, now: float) -> None:
         """A protected datagram that did not authenticate (or was replayed): dropped and counted; a
@@ -616,7 +618,7 @@ class Connection(ConnectionView):
         self._hint.value = -math.inf  # the opening's timers may move
         handshake = self._handshake
         state = self._state
-        if self.role is Role.SLAVE:
+        if not self.dials:
             verdict = handshake.on_open(
                 data, addr, now, listening=state is State.LISTENING, srtt=self._recovery.rtt.srtt
             )
@@ -691,9 +693,8 @@ class Connection(ConnectionView):
         self._channel.open(self._recovery.sent.next_seq, initial_seq, handshake.master_nonce)
         self._delivery.open(initial_seq, handshake.keyed)
         self._establish(now)
-        # Confirm at once (the slave waits for our first packet of the session): the next
-        # datagrams_to_send sends a KEEPALIVE unless a sample goes out. (Twice the interval back:
-        # exactly one back can round to a deadline just after ``now``, delaying the KEEPALIVE.)
+        # Confirm at once (the slave waits for our first packet): a KEEPALIVE unless a sample goes
+        # (twice the interval back: once can round to a deadline just after ``now``).
         liveness = self._liveness
         liveness.last_send = now - 2.0 * liveness.keepalive
 
@@ -729,13 +730,12 @@ class Connection(ConnectionView):
         state = self._state
         if state is OPENING:
             handshake = self._handshake
-            if self.role is Role.SLAVE:
+            if not self.dials:
                 return handshake.open_deadline
             return min(handshake.open_next, handshake.open_deadline)
         if state is not ESTABLISHED:
             return None
-        # The watchdog until the peer is silent, then the outage limit; the keep-alive; the pacer's
-        # for a waiting sample; the next ACK; the next loss; the controller's own.
+        # Watchdog (or outage limit), keep-alive, pacer, ACK, loss, reorder wait, controller.
         if self._path.blocked(self._outbox.control, -math.inf):
             # Nothing may leave before more arrives from the new path (or, unkeyed, it is proven).
             deadline = min(self._liveness.watchdog_deadline(), self._path.proven_at)
@@ -762,8 +762,8 @@ class Connection(ConnectionView):
         state = self._state
         if state is OPENING:
             if now >= self._handshake.open_deadline:
-                master, timeout = self.role is Role.MASTER, self.config.open_timeout
-                detail = ending.open_timeout_text(master=master, timeout=timeout)
+                timeout = self.config.open_timeout
+                detail = ending.open_timeout_text(dials=self.dials, timeout=timeout)
                 self._terminate(CloseCause.OPEN_TIMEOUT, detail, now)
             return
         if state is not ESTABLISHED:
@@ -798,7 +798,7 @@ class Connection(ConnectionView):
         out: list[tuple[bytes, Address]] = []
         outbox = self._outbox
         state = self._state
-        if state is OPENING and self.role is Role.MASTER and self._handshake.open_due(now):
+        if state is OPENING and self.dials and self._handshake.open_due(now):
             self._emit_open(out, now)
         path = self._path
         # The 3x limit of an unvalidated new path (PROTOCOL.md 5.8).

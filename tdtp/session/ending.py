@@ -76,11 +76,12 @@ FORGERY_LIMIT_TEXT = (
 REPLACED_TEXT = "the master opened a new connection from the same address"
 
 
-def open_timeout_text(*, master: bool, timeout: float) -> str:
-    """Why an opening gave up: a master's OPEN never answered, or a slave never confirmed."""
-    if master:
+def open_timeout_text(*, dials: bool, timeout: float) -> str:
+    """Why an opening gave up: the OPEN of the side that dials never answered, or the side that
+    dialed never confirmed the session (PROTOCOL.md 5.1)."""
+    if dials:
         return f"no answer to OPEN within {timeout} s"
-    return f"the master never confirmed the session within {timeout} s after our OPEN_ACK"
+    return f"the peer never confirmed the session within {timeout} s after our OPEN_ACK"
 
 
 def restarted_text(peer: tuple[object, ...]) -> str:

@@ -99,6 +99,7 @@ class Handshake:
         role: Role,
         rng: random.Random,
         *,
+        dials: bool,
         key: OneKeyInput | None,
         keys: KeysInput | None,
         admission: Admission | None,
@@ -112,25 +113,31 @@ class Handshake:
         self._liveness = liveness
         self.key: PresharedKey | None = None
         self.admission: Admission | None = None
-        if role is Role.MASTER:
+        if dials:
             if keys is not None or admission is not None:
                 raise InvalidKeyError(
-                    "a master presents one key: pass key=, not keys= or admission="
+                    "the side that dials presents one key: pass key=, not keys= or admission="
                 )
             self.key = as_key(key) if key is not None else None
         else:
             if key is not None:
                 raise InvalidKeyError(
-                    "a slave accepts keys=: one key, several, or a KeyRing (key= is the master's)"
+                    "the side that listens accepts keys=: one key, several, or a KeyRing (key= is "
+                    "the dialer's)"
                 )
             if admission is not None and keys is not None:
                 raise InvalidKeyError("pass keys= or a shared admission=, not both")
             self.admission = (
                 admission
                 if admission is not None
-                else Admission(config, as_key_ring(keys) if keys is not None else None, rng=rng)
+                else Admission(
+                    config, as_key_ring(keys) if keys is not None else None, rng=rng, role=role
+                )
             )
-        self._master = role is Role.MASTER
+        # The protocol's "master" is the dialer (its nonce names the session, its direction is
+        # master-to-slave in the key schedule); SLAVE_DIALS says when it is the application's slave.
+        self._master = dials
+        self._slave_dials = dials == (role is Role.SLAVE)
         self.master_nonce = rng.randbytes(NONCE_SIZE)
         """The connection's identifier on control packets: the master's; a slave adopts it."""
         self.slave_nonce = rng.randbytes(NONCE_SIZE)
@@ -160,10 +167,10 @@ class Handshake:
         """Why the slave refused us (:attr:`Reaction.REJECTED`)."""
         self.reject_reason: int | None = None
         """The REJECT's reason code (:attr:`Reaction.REJECTED`)."""
-        self.timestamps = role is Role.MASTER and wants_timestamps(config) and not self.multipath
-        """The TIMESTAMPS flag (PROTOCOL.md 5.12): a master's choice (its controller reads one-way
-        delays, ``timestamp_interval`` is not 0, and the session is single-path), a slave's from
-        the OPEN. Stamps leave only in a session without MULTIPATH (:attr:`stamps`)."""
+        self.timestamps = self._master and wants_timestamps(config) and not self.multipath
+        """The TIMESTAMPS flag (PROTOCOL.md 5.13): the dialer's choice (its controller reads one-way
+        delays, ``timestamp_interval`` is not 0, and the session is single-path), the listener's
+        from the OPEN. Stamps leave only in a session without MULTIPATH (:attr:`stamps`)."""
         self._open_tagger: Direction | None = None  # a keyed master's OPEN key
         self._cookie = NO_COOKIE
         self._cookie_answered_at = -math.inf
@@ -176,13 +183,15 @@ class Handshake:
     @property
     def stamps(self) -> bool:
         """Whether the session stamps send times: TIMESTAMPS, and not MULTIPATH (a path's own
-        controller is fed by its MP_REPORTs; PROTOCOL.md 5.12)."""
+        controller is fed by its MP_REPORTs; PROTOCOL.md 5.13)."""
         return self.timestamps and not self.multipath
 
     def open_flags(self, ack_mode: AckMode) -> int:
         flags = OpenFlags.SEPARATE_ACKS if ack_mode is AckMode.SEPARATE else OpenFlags.NONE
         if self.timestamps:
             flags |= OpenFlags.TIMESTAMPS
+        if self._slave_dials:
+            flags |= OpenFlags.SLAVE_DIALS
         if self.keyed:
             flags |= OpenFlags.KEYED
             if self.encrypt:
@@ -483,6 +492,8 @@ _REJECT_TEXT = {
     CloseReason.PAYLOAD_TOO_SMALL: "the slave sends payloads larger than this master's "
     "max_payload ({max_payload}); raise max_payload",
     CloseReason.SUITE_UNSUPPORTED: "the slave does not implement the cipher suite {suite}",
+    CloseReason.ROLE_CONFLICT: "the peer plays the same role as this end (a master dialed a master, "
+    "or a slave a slave); start one end as master and the other as slave",
     CloseReason.IN_USE: "the slave is exclusive and another master commands it; it hands over "
     "once that master has been silent for its takeover period, or at once to a keyed master that "
     "connects with takeover=True (--takeover)",

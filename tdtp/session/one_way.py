@@ -4,7 +4,7 @@ A round trip is the sum of two one-way delays, and a queue in either direction l
 round trip alone, a bottleneck on the way back slows the way out, and half the round trip is the wrong
 age for a sample that crossed an asymmetric path. In a session opened with the TIMESTAMPS flag both
 ends therefore stamp their clock on a share of their packets (TIMED_DATA carries a sample, TIMESTAMP
-a stand-alone acknowledgement: docs/PROTOCOL.md 5.12), at most one per ``timestamp_interval``.
+a stand-alone acknowledgement: docs/PROTOCOL.md 5.13), at most one per ``timestamp_interval``.
 
 **What one stamp tells.** Let the peer stamp ``T`` (its clock) on a packet that left it when our packet
 ``s``, sent at ``t_s`` on our clock, had waited ``h`` there (the header's HOLD), and let it arrive here

@@ -95,7 +95,7 @@ class Outbox:
         word = ((seq & 0x3F) << 26) | ((ack & SEQ_MASK) << 14) | (sack << 8) | hold
         one_way = self.one_way
         if one_way is not None and now >= one_way.due:
-            # A TIMESTAMP in its place (PROTOCOL.md 5.12): the same fields, and our clock.
+            # A TIMESTAMP in its place (PROTOCOL.md 5.13): the same fields, and our clock.
             stamp = encode_timestamp(_TIMESTAMP, one_way.stamp(now))
             header = pack_header_words((_CONTROL << 6) | (seq >> 6), word) + stamp[:1]
             body = stamp[1:]

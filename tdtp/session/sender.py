@@ -71,7 +71,7 @@ class SampleSender:
         self._liveness = liveness
         self._hint = hint
         self.one_way = outbox.one_way = OneWayDelay(config, controller, recovery, stats)
-        """Our stamps and the peer's (PROTOCOL.md 5.12): TIMED_DATA leaves from here."""
+        """Our stamps and the peer's (PROTOCOL.md 5.13): TIMED_DATA leaves from here."""
         self._one_way = self.one_way
 
     def offer(self, payload: bytes | bytearray | memoryview, now: float) -> None:
@@ -199,7 +199,7 @@ class SampleSender:
         one_way = self._one_way
         seq = recovery.sent.next_seq
         if now >= one_way.due:
-            # TIMED_DATA (PROTOCOL.md 5.12): the header as DATA's, the send time before the sample.
+            # TIMED_DATA (PROTOCOL.md 5.13): the header as DATA's, the send time before the sample.
             stamp = encode_timestamp(_TIMED_DATA, one_way.stamp(now))
             datagram = outbox.protect(
                 encode_header(_CONTROL, seq, ack, sack, hold) + stamp[:1], stamp[1:] + payload

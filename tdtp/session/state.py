@@ -5,7 +5,8 @@ from __future__ import annotations
 import enum
 from typing import TYPE_CHECKING, Final
 
-from tdtp.errors import ConnectionClosedError, ConnectionStateError
+from tdtp.config import Role
+from tdtp.errors import ArgumentTypeError, ConnectionClosedError, ConnectionStateError
 
 if TYPE_CHECKING:
     from tdtp.session.events import ConnectionClosed
@@ -42,3 +43,14 @@ def refusal(state: State, event: ConnectionClosed | None) -> ConnectionStateErro
     return ConnectionStateError(
         f"cannot send while {state.value}: wait for the ConnectionEstablished event"
     )
+
+
+def dialing(role: object, dials: object) -> bool:
+    """Whether a connection of ``role`` sends the OPEN: ``dials`` if given, else the master does."""
+    if not isinstance(role, Role):
+        raise ArgumentTypeError(f"role must be Role.MASTER or Role.SLAVE, got {role!r}")
+    if dials is None:
+        return role is Role.MASTER
+    if not isinstance(dials, bool):
+        raise ArgumentTypeError(f"dials must be True, False or None, got {dials!r}")
+    return dials

@@ -34,6 +34,7 @@ class ConnectionView:
 
     config: ConnectionConfig
     role: Role
+    dials: bool
     _state: State
     _peer: Address | None
     _stats: ConnectionStats
@@ -70,8 +71,8 @@ class ConnectionView:
 
     @property
     def migratable(self) -> bool:
-        """An established slave: may follow its master to a new address (PROTOCOL.md 5.8)."""
-        return self.role is Role.SLAVE and self._state is State.ESTABLISHED
+        """An established listener: may follow its dialer to a new address (PROTOCOL.md 5.8)."""
+        return not self.dials and self._state is State.ESTABLISHED
 
     def _peer_address(self) -> Address:
         peer = self._peer

@@ -42,8 +42,9 @@ from tdtp.wire.protected import TAG_SIZE
 
 PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
-had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 had no multipath
-and no send timestamps (TIMESTAMP, TIMED_DATA), and its MESSAGE and MESSAGE_ACK carried no nonce)."""
+had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 had no multipath,
+no send timestamps (TIMESTAMP, TIMED_DATA), no dialing slave (``SLAVE_DIALS``) and no rendezvous
+messages, and its MESSAGE and MESSAGE_ACK carried no nonce)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -108,6 +109,15 @@ class ControlCode(enum.IntEnum):
     first copies, the newest sequence number and how long ago) and how far it lags the first copy."""
     MP_ABANDON = 20
     """either way, multipath sessions: this path is no longer used (reason code)."""
+    REGISTER = 21
+    """endpoint -> relay (version 4): wait under a rendezvous id (:mod:`tdtp.wire.rendezvous`)."""
+    REFERRAL = 22
+    """relay -> endpoint (version 4): a cookie, "waiting", the peer's addresses, or a refusal."""
+    PROBE = 23
+    """endpoint -> endpoint (version 4): does this candidate path work? A token and a MAC under
+    the pair's probe key."""
+    PROBE_ACK = 24
+    """endpoint -> endpoint (version 4): the PROBE's token echoed on the path it came on."""
 
 
 HANDSHAKE_CODES: Final = frozenset(
@@ -127,7 +137,7 @@ MESSAGE_CODES: Final = frozenset(
 STAMP_CODES: Final = frozenset(
     int(code) for code in (ControlCode.TIMESTAMP, ControlCode.TIMED_DATA)
 )
-"""Packets that carry their sender's clock (docs/PROTOCOL.md section 5.12): session traffic, sealed
+"""Packets that carry their sender's clock (docs/PROTOCOL.md section 5.13): session traffic, sealed
 when keyed."""
 MULTIPATH_CODES: Final = frozenset(
     int(code)
@@ -157,12 +167,16 @@ class OpenFlags(enum.IntFlag):
     """OPEN only, keyed only: an exclusive slave hands control to this master at once, ending the
     session of the master that had it (docs/PROTOCOL.md 5.9). Never echoed in the OPEN_ACK."""
     TIMESTAMPS = 0x20
-    """Both ends time a share of their packets (TIMESTAMP, TIMED_DATA: docs/PROTOCOL.md 5.12), so
+    """Both ends time a share of their packets (TIMESTAMP, TIMED_DATA: docs/PROTOCOL.md 5.13), so
     that each learns the one-way delay of its own direction. Echoed in the OPEN_ACK."""
     MULTIPATH = 0x40
     """The session may run over several paths at once (docs/PROTOCOL.md 5.11): either side may
     validate further paths with MP_CHALLENGE, DATA may travel on several of them, and receivers
     take the first copy of each sequence number. Echoed in the OPEN_ACK."""
+    SLAVE_DIALS = 0x80
+    """Version 4: the sender of the OPEN is the slave (the robot) and the listener the master (the
+    operator); without it the dialer is the master. Echoed in the OPEN_ACK; a listener whose own
+    role is the dialer's answers REJECT ``ROLE_CONFLICT`` (docs/PROTOCOL.md 5.1)."""
 
 
 KNOWN_FLAGS: Final = int(
@@ -172,6 +186,7 @@ KNOWN_FLAGS: Final = int(
     | OpenFlags.TAKEOVER
     | OpenFlags.TIMESTAMPS
     | OpenFlags.MULTIPATH
+    | OpenFlags.SLAVE_DIALS
 )
 
 
@@ -225,6 +240,12 @@ class CloseReason(enum.IntEnum):
     PATH_LIMIT = 20
     """MP_ABANDON: the path was refused: the session has as many paths as the receiver allows, or
     new paths come faster than it takes them."""
+    ROLE_CONFLICT = 21
+    """REJECT (version 4): the dialer plays the listener's own role: a master dialed a master, or
+    a slave dialed a slave (the OPEN's SLAVE_DIALS flag, docs/PROTOCOL.md 5.1)."""
+    RENDEZVOUS_FULL = 22
+    """REFERRAL (version 4): the relay holds as many rendezvous as it may, or this source registers
+    too often; try again later or use another relay (docs/PROTOCOL.md 5.12)."""
 
 
 class OpenBody(NamedTuple):
@@ -808,6 +829,10 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, token = _PATH_CHALLENGE.unpack(body)
         return PathChallengeBody(token)
+    if code >= ControlCode.REGISTER:
+        # The rendezvous messages (tdtp.wire.rendezvous) belong to relays and path probing,
+        # never to a session.
+        raise MalformedPacketError("bad_control", f"{code.name} is not a session's message")
     if code is ControlCode.PATH_RESPONSE:
         if len(body) != PATH_RESPONSE_BODY_SIZE:
             raise MalformedPacketError(

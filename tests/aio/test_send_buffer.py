@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from tdtp import Connection, Role, State, Ticker, connect, listen
-from tdtp.aio.api import _limit_write_buffer, _MasterProtocol
+from tdtp.aio.api import _DialerProtocol, _limit_write_buffer
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.timer import monotonic
 
@@ -52,7 +52,7 @@ async def test_a_full_send_buffer_supersedes_samples_instead_of_queueing_them(
     writer.connect(str(tmp_path / "slave.sock"))
     writer.setblocking(False)
     loop = asyncio.get_running_loop()
-    transport, protocol = await loop.create_datagram_endpoint(_MasterProtocol, sock=writer)
+    transport, protocol = await loop.create_datagram_endpoint(_DialerProtocol, sock=writer)
     _limit_write_buffer(transport)
     conn, _ = _established_pair()
     endpoint = Endpoint(conn, transport, connected=True)

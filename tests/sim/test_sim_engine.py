@@ -236,7 +236,7 @@ def test_link_refuses_a_second_binding() -> None:
 
 
 def test_tdtp_one_way_delay_is_exact_on_an_idle_path() -> None:
-    # 100-byte samples at 100/s, each one stamped (one stamp per 4 ms at most: PROTOCOL.md 5.12):
+    # 100-byte samples at 100/s, each one stamped (one stamp per 4 ms at most: PROTOCOL.md 5.13):
     # 130 bytes on the wire, 1.04 ms at 1 Mbit/s, plus 10 ms: every sample, 11.04 ms.
     net = Network()
     net.connect("M", "S", "rate 1mbit delay 10ms limit 15")

@@ -407,10 +407,12 @@ def keyed_master_session() -> dict[str, Any]:
             "slave",
             _hex(
                 encode_header(2, SLAVE_ISN, 0, 0, 255)
-                + encode_open_ack(OpenAckBody(4, 6, 1, 1200, 0, MASTER_NONCE, SLAVE_NONCE))
+                + encode_open_ack(
+                    OpenAckBody(PROTOCOL_VERSION + 1, 6, 1, 1200, 0, MASTER_NONCE, SLAVE_NONCE)
+                )
                 + bytes(16)
             ),
-            note="version 4",
+            note="a later version",
         ),
         _step(0.006, "slave", open_ack(0, forge=True)),
         _step(0.007, "slave", open_ack(0), exact=True),

@@ -12,6 +12,7 @@ is the same on every run. The test suite never runs this script: it checks the c
 from __future__ import annotations
 
 import argparse
+import hmac
 import json
 import random
 import sys
@@ -31,6 +32,8 @@ from tdtp.protection.derivation import (  # noqa: E402  # noqa: E402
 )
 from tdtp.protection.keys import PresharedKey  # noqa: E402
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer  # noqa: E402
+from tdtp.rendezvous.relay import RelayCore  # noqa: E402
+from tdtp.rendezvous.settings import meeting  # noqa: E402
 from tdtp.session.receive_window import ReceiveWindow  # noqa: E402
 from tdtp.session.recovery import loss_delay_of  # noqa: E402
 from tdtp.session.rtt import RttEstimator  # noqa: E402
@@ -67,6 +70,17 @@ from tdtp.wire import (  # noqa: E402
     expand_seq,
 )
 from tdtp.wire.errors import MalformedPacketError  # noqa: E402
+from tdtp.wire.rendezvous import (  # noqa: E402
+    PROBE,
+    PROBE_ACK,
+    ReferralBody,
+    RegisterBody,
+    decode_referral,
+    decode_register,
+    encode_probe,
+    encode_referral,
+    encode_register,
+)
 
 sys.path.insert(0, str(ROOT / "tests" / "vectors"))
 from endpoint_scripts import (  # noqa: E402  (beside this file)
@@ -1094,6 +1108,142 @@ def server_vectors() -> dict[str, Any]:
     )
 
 
+# ---------------------------------------------------------------------------- rendezvous (5.12)
+
+
+def rendezvous_vectors() -> dict[str, Any]:
+    """REGISTER, REFERRAL, PROBE and PROBE_ACK datagrams, the names a pair meets under, probe MACs,
+    and what a relay answers (section 5.12)."""
+    psk = bytes(range(32))
+    names = []
+    for label, key, name in (
+        ("keyed (the PSK of 7.5), no name", PresharedKey(psk), None),
+        ("unkeyed, name 'robot-7'", None, "robot-7"),
+        ("keyed (the PSK of 7.5) and name 'robot-7'", PresharedKey(psk), "robot-7"),
+    ):
+        met = meeting(key, name)
+        names.append(
+            {
+                "name": label,
+                "psk_hex": None if key is None else psk.hex(),
+                "rendezvous_name": name,
+                "rendezvous_id_hex": met.rendezvous_id.hex(),
+                "probe_key_hex": met.probe_key.hex(),
+            }
+        )
+    probe_key = meeting(None, "robot-7").probe_key
+    token = bytes(range(0x20, 0x30))
+    probes = []
+    for kind, code, tag in (("PROBE", PROBE, b"P"), ("PROBE_ACK", PROBE_ACK, b"A")):
+        for side in (0, 1):
+            mac = hmac.digest(probe_key, tag + bytes([side]) + token, "sha256")[:16]
+            probes.append(
+                {
+                    "name": f"{kind} from the {'listener' if side else 'dialer'}",
+                    "side": side,
+                    "token_hex": token.hex(),
+                    "datagram_hex": encode_probe(code, token, mac).hex(),
+                }
+            )
+    rid = meeting(None, "robot-7").rendezvous_id
+    nonce = bytes(range(0x40, 0x50))
+    registers = [
+        (
+            "REGISTER, dialer, no cookie yet, no local address",
+            RegisterBody(0, nonce, rid, bytes(16), ()),
+        ),
+        (
+            "REGISTER, listener, a cookie, one IPv4 and one IPv6 local address",
+            RegisterBody(1, nonce, rid, COOKIE_BYTES, (("192.168.1.2", 7000), ("fe80::1", 7000))),
+        ),
+        ("REGISTER LEAVE, dialer", RegisterBody(2, nonce, rid, COOKIE_BYTES, ())),
+    ]
+    referrals = [
+        ("COOKIE", ReferralBody(0, 0, nonce, COOKIE_BYTES, 0, None, None, False, ())),
+        (
+            "WAITING",
+            ReferralBody(1, 0, nonce, bytes(16), 30, ("203.0.113.1", 40000), None, False, ()),
+        ),
+        (
+            "PEER: the listener's addresses, told to the dialer",
+            ReferralBody(
+                2,
+                0,
+                nonce,
+                bytes(16),
+                30,
+                ("203.0.113.2", 50000),
+                ("203.0.113.1", 40000),
+                True,
+                (("192.168.1.2", 40000),),
+            ),
+        ),
+        (
+            "REFUSED RENDEZVOUS_FULL",
+            ReferralBody(3, 22, nonce, bytes(16), 0, None, None, False, ()),
+        ),
+        ("UNKNOWN", ReferralBody(4, 0, bytes(16), bytes(16), 0, None, None, False, ())),
+    ]
+
+    def fields(body: Any) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for key, value in body._asdict().items():
+            if isinstance(value, bytes):
+                out[key] = value.hex()
+            elif isinstance(value, tuple) and value and isinstance(value[0], tuple):
+                out[key] = [[host, port] for host, port in value]
+            elif isinstance(value, tuple):
+                out[key] = list(value)
+            else:
+                out[key] = value
+        return out
+
+    valid = []
+    for name, body in registers:
+        datagram = encode_register(body)
+        _check(decode_register(datagram) == body, name)
+        valid.append({"name": name, "datagram_hex": datagram.hex(), "fields": fields(body)})
+    for name, referral in referrals:
+        datagram = encode_referral(referral)
+        _check(decode_referral(datagram).kind == referral.kind, name)
+        valid.append(
+            {"name": f"REFERRAL {name}", "datagram_hex": datagram.hex(), "fields": fields(referral)}
+        )
+    relay = RelayCore(rng=random.Random(7))
+    first = encode_register(RegisterBody(0, nonce, rid, bytes(16), ()))
+    replies = relay.receive(first, ("203.0.113.1", 40000), 0.0)
+    _check(len(replies) == 1 and len(replies[0][0]) < len(first), "cookie reply")
+    relay_answers = [
+        {
+            "name": "a REGISTER without a cookie: a COOKIE referral, smaller, to its source",
+            "datagram_hex": first.hex(),
+            "answer_kind": "COOKIE",
+            "answer_size": len(replies[0][0]),
+        },
+        {
+            "name": "25 bytes of anything from an address without a registration: UNKNOWN",
+            "datagram_hex": bytes(25).hex(),
+            "answer_kind": "UNKNOWN",
+            "answer_size": len(relay.receive(bytes(25), ("198.51.100.1", 1), 0.0)[0][0]),
+        },
+        {
+            "name": "24 bytes from an address without a registration: nothing",
+            "datagram_hex": bytes(24).hex(),
+            "answer_kind": None,
+            "answer_size": 0,
+        },
+    ]
+    _check(relay.receive(bytes(24), ("198.51.100.1", 2), 0.0) == [], "no answer to 24 bytes")
+    return _file(
+        "rendezvous",
+        "Rendezvous (section 5.12): the ids and probe keys a pair meets under (HKDF-SHA256), "
+        "REGISTER and REFERRAL datagrams with their fields (addresses as [host, port]), PROBE "
+        "and PROBE_ACK datagrams with their MACs (under the probe key of the name 'robot-7'), and "
+        "what a relay answers to datagrams from addresses it has not validated.",
+        {"names": names, "probes": probes, "valid": valid, "relay_answers": relay_answers},
+    )
+
+
 SUITES: dict[str, Callable[[], dict[str, Any]]] = {
     "header": header_vectors,
     "hold": hold_vectors,
@@ -1104,6 +1254,7 @@ SUITES: dict[str, Callable[[], dict[str, Any]]] = {
     "keyed": keyed_vectors,
     "endpoint": drop_vectors,
     "server": server_vectors,
+    "rendezvous": rendezvous_vectors,
 }
 
 

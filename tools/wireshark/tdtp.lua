@@ -10,15 +10,17 @@
 -- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, RESET,
 -- PATH_CHALLENGE, PATH_RESPONSE, the reliable control channel's MESSAGE and MESSAGE_ACK, and the
 -- multipath MP_CHALLENGE, MP_RESPONSE, MP_REPORT and MP_ABANDON, the send timestamps TIMESTAMP and
--- TIMED_DATA), and
+-- TIMED_DATA, and the rendezvous messages REGISTER, REFERRAL, PROBE and PROBE_ACK of a relay and
+-- its pairs), and
 -- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
 -- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
 -- expert info (Analyze > Expert Information; tshark: -z expert).
 --
 -- How it finds TDTP: TDTP has no port of its own (UDP 47000, which tdtp's examples use, belongs to
 -- HCrt in Wireshark). A heuristic claims any UDP datagram that is a well-formed TDTP handshake
--- message (code, exact size, version 4), and then every datagram of that address pair; a multipath
--- session's further paths are claimed by their MP_CHALLENGE (right size, HOLD 255). For a
+-- message (code, exact size, version 4; or a REGISTER or REFERRAL), and then every datagram of that
+-- address pair (a relay's forwarded sessions included); a multipath session's further paths are
+-- claimed by their MP_CHALLENGE (right size, HOLD 255), a punched path by its PROBE. For a
 -- capture that starts mid-session, list the slave's port in the preference "tdtp.ports"
 -- (tshark -o tdtp.ports:47000), or let heuristics run first (-o udp.try_heuristic_first:TRUE).
 -- Whether a session is keyed is learnt from its OPEN or OPEN_ACK; preference "tdtp.keyed" forces it.
@@ -33,6 +35,10 @@ local CODE_NAMES = {
     [10] = "MESSAGE", [11] = "MESSAGE_ACK",
     [15] = "TIMESTAMP", [16] = "TIMED_DATA",
     [17] = "MP_CHALLENGE", [18] = "MP_RESPONSE", [19] = "MP_REPORT", [20] = "MP_ABANDON",
+    [21] = "REGISTER", [22] = "REFERRAL", [23] = "PROBE", [24] = "PROBE_ACK",
+}
+local REFERRAL_KINDS = {
+    [0] = "COOKIE", [1] = "WAITING", [2] = "PEER", [3] = "REFUSED", [4] = "UNKNOWN", [5] = "LEFT",
 }
 local SUITE_NAMES = { [0] = "none", [1] = "AES-128-GCM", [2] = "ChaCha20-Poly1305" }
 local REASON_NAMES = {
@@ -40,7 +46,7 @@ local REASON_NAMES = {
     [4] = "REFUSED", [5] = "BUSY", [6] = "KEY_REQUIRED", [7] = "KEY_UNKNOWN",
     [8] = "PAYLOAD_TOO_SMALL", [9] = "SUITE_UNSUPPORTED", [10] = "REPLACED", [11] = "KEY_EXHAUSTED",
     [12] = "IN_USE", [13] = "TAKEN_OVER", [14] = "EVICTED", [15] = "RESTARTING",
-    [19] = "PATH_CLOSED", [20] = "PATH_LIMIT",
+    [19] = "PATH_CLOSED", [20] = "PATH_LIMIT", [21] = "ROLE_CONFLICT", [22] = "RENDEZVOUS_FULL",
 }
 local HOLD_NAMES = { [254] = "saturated (31.744 ms or more)", [255] = "no acknowledgement" }
 
@@ -57,7 +63,7 @@ local STAMP = 5
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
-    [8] = { 22 }, [9] = { 38 },
+    [8] = { 22 }, [9] = { 38 }, [23] = { 38 }, [24] = { 38 },
     [17] = { 31, 49 }, [18] = { 39, 57 }, [19] = { 36, 54 }, [20] = { 24, 42 },
 }
 
@@ -82,7 +88,17 @@ f.flag_encrypted = ProtoField.bool("tdtp.flags.encrypted", "ENCRYPTED", 8, nil, 
 f.flag_takeover = ProtoField.bool("tdtp.flags.takeover", "TAKEOVER", 8, nil, 0x08)
 f.flag_timestamps = ProtoField.bool("tdtp.flags.timestamps", "TIMESTAMPS", 8, nil, 0x20)
 f.flag_multipath = ProtoField.bool("tdtp.flags.multipath", "MULTIPATH", 8, nil, 0x40)
-f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0x90)
+f.flag_slave_dials = ProtoField.bool("tdtp.flags.slave_dials", "SLAVE_DIALS", 8, nil, 0x80)
+f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0x10)
+f.rv_flags = ProtoField.uint8("tdtp.register.flags", "Register flags", base.HEX)
+f.rv_listener = ProtoField.bool("tdtp.register.listener", "LISTENER", 8, nil, 0x01)
+f.rv_leave = ProtoField.bool("tdtp.register.leave", "LEAVE", 8, nil, 0x02)
+f.rv_id = ProtoField.bytes("tdtp.rendezvous_id", "Rendezvous id")
+f.rv_kind = ProtoField.uint8("tdtp.referral.kind", "Referral kind", base.DEC, REFERRAL_KINDS)
+f.rv_lifetime = ProtoField.uint16("tdtp.referral.lifetime", "Lifetime (s)", base.DEC)
+f.rv_address = ProtoField.string("tdtp.rendezvous.address", "Address")
+f.rv_token = ProtoField.bytes("tdtp.probe.token", "Probe token")
+f.rv_mac = ProtoField.bytes("tdtp.probe.mac", "Probe MAC (under the pair's probe key)")
 f.suite = ProtoField.uint8("tdtp.suite", "Cipher suite", base.DEC, SUITE_NAMES)
 f.max_payload = ProtoField.uint16("tdtp.max_payload", "Max payload", base.DEC)
 f.attempt = ProtoField.uint16("tdtp.attempt", "Attempt", base.DEC)
@@ -271,10 +287,11 @@ local function add_flags(tree, tvb, offset)
     item:add(f.flag_takeover, tvb(offset, 1))
     item:add(f.flag_timestamps, tvb(offset, 1))
     item:add(f.flag_multipath, tvb(offset, 1))
+    item:add(f.flag_slave_dials, tvb(offset, 1))
     item:add(f.flag_reserved, tvb(offset, 1))
     local flags = tvb(offset, 1):uint()
-    -- Bits 4 and 7 are reserved.
-    if low_bits(rshift(flags, 4), 1) == 1 or flags >= 128 then item:add_proto_expert_info(e.reserved_flags) end
+    -- Bit 4 is reserved.
+    if low_bits(rshift(flags, 4), 1) == 1 then item:add_proto_expert_info(e.reserved_flags) end
     return flags, item
 end
 
@@ -315,6 +332,91 @@ local function close_fields(tree, tvb, length, name)
     return name .. " " .. (REASON_NAMES[reason] or tostring(reason))
 end
 
+-- An address of a rendezvous message: family (4 or 6), port, 4 or 16 bytes. Returns the next offset
+-- (nil if cut short).
+local function add_address(tree, tvb, offset, length, label)
+    if offset + 3 > length then return nil end
+    local family = tvb(offset, 1):uint()
+    local width = (family == 4 and 4) or (family == 6 and 16) or nil
+    if width == nil or offset + 3 + width > length then return nil end
+    local port = tvb(offset + 1, 2):uint()
+    local host = width == 4 and tostring(tvb(offset + 3, 4):ipv4()) or tostring(tvb(offset + 3, 16):ipv6())
+    tree:add(f.rv_address, tvb(offset, 3 + width), string.format("%s %s:%d", label, host, port))
+    return offset + 3 + width
+end
+
+-- REGISTER, REFERRAL, PROBE, PROBE_ACK (section 5.12): never protected.
+local function dissect_rendezvous(tvb, tree, length, code, name)
+    if code == 23 or code == 24 then
+        if length ~= 38 then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (wrong length)"
+        end
+        tree:add(f.rv_token, tvb(HEADER + 1, 16))
+        tree:add(f.rv_mac, tvb(HEADER + 17, 16))
+        return name
+    end
+    if length < HEADER + 20 then
+        tree:add_proto_expert_info(e.bad_control)
+        return name .. " (too short)"
+    end
+    tree:add(f.version, tvb(HEADER + 1, 1))
+    if tvb(HEADER + 1, 1):uint() ~= VERSION then tree:add_proto_expert_info(e.version) end
+    if code == 21 then
+        if length < HEADER + 53 then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (too short)"
+        end
+        local item = tree:add(f.rv_flags, tvb(HEADER + 2, 1))
+        item:add(f.rv_listener, tvb(HEADER + 2, 1))
+        item:add(f.rv_leave, tvb(HEADER + 2, 1))
+        tree:add(f.nonce, tvb(HEADER + 4, 16))
+        tree:add(f.rv_id, tvb(HEADER + 20, 16))
+        tree:add(f.cookie, tvb(HEADER + 36, 16))
+        local offset = HEADER + 53
+        for i = 1, tvb(HEADER + 52, 1):uint() do
+            offset = add_address(tree, tvb, offset, length, "local")
+            if offset == nil then break end
+        end
+        if offset ~= length then tree:add_proto_expert_info(e.bad_control) end
+        local flags = tvb(HEADER + 2, 1):uint()
+        local cookie_zero = tvb(HEADER + 36, 16):bytes():tohex() == string.rep("00", 16)
+        return string.format("REGISTER%s%s%s", flag_bit(flags, 1) and " listener" or " dialer",
+            flag_bit(flags, 2) and " leave" or "", cookie_zero and "" or " cookie")
+    end
+    tree:add(f.rv_kind, tvb(HEADER + 2, 1))
+    tree:add(f.reason, tvb(HEADER + 3, 1))
+    tree:add(f.nonce, tvb(HEADER + 4, 16))
+    local kind = tvb(HEADER + 2, 1):uint()
+    local text = "REFERRAL " .. (REFERRAL_KINDS[kind] or tostring(kind))
+    local offset = HEADER + 20
+    if kind == 0 then
+        if length ~= offset + 16 then tree:add_proto_expert_info(e.bad_control) return text end
+        tree:add(f.cookie, tvb(offset, 16))
+        return text
+    end
+    if kind == 1 or kind == 2 then
+        if length < offset + 2 then tree:add_proto_expert_info(e.bad_control) return text end
+        tree:add(f.rv_lifetime, tvb(offset, 2))
+        offset = add_address(tree, tvb, offset + 2, length, "reflexive (yours)")
+        if offset ~= nil and kind == 2 then
+            offset = add_address(tree, tvb, offset, length, "peer's reflexive")
+            if offset ~= nil and offset + 2 <= length then
+                local count = tvb(offset + 1, 1):uint()
+                offset = offset + 2
+                for i = 1, count do
+                    offset = add_address(tree, tvb, offset, length, "peer's local")
+                    if offset == nil then break end
+                end
+            else
+                offset = nil
+            end
+        end
+        if offset ~= length then tree:add_proto_expert_info(e.bad_control) end
+    end
+    return text
+end
+
 local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
     local code = tvb(HEADER, 1):uint()
     local name = CODE_NAMES[code]
@@ -325,6 +427,7 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
     end
     -- KEEPALIVE, TIMESTAMP and TIMED_DATA carry an acknowledgement; the others HOLD 255.
     if code ~= 3 and code ~= 15 and code ~= 16 and hold ~= 255 then tree:add_proto_expert_info(e.hold_control) end
+    if code >= 21 then return dissect_rendezvous(tvb, tree, length, code, name) end
     if code == 1 or code == 2 then
         -- OPEN / OPEN_ACK: fields in the clear, a 16-byte tag when KEYED.
         if length < HEADER + 3 then
@@ -473,7 +576,7 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 17, 1):uint(),
             tvb(HEADER + 21, 4):uint(), tvb(HEADER + 25, 4):uint())
     end
-    -- Send timestamps (section 5.12): an ACK's or a DATA's stand-in, protected in a keyed session.
+    -- Send timestamps (section 5.13): an ACK's or a DATA's stand-in, protected in a keyed session.
     if code == 15 or code == 16 then
         if keyed then
             local pn, sealed = keyed_control(tree, tvb, length, name)
@@ -568,7 +671,7 @@ function tdtp.dissector(tvb, pinfo, tree)
     if ptype == 2 and length > HEADER then
         local code = tvb(HEADER, 1):uint()
         handshake = code == 1 or code == 2 or code == 5 or code == 6 or code == 7 or code == 8
-            or code == 9 or code == 17 or code == 18
+            or code == 9 or code == 17 or code == 18 or code >= 21
     end
     if not handshake then root:add(f.keyed, keyed):set_generated() end
     if ptype == 3 then
@@ -632,6 +735,14 @@ local function heuristic(tvb, pinfo, tree)
     local first = tvb(0, 1):uint()
     if rshift(first, 6) ~= 2 then return false end
     local code = tvb(HEADER, 1):uint()
+    local plain = tvb(0, 4):uint() == 0x80000000 and tvb(4, 1):uint() == 255
+    local rendezvous = (code == 21 or code == 22) and length >= HEADER + 20
+        and tvb(HEADER + 1, 1):uint() == VERSION
+    if plain and (rendezvous or ((code == 23 or code == 24) and length == 38)) then
+        note_session(pinfo, nil) -- a relay's pairs, and a punched path: their sessions too
+        tdtp.dissector(tvb, pinfo, tree)
+        return true
+    end
     if code == 17 and size_allowed(code, length) and tvb(4, 1):uint() == 255 then
         -- A multipath session's new path: claimed when its nonce is a session's seen before (or
         -- when nothing was seen: a capture of the new path alone).
