@@ -431,6 +431,8 @@ class TeleopController(RateController):
     ) -> None:
         self._advance(now)
         self._in_flight = unacked
+        if unacked < self._window:
+            self._blocked = False
         if not self._owd:
             # From now on the queue is our direction's alone: the round trip's base and minima,
             # which carry the way back's queue too, are dropped.

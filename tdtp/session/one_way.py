@@ -110,6 +110,7 @@ class OneWayDelay:
         "_controller",
         "_interval",
         "_last_raw",
+        "_optimistic",
         "_peer_clock",
         "_recovery",
         "_rejected_run",
@@ -117,6 +118,7 @@ class OneWayDelay:
         "_stamp_clock",
         "_stats",
         "_taken_with",
+        "_timed",
         "due",
         "enabled",
         "pending",
@@ -142,6 +144,8 @@ class OneWayDelay:
         self._recovery = recovery
         self._stats = stats
         self._taken_with = -1  # stats.datagrams_in when the pending stamp arrived
+        self._timed = False  # the pending stamp came on a TIMED_DATA
+        self._optimistic = 0  # stats.optimistic_acks when it arrived
         self.enabled = False
         """The session was opened with the TIMESTAMPS flag: both ends stamp."""
         self.due = math.inf
@@ -212,6 +216,8 @@ class OneWayDelay:
         self._rx = now if rx is None else rx
         self.pending = True
         self._taken_with = stats.datagrams_in
+        self._timed = kind == TIMED
+        self._optimistic = stats.optimistic_acks
         return kind
 
     def sent_at(self, echo: float | None, hold: int, now: float) -> float | None:
@@ -219,6 +225,9 @@ class OneWayDelay:
         when it had one, else from the round trip ``echo`` its header timed (``None`` if none);
         ``hold`` is the header's HOLD code."""
         if self.pending and self._taken_with == self._stats.datagrams_in:
+            if self._timed:
+                # The sample was taken in, counted without its stamp (the connection strips it).
+                self._stats.received.bytes += STAMP_SIZE
             inbound = self._read(echo, hold, now)
             if inbound is not None:
                 return now - inbound
@@ -259,7 +268,14 @@ class OneWayDelay:
         """Read the pending stamp: the inbound sample, and the outbound one if ``echo`` timed one
         of our packets. Returns the stamped packet's inbound delay (its base half plus its queue)."""
         self.pending = False
-        if echo is None and hold == HOLD_SATURATED and self._recovery.echo_seq >= 0:
+        if echo is None and self._stats.optimistic_acks != self._optimistic:
+            # Its acknowledgement named a packet we never sent (a forgery moved the peer's window
+            # past what we sent): what is in flight is unknown until a real one, so the window
+            # must not hold our packets back meanwhile (a forgery costs no more than itself).
+            self._controller.on_one_way_delay(
+                now=now, delay=math.nan, sent_at=now, seq=-1, hold=0.0, unacked=0
+            )
+        elif echo is None and hold == HOLD_SATURATED and self._recovery.echo_seq >= 0:
             # The peer had held our newest packet longer than HOLD can say: nothing new from us
             # reached it for over 31.7 ms. No delay to read, but news for the controller.
             recovery = self._recovery
@@ -283,7 +299,10 @@ class OneWayDelay:
             bad = rev < base_in - margin or (
                 echo is not None
                 and (
-                    fwd < base_out - margin
+                    # No real round trip is shorter than the smallest (a forged DATA numbered
+                    # ahead makes the peer's HOLD start before we sent the packet it names).
+                    echo < span - TOLERANCE
+                    or fwd < base_out - margin
                     or rev - base_in > echo + TOLERANCE
                     or fwd - base_out > echo + TOLERANCE
                 )

@@ -397,6 +397,7 @@ class TimestampBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.TIMESTAMP
 
 
@@ -410,6 +411,7 @@ class TimedDataBody(NamedTuple):
 
     @property
     def code(self) -> ControlCode:
+        """The control code this body is sent under."""
         return ControlCode.TIMED_DATA
 
 

@@ -51,11 +51,19 @@ from tdtp.wire.control import (
     RESET_ECHO_SIZE,
     STAMP_SIZE,
     ControlBody,
+    MpAbandonBody,
+    MpChallengeBody,
+    MpReportBody,
+    MpResponseBody,
     PathChallengeBody,
     PathResponseBody,
     ResetBody,
     TimedDataBody,
     TimestampBody,
+    encode_mp_abandon,
+    encode_mp_challenge,
+    encode_mp_report,
+    encode_mp_response,
     encode_path_challenge,
     encode_path_response,
     encode_reset,
@@ -238,6 +246,14 @@ def encode_body(body: ControlBody) -> bytes:
         return encode_timestamp(ControlCode.TIMESTAMP, body.time)
     if isinstance(body, TimedDataBody):
         return encode_timestamp(ControlCode.TIMED_DATA, body.time) + body.payload
+    if isinstance(body, MpChallengeBody):
+        return encode_mp_challenge(body.nonce, body.path_id, body.token)
+    if isinstance(body, MpResponseBody):
+        return encode_mp_response(body.nonce, body.path_id, body.echo, body.token)
+    if isinstance(body, MpReportBody):
+        return encode_mp_report(body)
+    if isinstance(body, MpAbandonBody):
+        return encode_mp_abandon(body.nonce, body.path_id, body.reason)
     return encode_keepalive(body.nonce)
 
 
