@@ -1,7 +1,8 @@
-"""TCP cubic beside one tdtp pair through a real kernel bottleneck: tbf at 1 Mbit/s in a router namespace.
+"""TCP (cubic, bbr) beside one tdtp pair through a real kernel bottleneck: tbf at 1 Mbit/s in a router namespace.
 
-Usage: ``python benchmarks/kernel_bottleneck.py [--duration 20] [--controllers NAME ...] [--rate 1mbit]
-[--queue-ms 100] [--json]``  (``make kernel-check``; needs root, ``ip``, ``tc`` with tbf, ``iperf3``)
+Usage: ``python benchmarks/kernel_bottleneck.py [--duration 20] [--controllers NAME ...] [--tcp cubic bbr]
+[--rate 1mbit] [--queue-ms 100] [--json]``  (``make kernel-check``; needs root, ``ip``, ``tc`` with tbf,
+``iperf3``)
 
 **Topology.** Three network namespaces made for the run (unique names, deleted at the end whatever
 happens, with every process started in them): ``M`` (the tdtp master and the iperf3 client), ``R``
@@ -11,9 +12,10 @@ pairs, ``M 10.201.1.1 - 10.201.1.2 R 10.201.2.1 - 10.201.2.2 S``. R's egress tow
 of QUEUE_MS at the rate. Nothing else is impaired; the way back (S -> M) is free. Only these
 namespaces' addresses are used; no traffic leaves them.
 
-**Runs**, each ``--duration`` seconds, one after the other:
+**Runs**, each ``--duration`` seconds, one after the other, for each TCP congestion control of
+``--tcp`` (cubic, and bbr: this kernel's default, when it has it):
 
-1. ``TCP alone``: ``iperf3 -c S -C cubic -t D`` from M (the baseline: what TCP takes of the link);
+1. ``TCP alone``: ``iperf3 -c S -C CC -t D`` from M (the baseline: what TCP takes of the link);
 2. for each controller (default: every one registered in ``tdtp.control``): the same iperf3 and, started
    together with it, ``tdtp master S:PORT --controller NAME --duration D --json`` in M against
    ``tdtp slave`` in S (100-byte samples at 1 kHz each way, the CLI's defaults).
@@ -60,7 +62,10 @@ WIRE_OVERHEAD = 20 + 8 + 14  # IPv4 + UDP + Ethernet, as tc counts a veth frame
 TDTP_HEADER = 5
 SIZE = 100
 TARGET_SHARE = 0.40
-"""Issue 19: TCP keeps at least this share of the bottleneck beside one tdtp pair."""
+"""Issues 19 and 32: TCP keeps at least this share of the bottleneck beside one tdtp pair."""
+TDTP_TARGET_SHARE = 0.35
+"""Issue 32: the default controller gets at least this share of the bottleneck beside one TCP flow
+(cubic or bbr), by the tbf's bytes."""
 
 
 def missing() -> str | None:
@@ -219,8 +224,11 @@ def tcp_figures(report: Json, rate_bps: float) -> Json:
     }
 
 
-def one_run(net: Namespaces, duration: float, controller: str | None, rate_bps: float) -> Json:
-    """iperf3 for ``duration`` s, with a tdtp pair beside it unless ``controller`` is None."""
+def one_run(
+    net: Namespaces, duration: float, controller: str | None, rate_bps: float, cc: str = "cubic"
+) -> Json:
+    """iperf3 (congestion control ``cc``) for ``duration`` s, with a tdtp pair beside it unless
+    ``controller`` is None."""
     server = net.start("s", "iperf3", "-s", "-1", "-B", S_ADDR, "-p", str(IPERF_PORT), "--json")
     slave = None
     tdtp_cmd = [sys.executable, "-m", "tdtp"]
@@ -240,11 +248,11 @@ def one_run(net: Namespaces, duration: float, controller: str | None, rate_bps: 
         )  # fmt: skip
         wait_for_packets(net, before["packets"] + 50, master)
     client = net.start(
-        "m", "iperf3", "-c", S_ADDR, "-p", str(IPERF_PORT), "-C", "cubic",
+        "m", "iperf3", "-c", S_ADDR, "-p", str(IPERF_PORT), "-C", cc,
         "-t", f"{duration:g}", "--json",
     )  # fmt: skip
     tcp = tcp_figures(json.loads(finish(client, duration + 30.0, "iperf3 -c")), rate_bps)
-    result: Json = {"controller": controller, "tcp": tcp}
+    result: Json = {"controller": controller, "cc": cc, "tcp": tcp}
     if master is not None and slave is not None:
         master_report = json.loads(stop(master, "tdtp master"))
         time.sleep(0.5)
@@ -279,6 +287,7 @@ def tdtp_figures(master: Json, slave: Json) -> Json:
             "latency_p99_ms": latency.get("p99"),
             "srtt_ms": sent["srtt_ms"],
             "allowed_rate": sent["allowed_rate"],
+            "rate_limit": sent.get("rate_limit"),
             "losses": sent["losses"],
             "superseded": sent["samples_superseded"],
             # Data packets only: ACKs ride in them, handshakes are a few bytes more.
@@ -310,6 +319,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = common.OneLineParser(prog="kernel_bottleneck.py", description=doc.splitlines()[0])
     p.add_argument("--duration", type=float, default=20.0, help="seconds per run (20)")
     p.add_argument("--controllers", nargs="+", metavar="NAME", help="tdtp controllers (all)")
+    p.add_argument(
+        "--tcp", nargs="+", metavar="CC", help="TCP congestion controls (cubic, and bbr if known)"
+    )
     p.add_argument("--rate", default="1mbit", help="the bottleneck, tc syntax (1mbit)")
     p.add_argument("--queue-ms", type=float, default=100.0, help="tbf's buffer in ms (100)")
     p.add_argument("--json", action="store_true", help="one JSON report on stdout")
@@ -327,8 +339,23 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if unknown:
         p.error(f"--controllers: unknown {', '.join(unknown)}; known: {', '.join(known)}")
     args.controllers = list(dict.fromkeys(args.controllers or known))
+    available = kernel_congestion_controls()
+    if args.tcp is None:
+        args.tcp = [cc for cc in ("cubic", "bbr") if cc in available] or ["cubic"]
+    unknown_cc = [cc for cc in args.tcp if available and cc not in available]
+    if unknown_cc:
+        p.error(f"--tcp: this kernel has no {', '.join(unknown_cc)}; it has {' '.join(available)}")
     args.seconds, args.repeat = args.duration, 1
     return args
+
+
+def kernel_congestion_controls() -> list[str]:
+    """The TCP congestion controls this kernel offers (empty when it does not say)."""
+    path = Path("/proc/sys/net/ipv4/tcp_available_congestion_control")
+    try:
+        return path.read_text().split()
+    except OSError:
+        return []
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -352,21 +379,22 @@ def main(argv: Sequence[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 1
-        for controller in [None, *args.controllers]:
-            label = "TCP alone" if controller is None else f"TCP + tdtp {controller}"
+        for cc, controller in [(cc, c) for cc in args.tcp for c in [None, *args.controllers]]:
+            label = f"{cc} alone" if controller is None else f"{cc} + tdtp {controller}"
             print(f"== {label} ({args.duration:g} s) ...", file=sys.stderr, flush=True)
             try:
-                result = one_run(net, args.duration, controller, args.rate_bps)
+                result = one_run(net, args.duration, controller, args.rate_bps, cc)
             except (RuntimeError, json.JSONDecodeError, KeyError, ValueError) as exc:
                 print(f"!! {label} failed: {exc}", file=sys.stderr, flush=True)
-                runs.append({"controller": controller, "error": str(exc)})
+                runs.append({"controller": controller, "cc": cc, "error": str(exc)})
                 continue
             tcp = result["tcp"]
             line = f"   TCP {tcp['goodput_bps'] / 1e3:.0f} kbit/s ({100 * tcp['share']:.0f} %)"
             if "tdtp" in result:
                 t = result["tdtp"]
                 line += (
-                    f", tdtp {t['ms']['samples_per_s']:.0f} / {t['sm']['samples_per_s']:.0f} "
+                    f", tdtp {100 * result['tbf']['tdtp_fraction']:.0f} % of the tbf's bytes, "
+                    f"{t['ms']['samples_per_s']:.0f} / {t['sm']['samples_per_s']:.0f} "
                     f"samples/s, latency p99 {ms_text(t['ms']['latency_p99_ms'])} / "
                     f"{ms_text(t['sm']['latency_p99_ms'])} ms"
                 )
@@ -392,17 +420,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     return common.emit("kernel_bottleneck", args, rows, details=details, text=text)
 
 
-def label_of(controller: str | None, default: str) -> str:
+def label_of(controller: str | None, default: str, cc: str = "cubic") -> str:
     if controller is None:
-        return "TCP alone"
-    return f"TCP + tdtp {controller}" + (" (default)" if controller == default else "")
+        return f"{cc} alone"
+    return f"{cc} + tdtp {controller}" + (" (default)" if controller == default else "")
 
 
 def markdown(runs: list[Json], args: argparse.Namespace, default: str, busy: float) -> str:
     lines = [
         f"tbf {args.rate} with a {args.queue_ms:g} ms buffer, {args.duration:g} s per run, iperf3 "
-        f"-C cubic; tdtp 100-byte samples at 1 kHz each way; other tenants used {busy:.0f} % of a "
-        "core meanwhile.",
+        f"-C {' / '.join(args.tcp)}; tdtp 100-byte samples at 1 kHz each way; other tenants used "
+        f"{busy:.0f} % of a core meanwhile.",
         "",
         "| run | TCP goodput kbit/s (share) | TCP 2nd half (share) | TCP retransmits "
         "| tdtp share of tbf bytes | tdtp samples/s M->S / S->M | tdtp latency p99 ms M->S / S->M "
@@ -410,7 +438,7 @@ def markdown(runs: list[Json], args: argparse.Namespace, default: str, busy: flo
         "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in runs:
-        label = label_of(r["controller"], default)
+        label = label_of(r["controller"], default, r.get("cc", "cubic"))
         if "error" in r:
             lines.append(f"| {label} | failed: {r['error'][:100]} | | | | | | |")
             continue
@@ -441,9 +469,11 @@ def rows_of(runs: list[Json], default: str) -> list[Row]:
         if "error" in r:
             continue
         tcp = r["tcp"]
+        cc = r.get("cc", "cubic")
+        label = label_of(r["controller"], default, cc)
         target, meets = "", None
         if r["controller"] is not None:
-            target = f">= {TARGET_SHARE:.0%} (issue 19)"
+            target = f">= {TARGET_SHARE:.0%} (issues 19, 32)"
             meets = tcp["share"] >= TARGET_SHARE
         note = ""
         if "tdtp" in r:
@@ -455,7 +485,7 @@ def rows_of(runs: list[Json], default: str) -> list[Row]:
         rows.append(
             Row(
                 "kernel_bottleneck",
-                f"{label_of(r['controller'], default)}: TCP cubic's share of the tbf link",
+                f"{label}: TCP {cc}'s share of the tbf link",
                 "",
                 Stat.of([tcp["share"]]),
                 target=target,
@@ -464,6 +494,19 @@ def rows_of(runs: list[Json], default: str) -> list[Row]:
                 digits=2,
             )
         )
+        if r["controller"] == default and "tdtp" in r:
+            share = r["tbf"]["tdtp_fraction"]
+            rows.append(
+                Row(
+                    "kernel_bottleneck",
+                    f"{label}: tdtp's share of the tbf's bytes",
+                    "",
+                    Stat.of([share]),
+                    target=f">= {TDTP_TARGET_SHARE:.0%} (issue 32)",
+                    meets=share >= TDTP_TARGET_SHARE,
+                    digits=2,
+                )
+            )
     return rows
 
 

@@ -12,7 +12,9 @@ Per profile and controller, the median over the seeds (and the range) of, each w
 ``arrived/s`` (data packets that reached the receiver: delivered plus late), ``newest/s`` (samples
 delivered: newer than any before them), ``late/s``, latency p50/p99 of the delivered samples, the
 sender's declared losses and reordered packets, and for a ``rate`` profile the share of the link's
-capacity the data used.
+capacity the data used. A profile ``"A | B"`` gives each direction its own (A master to slave, B
+slave to master: a bottleneck in one direction), and then each way also reports the receiver's
+sample age p50 (``DataReceived.age``, or its estimate) beside the true latency.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ class Side:
     addr: tuple[str, int]
     link: NetemLink  # the link this side sends into
     latencies: list[float] = field(default_factory=list)
+    ages: list[float] = field(default_factory=list)
     arrived: int = 0
     limits: dict[str, int] = field(default_factory=dict)
 
@@ -53,9 +56,18 @@ def _percentile(values: list[float], q: float) -> float:
 
 
 def run(
-    profile: str, controller: str, *, seed: int, duration: float, rate: float, size: int
+    profile: str,
+    controller: str,
+    *,
+    seed: int,
+    duration: float,
+    rate: float,
+    size: int,
+    warmup: float = 1.0,
 ) -> dict[str, Any]:
-    spec = parse_netem(profile)
+    forward, _, backward = profile.partition("|")
+    spec = parse_netem(forward.strip())
+    spec_back = parse_netem(backward.strip()) if backward.strip() else spec
     config = ConnectionConfig(controller=controller)  # type: ignore[arg-type]
     rng = random.Random(seed)
     master = Side(
@@ -66,7 +78,7 @@ def run(
     slave = Side(
         Connection(config, role=Role.SLAVE, rng=random.Random(rng.random())),
         SLAVE,
-        NetemLink(spec, seed=rng.getrandbits(32)),
+        NetemLink(spec_back, seed=rng.getrandbits(32)),
     )
     peer_of = {id(master): slave, id(slave): master}
     padding = bytes(size - _STAMP.size)
@@ -74,7 +86,7 @@ def run(
     master.conn.connect(SLAVE, now=now)
     established_at: float | None = None
     next_tick = 0.0
-    measure_from = 1.0  # skip the opening second
+    measure_from = warmup  # skip the opening (the default: its first second)
 
     def flush(side: Side, t: float) -> None:
         for datagram, _addr in side.conn.datagrams_to_send(now=t):
@@ -86,6 +98,9 @@ def run(
             if isinstance(event, DataReceived):
                 if t >= measure_from:
                     side.latencies.append(t - _STAMP.unpack_from(event.payload)[0])
+                    age = event.age
+                    if age is not None:
+                        side.ages.append(age)
             elif established_at is None and side is master:
                 established_at = t
 
@@ -145,6 +160,7 @@ def run(
             "late_per_s": round(late / duration, 1),
             "latency_p50_ms": round(_percentile(receiver.latencies, 0.5) * 1e3, 2),
             "latency_p99_ms": round(_percentile(receiver.latencies, 0.99) * 1e3, 2),
+            "age_p50_ms": round(_percentile(receiver.ages, 0.5) * 1e3, 2),
             "declared_lost": sstats.packets_lost,
             "reordered": sstats.packets_reordered,
             "loss_events": sstats.loss_events,
@@ -156,10 +172,11 @@ def run(
             ],
             "limits": dict(sorted(side.limits.items(), key=lambda kv: -kv[1])),
         }
-        if spec.rate is not None:
+        side_rate = side.link.spec.rate
+        if side_rate is not None:
             link = side.link.stats
             out[name]["link_use"] = round(
-                link.bytes_out * 8 / (duration + measure_from) / spec.rate.rate_bps, 3
+                link.bytes_out * 8 / (duration + measure_from) / side_rate.rate_bps, 3
             )
     return out
 
@@ -172,6 +189,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--rate", type=float, default=1000.0)
     parser.add_argument("--size", type=int, default=100)
+    parser.add_argument(
+        "--warmup", type=float, default=1.0, help="seconds not measured (1; 0: the start-up counts)"
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -186,6 +206,7 @@ def main(argv: list[str] | None = None) -> int:
                     duration=args.duration,
                     rate=args.rate,
                     size=args.size,
+                    warmup=args.warmup,
                 )
                 for s in seeds
             ]
@@ -198,6 +219,7 @@ def main(argv: list[str] | None = None) -> int:
                     "late_per_s",
                     "latency_p50_ms",
                     "latency_p99_ms",
+                    "age_p50_ms",
                     "declared_lost",
                     "reordered",
                     "link_use",

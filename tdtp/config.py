@@ -314,6 +314,13 @@ class ConnectionConfig:
     """Keyed master: ask an exclusive slave (``listen(exclusive=True)``) to hand control to this
     master at once, ending the session of the master that has it (the OPEN's TAKEOVER flag;
     docs/PROTOCOL.md 5.9). Ignored by an unkeyed master: anyone could send it."""
+    timestamp_interval: float = 0.004
+    """A master whose rate controller judges one-way delays (``teleop``) opens its sessions with
+    the TIMESTAMPS flag: both ends then stamp their send time on a packet at most this often, so
+    that each measures the queue of its own direction and the true one-way age of a sample on an
+    asymmetric path (docs/PROTOCOL.md 5.13; 5 bytes on about one packet in four at 1 kHz). ``0``:
+    no stamps (controllers judge by round trips, ages are half of one). A slave follows its master
+    (with 0 of its own it stamps every 4 ms); a multipath session never stamps."""
     admission: AdmissionConfig = field(default_factory=AdmissionConfig)
     """A slave's policy for OPENs: cookies and rate limits."""
     multipath: MultipathConfig | None = None
@@ -400,6 +407,13 @@ class ConnectionConfig:
             isinstance(self.control_window, int) and 1 <= self.control_window <= MAX_CONTROL_WINDOW,
             f"control_window must be an integer in 1..{MAX_CONTROL_WINDOW} (messages), "
             f"got {self.control_window!r}",
+        )
+        _require(
+            isinstance(self.timestamp_interval, int | float)
+            and not isinstance(self.timestamp_interval, bool)
+            and 0.0 <= self.timestamp_interval <= 1.0,
+            f"timestamp_interval must be a number of seconds in 0..1 (0 = no timestamps), "
+            f"got {self.timestamp_interval!r}",
         )
         _positive_finite("control_max_rate", self.control_max_rate, "per second")
         _positive_finite("control_timeout", self.control_timeout)

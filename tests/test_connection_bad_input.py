@@ -122,7 +122,7 @@ def test_an_optimistic_ack_is_ignored_and_a_standalone_one_dropped() -> None:
 
 
 def test_replayed_data_is_a_duplicate() -> None:
-    pair = Pair()
+    pair = Pair(ConnectionConfig(timestamp_interval=0.0))  # every sample a DATA: the index counts
     pair.ms.keep_wire = True
     pair.open()
     pair.start_samples(1000, 1000)

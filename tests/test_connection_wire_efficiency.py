@@ -6,7 +6,7 @@ import pytest
 
 from tdtp import AckMode, ConnectionConfig
 from tdtp.control.fixed import FixedConfig
-from tdtp.wire import HEADER_SIZE, PacketType, decode_header
+from tdtp.wire import HEADER_SIZE, STAMP_SIZE, ControlCode, PacketType, decode_header
 
 from pair import Direction, Pair
 
@@ -21,19 +21,32 @@ def _run(config: ConnectionConfig, seconds: float) -> Pair:
     return pair
 
 
-def test_tdtp_mode_sends_no_standalone_acks_and_five_byte_headers() -> None:
-    pair = _run(ConnectionConfig(), 10.0)
+def _carries_a_sample(datagram: bytes) -> bool:
+    """DATA, or TIMED_DATA (a DATA with its sender's clock: PROTOCOL.md 5.13)."""
+    ptype = decode_header(datagram).ptype
+    return ptype == PacketType.DATA or (
+        ptype == PacketType.CONTROL and datagram[HEADER_SIZE] == ControlCode.TIMED_DATA
+    )
+
+
+@pytest.mark.parametrize("stamps", [False, True])
+def test_tdtp_mode_sends_no_standalone_acks_and_five_byte_headers(stamps: bool) -> None:
+    """The paper's framing (without send timestamps), and with them: 5 more bytes on one sample
+    every 4 ms, nothing else."""
+    pair = _run(ConnectionConfig(timestamp_interval=0.004 if stamps else 0.0), 10.0)
     for direction, endpoint in ((pair.ms, pair.master), (pair.sm, pair.slave)):
         kinds = [decode_header(d).ptype for d in direction.wire]
-        data = [d for d in direction.wire if decode_header(d).ptype == PacketType.DATA]
+        data = [d for d in direction.wire if _carries_a_sample(d)]
+        timed = [d for d in data if decode_header(d).ptype == PacketType.CONTROL]
         assert kinds.count(PacketType.ACK) == 0
         assert len(data) >= 9990  # 1000 samples/s for 10 s, less the open's few milliseconds
-        assert all(len(d) == 100 + HEADER_SIZE for d in data)
+        assert all(len(d) == 100 + HEADER_SIZE for d in data if d not in timed)
+        assert all(len(d) == 100 + HEADER_SIZE + STAMP_SIZE for d in timed)
+        assert (1990 <= len(timed) <= 2510) if stamps else not timed, len(timed)
         # Every data packet after the first reverse one carries a real acknowledgement.
         assert sum(decode_header(d).hold != 255 for d in data) >= len(data) - 15
         stats = endpoint.conn.stats
         assert stats.sent.ack_packets == 0
-        assert stats.sent.header_bytes == HEADER_SIZE * stats.sent.datagrams
         assert stats.packets_lost == 0
         assert 0.0199 < stats.srtt < 0.0201  # 10 ms each way; the hold time is subtracted
 
@@ -86,7 +99,7 @@ def test_plain_acks_is_validated_and_ignored_with_piggybacked_acks() -> None:
     with pytest.raises(ValueError, match="plain_acks"):
         ConnectionConfig(plain_acks=1)  # type: ignore[arg-type]
     pair = _run(ConnectionConfig(plain_acks=True), 1.0)  # bidirectional: SACK as always
-    data = [decode_header(d) for d in pair.ms.wire if decode_header(d).ptype == PacketType.DATA]
+    data = [decode_header(d) for d in pair.ms.wire if _carries_a_sample(d)]
     reports = [d for d in data if d.hold != 255]  # all but the few before the reverse flow began
     assert len(reports) > 950
     assert sum(d.sack == 0b111111 for d in reports) > 0.99 * len(reports)

@@ -61,7 +61,12 @@ def _closes(pair: Pair) -> list[ConnectionClosed]:
 
 
 def _newest_data(pair: Pair, back: int = 1) -> bytes:
-    return [d for d in pair.ms.wire if d[0] >> 6 == PacketType.DATA][-back]
+    """A DATA, or a TIMED_DATA (a sample with its sender's clock: at 100 Hz every sample is one)."""
+    return [
+        d
+        for d in pair.ms.wire
+        if d[0] >> 6 == PacketType.DATA or (d[0] >> 6 == PacketType.CONTROL and d[5] == 16)
+    ][-back]
 
 
 # ---------------------------------------------------------------------- RESET is no oracle
@@ -198,7 +203,8 @@ def test_a_loss_burst_of_the_real_flow_is_not_far_ahead() -> None:
     pair.start_samples(1000, 1000)
     pair.run_for(1.5)
     assert "far_ahead" not in pair.slave.conn.stats.drops
-    assert len(pair.slave.received) >= pair.master.offered - 60 - 20
+    # (the window holds a few back while the burst's losses are unreported: superseded, not late)
+    assert len(pair.slave.received) >= pair.master.offered - 60 - 40
 
 
 def test_forged_data_cannot_silence_a_master_that_sends_no_data() -> None:

@@ -31,7 +31,7 @@ def _run(*argv: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
 
 def test_tcp_and_a_tdtp_pair_share_a_tbf_and_every_byte_is_accounted_for() -> None:
     controller = tdtp.control.DEFAULT_CONTROLLER
-    done = _run("--duration", "2", "--controllers", controller, "--json")
+    done = _run("--duration", "2", "--controllers", controller, "--tcp", "cubic", "--json")
     if done.returncode == 1 and "cannot set up" in done.stderr:
         pytest.skip(done.stderr.strip().splitlines()[-1])  # e.g. a kernel without tbf or veth
     assert done.returncode == 0, done.stderr
@@ -60,7 +60,7 @@ def test_tcp_and_a_tdtp_pair_share_a_tbf_and_every_byte_is_accounted_for() -> No
     assert details["namespaces_left"] == []
     listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, check=False)
     assert details["namespaces"] not in listed.stdout
-    assert len(report["rows"]) == 2
+    assert len(report["rows"]) == 3  # TCP alone; beside the pair: TCP's share and tdtp's
 
 
 @pytest.mark.parametrize(

@@ -101,7 +101,8 @@ def test_a_keyed_session_carries_samples_with_18_bytes_of_protection() -> None:
 
 
 def test_encryption_off_leaves_payloads_readable_but_authenticated() -> None:
-    pair = _keyed(ConnectionConfig(encrypt=False))
+    # Every sample a DATA (no send timestamps), so the first one is sample 1.
+    pair = _keyed(ConnectionConfig(encrypt=False, timestamp_interval=0.0))
     assert pair.slave.conn.keyed and not pair.slave.conn.encrypted  # the slave adopted it
     data = _data(pair.ms.wire)
     first = data[0]

@@ -66,6 +66,7 @@ FIELDS = [
     "tdtp.message.seq",
     "tdtp.message.ack",
     "tdtp.message_len",
+    "tdtp.stamp",
 ]
 HEURISTICS_FIRST = ("-o", "udp.try_heuristic_first:TRUE")
 UNKEYED = (("192.0.2.1", 40001), ("192.0.2.2", 47000))  # 47000: HCrt's port in Wireshark
@@ -118,6 +119,11 @@ def expected_fields(datagram: bytes, keyed: bool) -> dict[str, str]:
         out["tdtp.message.seq"] = str(int.from_bytes(datagram[22:24], "big"))
         out["tdtp.message.ack"] = str(int.from_bytes(datagram[24:26], "big"))
         out["tdtp.message_len"] = str(len(datagram) - 26)
+        return out
+    if datagram[5] in (15, 16):  # TIMESTAMP, TIMED_DATA: the sender's clock (and the sample)
+        out["tdtp.stamp"] = str(int.from_bytes(datagram[6:10], "big"))
+        if datagram[5] == 16:
+            out["tdtp.payload_len"] = str(len(datagram) - 10)
         return out
     if datagram[5] == 11:  # MESSAGE_ACK: the master's nonce, next expected
         out["tdtp.nonce"] = datagram[6:22].hex()
@@ -237,7 +243,10 @@ def _build(path: Path) -> tuple[dict[int, bool], dict[int, str]]:
         )
         inject(encode_header(1, 1, 2, 3, 0) + b"\x01" * 7, "ACK padding is not zero", separate)
         first_keyed = writer.packets + 1
-        keyed = _session(writer, KEYED, keyed=True)
+        # Stamps now and then (keyed TIMESTAMPs, TIMED_DATA), and plain keyed ACKs between them.
+        keyed = _session(
+            writer, KEYED, config=ConnectionConfig(timestamp_interval=0.05), keyed=True
+        )
         inject(encode_header(0, 1, 0, 0, 255) + bytes(10), "Too short for packet number", keyed)
         last_keyed = writer.packets
         _session(writer, REFUSED, refused=True)
@@ -273,7 +282,7 @@ def test_every_packet_type_field_by_field(tmp_path: Path) -> None:
     assert {("0", False), ("1", False), ("2", False), ("0", True), ("1", True), ("2", True)} <= (
         types_seen
     )
-    assert {"1", "2", "3", "4", "5", "6", "8", "9", "10", "11"} <= codes_seen
+    assert {"1", "2", "3", "4", "5", "6", "8", "9", "10", "11", "15", "16"} <= codes_seen
 
 
 def test_the_port_preference_claims_a_port_another_dissector_owns(tmp_path: Path) -> None:

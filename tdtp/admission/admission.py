@@ -62,7 +62,11 @@ from tdtp.wire.hold import HOLD_NO_ACK
 from tdtp.wire.protected import TAG_SIZE
 
 _CONTROL: Final = int(PacketType.CONTROL)
-_KEEPALIVE: Final = int(ControlCode.KEEPALIVE)
+_ANSWERED_CONTROL: Final = frozenset(
+    int(code) for code in (ControlCode.KEEPALIVE, ControlCode.TIMESTAMP, ControlCode.TIMED_DATA)
+)
+"""The CONTROL codes a RESET answers: session traffic that stands for a sample or an
+acknowledgement (at a low sample rate every sample may be a TIMED_DATA: PROTOCOL.md 5.13)."""
 _REJECT_SIZE: Final = HEADER_SIZE + CLOSE_BODY_SIZE
 _REPLY_HEADER: Final = encode_header(_CONTROL, 0, 0, 0, HOLD_NO_ACK)
 """The base header of every reply to an unvalidated OPEN (no sequence, nothing acknowledged)."""
@@ -155,7 +159,7 @@ class Admission:
         """Path migration: finds the session a datagram from an unknown address belongs to."""
 
     def reset(self, data: bytes, now: float) -> bytes | None:
-        """A RESET for a session datagram (DATA, ACK, KEEPALIVE) from an address holding no
+        """A RESET for a session datagram (DATA, ACK, KEEPALIVE, TIMESTAMP, TIMED_DATA) from an address holding no
         session, or ``None``: not a session datagram, too small to answer without amplifying, or
         over the RESET budget. Unkeyed it echoes the datagram's first 16 bytes; keyed it adds one
         tag per key of the ring, as many as fit in the datagram's size (PROTOCOL.md 5.7)."""
@@ -163,7 +167,7 @@ class Admission:
         if size < RESET_SIZE:
             return None
         ptype = data[0] >> 6
-        if ptype > _CONTROL or (ptype == _CONTROL and data[HEADER_SIZE] != _KEEPALIVE):
+        if ptype > _CONTROL or (ptype == _CONTROL and data[HEADER_SIZE] not in _ANSWERED_CONTROL):
             return None
         stats = self.stats
         stats.strangers += 1

@@ -121,6 +121,9 @@ class DirectionMeter:
             parts.insert(3, f"reordered {reordered:4d}")  # late, not lost: apart from the losses
         if sender.rate_limit:
             parts.append(f"limit: {sender.rate_limit}")
+        if sender.timestamps:
+            # This direction's own queue, from the receiver's send times (PROTOCOL.md 5.13).
+            parts.append(f"queue {sender.queue_delay_out * 1e3:5.1f} ms")
         if latency:
             parts.append(
                 f"latency p50 {percentile(latency, 0.5) * 1e3:6.3f} ms"
@@ -153,6 +156,8 @@ def receive_line(
             f"  latency p50 {percentile(window, 0.5) * 1e3:6.3f} ms"
             f" p99 {percentile(window, 0.99) * 1e3:6.3f} ms"
         )
+    if receiver is not None and receiver.timestamps:
+        text += f"  queue {receiver.queue_delay_in * 1e3:5.1f} ms"
     age = age_text(receiver) if receiver is not None else None
     if age:
         text += "  " + age

@@ -37,6 +37,7 @@ _SENDER_KEYS = (
     "spurious_losses",
     "packets_reordered",
     "rate_limit",
+    "queue_delay_ms",
     "srtt_ms",
     "rttvar_ms",
     "min_rtt_ms",
@@ -56,6 +57,7 @@ _RECEIVER_KEYS = (
     "mean_rate",
     "sample_age_ms",
     "samples_timed",
+    "queue_delay_ms",
 )
 
 
@@ -92,6 +94,8 @@ def sender_view(stats: ConnectionStats) -> dict[str, Any]:
         "spurious_losses": stats.spurious_losses,
         "packets_reordered": stats.packets_reordered,
         "rate_limit": stats.rate_limit or None,
+        # This direction's own queue, as the peer's send times measure it (PROTOCOL.md 5.13).
+        "queue_delay_ms": _ms(stats.queue_delay_out) if stats.timestamps else None,
         "srtt_ms": _ms(stats.srtt),
         "rttvar_ms": _ms(stats.rttvar),
         "min_rtt_ms": _ms(stats.min_rtt),
@@ -120,6 +124,7 @@ def receiver_view(stats: ConnectionStats, duration: float) -> dict[str, Any]:
             else None
         ),
         "samples_timed": stats.samples_timed,
+        "queue_delay_ms": _ms(stats.queue_delay_in) if stats.timestamps else None,
     }
 
 

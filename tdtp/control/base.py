@@ -11,6 +11,8 @@ on the caller's monotonic clock) as a keyword argument. The connection calls
 * :meth:`RateController.on_peer_silent` and :meth:`RateController.on_peer_resumed` when nothing at all
   has arrived from the peer for ``silence_timeout`` (an outage, not congestion), and when it is heard
   again (optional: the default does nothing);
+* :meth:`RateController.on_one_way_delay` when the peer's send time, stamped on one of its packets,
+  timed our own direction alone (sessions with timestamps, docs/PROTOCOL.md 5.13; optional);
 
 and asks :meth:`RateController.next_send_time` (the earliest moment the next data packet may leave) and
 :attr:`RateController.rate` (the allowed rate, packets per second).
@@ -83,10 +85,18 @@ class RateController(abc.ABC):
 
     name: ClassVar[str]
 
+    judges_one_way_delay: ClassVar[bool] = False
+    """The controller reads :meth:`on_one_way_delay`: a master running it opens its sessions with
+    timestamps (``ConnectionConfig.timestamp_interval``)."""
+
     feedback_delay: float = 0.0
     """Longest the peer may hold an acknowledgement before it leaves (the peer's ``ack_delay``): the
     connection sets it. A feedback gap this much longer than the RTT is not yet a blackout, so
     no-feedback timers add it."""
+
+    silence_timeout: float = 0.1
+    """How long the connection waits, with nothing at all from the peer, before it calls
+    :meth:`on_peer_silent` (its ``silence_timeout``): the connection sets it."""
 
     sample_waiting: bool = True
     """Whether a sample is waiting to leave (held by the pacer, or by a full socket buffer): the
@@ -154,6 +164,17 @@ class RateController(abc.ABC):
         connection's ``silence_timeout``: the path is out (or the peer stalled). Unlike missing
         acknowledgements alone, which may mean congestion, a total silence says nothing about the
         path's capacity."""
+
+    def on_one_way_delay(  # noqa: B027 -- optional hook, no-op default
+        self, *, now: float, delay: float, sent_at: float, seq: int, hold: float, unacked: int
+    ) -> None:
+        """The peer timed the arrival of our data packet ``seq``, sent at ``sent_at``: ``delay`` is
+        its one-way delay plus a constant (the two clocks' offset; only differences and minima
+        mean something), so a queue in the other direction does not show in it. ``hold`` is how
+        long the packet had been the newest of ours at the peer when the peer's stamp left: the
+        time the peer had heard nothing newer from us; ``math.inf`` (and ``delay`` NaN) when that
+        was longer than the header's HOLD can say (31.7 ms). ``unacked`` counts the data packets
+        we sent after ``seq``: on their way, queued or lost."""
 
     def on_peer_resumed(self, *, now: float, silent_for: float) -> None:  # noqa: B027
         """The peer is heard again after :meth:`on_peer_silent`, ``silent_for`` seconds after its

@@ -16,6 +16,7 @@ __all__ = [
     "available_controllers",
     "controller_config_type",
     "create_controller",
+    "judges_one_way_delay",
     "register_controller",
 ]
 
@@ -56,6 +57,13 @@ def controller_config_type(name: str) -> type[Any] | None:
     """The config class of the controller registered as ``name``, or ``None`` if there is none."""
     entry = _registry.get(name) if isinstance(name, str) else None
     return None if entry is None else entry[1]
+
+
+def judges_one_way_delay(name: str) -> bool:
+    """Whether the controller registered as ``name`` reads one-way delays (its class says so with
+    ``judges_one_way_delay``): a master running it opens its sessions with timestamps."""
+    entry = _registry.get(name) if isinstance(name, str) else None
+    return entry is not None and bool(getattr(entry[0], "judges_one_way_delay", False))
 
 
 def create_controller(name: str, config: object | None = None) -> RateController:

@@ -33,14 +33,17 @@ the trinomial pacer spaces the packets. :attr:`TeleopController.rate_limit` says
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import ClassVar, Final
 
 from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
+from tdtp.control.competition import DECREASE as COMPETE_DECREASE
+from tdtp.control.competition import Competition
 from tdtp.control.equations import padhye_rate
+from tdtp.control.one_way_signal import OneWaySignal
 from tdtp.control.send_meter import GAP_GAIN, SendMeter
+from tdtp.control.teleop_config import TeleopConfig, positive_finite
 
 __all__ = [
     "LIMIT_APPLICATION",
@@ -49,6 +52,7 @@ __all__ = [
     "LIMIT_LOSS",
     "LIMIT_PROBING",
     "LIMIT_QUEUE_DELAY",
+    "LIMIT_STALLED",
     "LIMIT_TCP_FRIENDLY",
     "TeleopConfig",
     "TeleopController",
@@ -58,6 +62,34 @@ __all__ = [
 MIN_SAMPLES: Final = 16
 """RTT samples a control interval needs before it judges the queue: the smallest of fewer would
 read jitter as queue. An interval without them is stretched, up to ``MAX_STRETCH`` times its length."""
+MIN_ONE_WAY_SAMPLES: Final = 4
+"""The same for one-way samples, which come one per peer stamp (every few ms) and carry the jitter
+of one direction only."""
+DRAIN_FLOOR: Final = 0.25
+"""A drain sends at least this fraction of the delivered rate (a deeper queue drains for longer)."""
+DRAIN_LONGEST: Final = 4.0
+"""A drain lasts at most this many base round trips (it ends earlier when the queue is gone)."""
+CRUISE: Final = 0.95
+"""After a drain the rate is this fraction of what the link delivered while the queue built."""
+OWD_PROBE: Final = 0.01
+"""With one-way delays: the first probe step above what the link carried, as a fraction of the rate
+(at least ``initial_rate``); it doubles with each interval the queue stays short."""
+GROWING: Final = 0.1
+"""With one-way delays: a standing queue that grew by this fraction of the target in each of two
+intervals in a row stops the probe (it holds the rate)."""
+BLIND_SHARE: Final = 0.5
+"""A direction whose peer went silent holds this share of what its receiver last received (one
+halving, as a loss would cost, then no more for ``blind_hold``)."""
+WINDOW_QUEUE: Final = 0.03
+"""Seconds of queue (at the rate the link delivers) the window allows at least, above the lag of
+the feedback; more when the queue-delay target is higher (twice it)."""
+WINDOW_MIN: Final = 4.0
+"""Packets the window allows at least."""
+WINDOW_PROBE: Final = 0.05
+"""A full window still lets a packet go this often (or once per lag, if longer)."""
+LAG_GAIN: Final = 0.125
+DRAIN_RATE: Final = 20.0
+"""Packets/s a drain keeps sending at least (enough to see the queue go within 50 ms)."""
 MAX_STRETCH: Final = 8.0
 NOISE_GAIN: Final = 0.125
 """Gain of the moving average of the standing RTT's interval-to-interval change."""
@@ -89,158 +121,15 @@ LIMIT_BLACKOUT: Final = "no feedback"
 """No acknowledgement for several RTTs: the rate backs off until feedback returns."""
 LIMIT_PROBING: Final = "probing"
 """The pacer holds the sender and the rate is still growing towards what the path carries."""
-
-
-def _check(ok: bool, message: str) -> None:
-    if not ok:
-        raise ValueError(f"TeleopConfig.{message}")
-
-
-def _positive_finite(value: float) -> bool:
-    return 0.0 < value < math.inf
-
-
-@mypyc_attr(native_class=False)  # a plain class: __post_init__ judges the types
-@dataclass(frozen=True, slots=True)
-class TeleopConfig:
-    """Configuration of :class:`TeleopController`; docs/CONTROL.md section 9 argues every default."""
-
-    target_queue_delay: float = 0.005
-    """Seconds of queueing the flow tolerates before it slows down (a few ms: haptics)."""
-    min_rate: float = 0.0
-    """Opt-in floor, packets/s, held whatever the path signals (0 = off). Gives up fairness."""
-    initial_rate: float = 1000.0
-    """Packets/s before any feedback: a 1 kHz loop is not throttled at start."""
-    max_rate: float = 100_000.0
-    """Ceiling, packets/s."""
-    lowest_rate: float = 4.0
-    """Liveness floor, packets/s: one packet per 250 ms keeps feedback flowing in a blackout."""
-    interval: float = 0.025
-    """Shortest control interval, seconds (an interval is ``max(srtt, interval)``): long enough that a
-    1 kHz stream's RTT samples in one interval show the queue's floor through jitter."""
-    base_window: float = 10.0
-    """Seconds over which the smallest standing RTT is the path's base RTT."""
-    drain_every: float = 4.0
-    """At most every this many seconds, and only after a loss event (losses with no queue in sight
-    are what a hidden standing queue looks like), one control interval runs at ``drain_fraction`` of
-    the rate, so that a queue this flow keeps standing drains and the base RTT is measured without it
-    (BBR's ProbeRTT). Keep it below half of ``base_window``; ``math.inf`` never drains."""
-    drain_fraction: float = 0.5
-    """The rate during a drain interval, as a fraction of the rate in use."""
-    delay_decrease: float = 0.85
-    """A queue above the target sets the rate to this fraction of the rate the peer received."""
-    loss_decrease: float = 0.5
-    """A loss event with a growing queue multiplies the rate in use by this."""
-    probe_gain: float = 0.05
-    """Growth per interval once congestion has been seen (the search near the path's capacity)."""
-    ramp_gain: float = 1.0
-    """Growth per interval before congestion has been seen (1 = doubling, as slow start)."""
-    ramp_reset: float = 5.0
-    """Seconds without a congestion signal after which the ramp gain applies again."""
-    heavy_loss: float = 0.1
-    """Loss event rate above which loss alone cuts the rate by ``p / 2`` per interval (GCC's 10 %)."""
-    tcp_segment: int = 1460
-    """Segment size, bytes, of the TCP the byte-based ceiling compares the flow with."""
-    ip_overhead: int = 28
-    """Bytes below each datagram on the wire (IPv4 + UDP), counted against the flow."""
-    app_headroom: float = 2.0
-    """While the application sets the pace, the allowance grows to at most this multiple of its rate."""
-    no_feedback_rtts: float = 4.0
-    """Blackout: halve the rate after ``max(this * srtt, 2 / rate)`` without feedback (RFC 5348)."""
-    initial_rtt: float = 0.5
-    """srtt assumed before the first feedback."""
-
-    def __post_init__(self) -> None:
-        need = _check
-        need(
-            _positive_finite(self.target_queue_delay),
-            f"target_queue_delay must be a positive, finite number of seconds, "
-            f"got {self.target_queue_delay!r} (0.005 is 5 ms)",
-        )
-        need(
-            _positive_finite(self.lowest_rate),
-            f"lowest_rate must be a positive, finite rate in packets/s, got {self.lowest_rate!r}",
-        )
-        need(
-            _positive_finite(self.max_rate) and self.max_rate >= self.lowest_rate,
-            f"max_rate must be finite and at least lowest_rate ({self.lowest_rate!r}), "
-            f"got {self.max_rate!r}; use FixedConfig(rate=math.inf) for an unpaced sender",
-        )
-        need(
-            0.0 <= self.min_rate <= self.max_rate,
-            f"min_rate must be 0 (no floor) or a rate in packets/s up to max_rate "
-            f"({self.max_rate!r}), got {self.min_rate!r}",
-        )
-        need(
-            self.lowest_rate <= self.initial_rate <= self.max_rate,
-            f"initial_rate must lie between lowest_rate ({self.lowest_rate!r}) and max_rate "
-            f"({self.max_rate!r}), got {self.initial_rate!r}",
-        )
-        need(
-            _positive_finite(self.interval),
-            f"interval must be a positive, finite number of seconds, got {self.interval!r}",
-        )
-        need(
-            _positive_finite(self.base_window) and self.base_window >= self.interval,
-            f"base_window must be a finite number of seconds, at least interval "
-            f"({self.interval!r}), got {self.base_window!r}",
-        )
-        need(
-            self.drain_every > 0.0 and not math.isnan(self.drain_every),
-            f"drain_every must be a positive number of seconds (math.inf: never), "
-            f"got {self.drain_every!r}",
-        )
-        need(
-            0.0 < self.drain_fraction < 1.0,
-            f"drain_fraction must be strictly between 0 and 1, got {self.drain_fraction!r}",
-        )
-        need(
-            0.0 < self.delay_decrease < 1.0,
-            f"delay_decrease must be strictly between 0 and 1, got {self.delay_decrease!r}",
-        )
-        need(
-            0.0 < self.loss_decrease < 1.0,
-            f"loss_decrease must be strictly between 0 and 1, got {self.loss_decrease!r}",
-        )
-        need(
-            _positive_finite(self.probe_gain) and self.probe_gain <= self.ramp_gain,
-            f"probe_gain must be positive and at most ramp_gain ({self.ramp_gain!r}), "
-            f"got {self.probe_gain!r}",
-        )
-        need(
-            0.0 < self.ramp_gain <= 1.0,
-            f"ramp_gain must be in (0, 1] (1 doubles the rate per interval), got {self.ramp_gain!r}",
-        )
-        need(
-            self.ramp_reset >= 0.0,
-            f"ramp_reset must be a non-negative number of seconds, got {self.ramp_reset!r}",
-        )
-        need(
-            0.0 < self.heavy_loss <= 1.0,
-            f"heavy_loss must be a loss event rate in (0, 1], got {self.heavy_loss!r}",
-        )
-        need(
-            isinstance(self.tcp_segment, int) and 1 <= self.tcp_segment <= 65535,
-            f"tcp_segment must be a segment size in bytes (1..65535), got {self.tcp_segment!r}",
-        )
-        need(
-            isinstance(self.ip_overhead, int) and 0 <= self.ip_overhead <= 1024,
-            f"ip_overhead must be a number of bytes in 0..1024 (28 for IPv4 + UDP), "
-            f"got {self.ip_overhead!r}",
-        )
-        need(
-            self.app_headroom >= 1.0,
-            f"app_headroom must be at least 1 (math.inf disables it), got {self.app_headroom!r}",
-        )
-        need(
-            1.0 <= self.no_feedback_rtts < math.inf,
-            f"no_feedback_rtts must be a finite number of RTTs, at least 1, "
-            f"got {self.no_feedback_rtts!r}",
-        )
-        need(
-            _positive_finite(self.initial_rtt),
-            f"initial_rtt must be a positive, finite number of seconds, got {self.initial_rtt!r}",
-        )
+LIMIT_STALLED: Final = "window full"
+"""Our packets in flight fill the window (the link delivers less than we send, or nothing): more
+would only queue; they leave as the peer reports arrivals, and a probe now and then."""
+LIMIT_COMPETING: Final = "competing (tcp-fair)"
+"""Another flow keeps the queue full whatever this one does (a loss-based TCP, BBR): the rate
+follows TCP's congestion avoidance in bytes (docs/CONTROL.md 9.9)."""
+LIMIT_HOLDING: Final = "no feedback, holding"
+"""Nothing arrives from the peer (the way back is out): the rate its receiver last reported holds,
+for ``blind_hold`` seconds."""
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)
@@ -248,6 +137,7 @@ class TeleopController(RateController):
     """Delay- and loss-based rate control for teleoperation; see the module docstring."""
 
     name: ClassVar[str] = "teleop"
+    judges_one_way_delay: ClassVar[bool] = True
 
     def __init__(self, config: TeleopConfig | None = None) -> None:
         cfg = config if config is not None else TeleopConfig()
@@ -272,6 +162,7 @@ class TeleopController(RateController):
         self._iv_start = 0.0
         self._iv_end = 0.0
         self._iv_min_rtt = math.inf
+        self._iv_min_sent = 0.0  # (one-way samples) when the interval's smallest was sent
         self._iv_samples = 0
         self._iv_acked = 0
         self._last_sample = math.nan  # the previous RTT sample, for the jitter
@@ -295,6 +186,25 @@ class TeleopController(RateController):
         self._blackout = False
         self._rate_before_blackout = self._rate
         self._resume_rate: float | None = None
+        # One-way delays (docs/CONTROL.md 9.7): once the peer's stamps time our direction, its queue
+        # alone is judged; the round trip then only sets the interval and the drain's horizon.
+        self._owd = False
+        self._signal = OneWaySignal()
+        self._min_rtt = math.inf  # the smallest RTT sample (the drain's horizon)
+        self._drain_until = -math.inf  # a drain under way sends less until then
+        self._drain_from = -math.inf  # ...since then
+        self._drain_queue = 0.0  # ...to empty this queue
+        self._drain_peak = 0.0  # ...the link delivering this meanwhile, at the most
+        self._cruise = 0.0  # ...and what it delivered when the drain began
+        # The window (one-way delays): our packets not known to have arrived, and their bound.
+        self._in_flight = 0
+        self._window = math.inf
+        self._blocked = False
+        self._lag = 0.0  # moving average of feedback's lag behind our sends, our queue excepted
+        self._blind_until = -math.inf
+        self._holding = False
+        self._competition = Competition()
+        self._ups = 0  # increases in a row (one-way delays: the probe's step doubles with them)
         # Counters, for tests and statistics.
         self._delay_decreases = 0
         self._loss_decreases = 0
@@ -333,6 +243,12 @@ class TeleopController(RateController):
         (``"queue delay 7.2 ms"``)."""
         if self._cfg.min_rate > 0.0 and self._rate <= self._cfg.min_rate:
             return LIMIT_FLOOR
+        if self._blocked:
+            return LIMIT_STALLED
+        if self._holding:
+            return LIMIT_HOLDING
+        if self._competition.active and not self._sending.app_limited:
+            return LIMIT_COMPETING
         if self._blackout:
             return LIMIT_BLACKOUT
         if self._rate >= self._ceiling() * (1.0 - 1e-9):
@@ -340,7 +256,8 @@ class TeleopController(RateController):
         if self._sending.app_limited:
             return LIMIT_APPLICATION
         if self._reason == LIMIT_QUEUE_DELAY:
-            return f"{LIMIT_QUEUE_DELAY} {self._queue_delay * 1e3:.1f} ms"
+            way = "one way" if self._owd else "round trip"
+            return f"{LIMIT_QUEUE_DELAY} {self._queue_delay * 1e3:.1f} ms {way}"
         return self._reason
 
     @property
@@ -371,7 +288,16 @@ class TeleopController(RateController):
     # ------------------------------------------------------------------ RateController
 
     def next_send_time(self) -> float:
-        return self._schedule.next_departure
+        departure = self._schedule.next_departure
+        if self._blocked:
+            # The window is full: wait for feedback, probing now and then (a link that lost what
+            # it held would otherwise never answer).
+            last = self._sending.last_send
+            if last is not None:
+                probe = last + (self._lag if self._lag > WINDOW_PROBE else WINDOW_PROBE)
+                if probe > departure:
+                    return probe
+        return departure
 
     def get_timer(self) -> float | None:
         if not self._started:
@@ -392,6 +318,14 @@ class TeleopController(RateController):
         if self._nf_deadline is None:
             self._nf_deadline = now + self._no_feedback_timeout()
         self._schedule.on_departure(now, self._rate)
+        self._in_flight += 1
+        if (
+            self._in_flight >= self._window
+            and self._owd
+            and not self._holding
+            and not self._competition.active
+        ):
+            self._blocked = True
 
     def on_ack(
         self,
@@ -404,7 +338,7 @@ class TeleopController(RateController):
         loss_event_rate: float,
     ) -> None:
         self._advance(now)
-        if _positive_finite(srtt):
+        if positive_finite(srtt):
             self._srtt = srtt
             # An interval lasts one current srtt: the first samples cut short the one begun under
             # initial_rtt.
@@ -424,23 +358,31 @@ class TeleopController(RateController):
 
     def on_loss_event(self, *, now: float, srtt: float, loss_event_rate: float) -> None:
         self._advance(now)
-        if _positive_finite(srtt):
+        if positive_finite(srtt):
             self._srtt = srtt
         if not math.isnan(loss_event_rate):
             self._set_p(loss_event_rate)
         self._loss_since_drain = True
         self._loss_events += 1
+        self._competition.last_loss = now
         target = self._target()
         # As the last complete interval measured the queue (a part of one has too few samples to
         # see through jitter): standing above half the target, or grown by a quarter of it.
         queue = self._queue_delay
         previous = self._prev_queue_delay
         earlier = self._prev2_queue_delay
-        growing = queue > target or (
-            queue > 0.5 * target and queue > previous > earlier and queue - earlier > 0.5 * target
+        growing = (
+            queue > target
+            or (
+                queue > 0.5 * target
+                and queue > previous > earlier
+                and queue - earlier > 0.5 * target
+            )
+            or self._competition.active  # (competing: every loss is congestion, as for TCP)
         )
         if growing and now - self._last_decrease >= self._srtt:
-            self._decrease(now, self._rate_in_use() * self._cfg.loss_decrease)
+            factor = COMPETE_DECREASE if self._competition.active else self._cfg.loss_decrease
+            self._decrease(now, self._rate_in_use() * factor)
             self._loss_decreases += 1
             self._last_decrease = self._last_congestion = now
             self._congested_once = True
@@ -454,10 +396,26 @@ class TeleopController(RateController):
         self._advance(now)
         before = self._rate_before_blackout if self._blackout else self._rate
         self._resume_rate = max(before, self._resume_rate or 0.0)
+        if self._owd and self._cfg.blind_hold > 0.0:
+            # Nothing at all arrives: the way back may be what failed, and our direction was
+            # delivering when last heard of. Hold what it delivered (docs/CONTROL.md 9.8).
+            self._holding = True
+            self._blocked = False
+            self._blind_until = now + self._cfg.blind_hold
+            delivered = self._signal.rate
+            hold = BLIND_SHARE * (min(before, delivered) if delivered > 0.0 else before)
+            self._blackout = False
+            self._set_rate(now, hold)
+            self._nf_deadline = self._blind_until
 
     def on_peer_resumed(self, *, now: float, silent_for: float) -> None:
         """After an outage, resume at half the rate from before it (as trinomial does)."""
         resume, self._resume_rate = self._resume_rate, None
+        if self._holding or self._owd:
+            # What was sent into the silence may still be queued: judge what is sent from now on.
+            self._holding = False
+            self._blind_until = -math.inf
+            self._signal.gate(now)
         if resume is None:
             return
         self._advance(now)
@@ -467,6 +425,113 @@ class TeleopController(RateController):
             self._blackout = False
             self._nf_deadline = None
             self._start_interval(now)
+
+    def on_one_way_delay(
+        self, *, now: float, delay: float, sent_at: float, seq: int, hold: float, unacked: int
+    ) -> None:
+        self._advance(now)
+        self._in_flight = unacked
+        if unacked < self._window:
+            self._blocked = False
+        if not self._owd:
+            # From now on the queue is our direction's alone: the round trip's base and minima,
+            # which carry the way back's queue too, are dropped.
+            self._owd = True
+            self._base_now = self._base_old = math.inf
+            self._iv_min_rtt = math.inf
+            self._iv_samples = 0
+        signal = self._signal
+        timed = not math.isnan(delay)  # (NaN: the stamp timed none of our packets)
+        if timed:
+            signal.add(delay, sent_at, seq, hold)
+            if delay < self._iv_min_rtt:
+                self._iv_min_rtt = delay
+                self._iv_min_sent = sent_at
+            self._iv_samples += 1
+        base = self.base_rtt
+        if base == math.inf or not timed:
+            return
+        # The window: what the link delivers times the lag of our feedback (everything but our
+        # own queue) plus the queue we allow. Sending beyond it only queues (docs/CONTROL.md 9.7).
+        queue = delay - base
+        lag = now - sent_at - (queue if queue > 0.0 else 0.0)
+        self._lag = lag if self._lag == 0.0 else self._lag + LAG_GAIN * (lag - self._lag)
+        delivered = signal.peak  # (the highest of the last half second: a window sized by the
+        # current rate alone would shrink with every pause of a bursty link, and hold it there)
+        if delivered > 0.0:
+            allowance = 2.0 * self._target()
+            if allowance < WINDOW_QUEUE:
+                allowance = WINDOW_QUEUE
+            window = delivered * (self._lag + allowance)
+            self._window = window if window > WINDOW_MIN else WINDOW_MIN
+            self._blocked = (
+                unacked >= self._window and not self._holding and not self._competition.active
+            )
+        target = self._target()
+        floor = signal.queue_floor() - base
+        if floor == math.inf:
+            return  # fewer than RECENT samples since the last decision
+        if now < self._drain_until:
+            # A drain is under way, and this packet was sent since it began. A queue worse than
+            # the one it drains calls for another (the link slowed down again); a short one ends
+            # it (the link delivered faster than it did when the queue built).
+            if floor > self._drain_queue + target:
+                self._drain(now, floor, sent_at)
+                return
+            if floor > 0.5 * target:
+                # The queue still holds packets: what arrives now is the link's rate.
+                if signal.rate > self._drain_peak:
+                    self._drain_peak = signal.rate
+            else:
+                self._drain_until = now
+                self._end_drain(now)
+        elif floor > DEEP_QUEUE * target and not self._competition.active:
+            self._drain(now, floor, sent_at)
+
+    def _end_drain(self, now: float) -> None:
+        """The drain is over: on at ``CRUISE`` times what the link delivered, as it delivered
+        while the queue built or, if faster, while the drain emptied it."""
+        delivered = self._cruise if self._cruise > self._drain_peak else self._drain_peak
+        self._cruise = 0.0
+        self._rate_before_decrease = delivered
+        self._set_rate(now, min(CRUISE * delivered, self._cfg.max_rate, self._ceiling()))
+        self._signal.gate(now)
+        self._start_interval(now)
+
+    def _drain(self, now: float, queue: float, sent_at: float) -> None:
+        """Empty a queue of ``queue`` seconds, seen by a packet sent at ``sent_at``, in about one
+        base round trip: send below what the link delivers for as long as that takes, then at
+        ``CRUISE`` times it (docs/CONTROL.md 9.7)."""
+        delivered = self._signal.rate
+        use = self._rate_in_use()
+        if delivered <= 0.0:
+            delivered = use
+        if use > delivered:
+            # What we sent since the sampled packet, faster than the link took it, queued too
+            # (counted up to what twice the link's rate would have queued).
+            queue += (now - sent_at) * min(use / delivered - 1.0, 1.0)
+        excess = queue - 0.5 * self._target()
+        if excess <= 0.0:
+            return
+        horizon = self._min_rtt if self._min_rtt < math.inf else self._srtt
+        if horizon < self._cfg.interval:
+            horizon = self._cfg.interval
+        fraction = max(1.0 - excess / horizon, DRAIN_FLOOR)
+        self._decrease(now, max(delivered * fraction, DRAIN_RATE), carried=delivered)
+        # The drain's length if the link keeps delivering what it did; it ends earlier when the
+        # packets sent since show the queue gone (a link that recovered empties it faster).
+        self._drain_until = now + min(excess / (1.0 - fraction), DRAIN_LONGEST * horizon)
+        self._drain_from = now
+        self._drain_queue = queue
+        self._drain_peak = 0.0
+        self._cruise = delivered
+        self._delay_decreases += 1
+        self._last_decrease = self._last_congestion = now
+        self._congested_once = True
+        self._reason = LIMIT_QUEUE_DELAY
+        self._queue_delay = queue
+        self._signal.gate(now)
+        self._start_interval(now)
 
     # ------------------------------------------------------------------ internals
 
@@ -482,6 +547,10 @@ class TeleopController(RateController):
             self._base_now = standing
 
     def _on_rtt_sample(self, now: float, sample: float) -> None:
+        if sample < self._min_rtt:
+            self._min_rtt = sample
+        if self._owd:
+            return  # the queue is judged on our direction's one-way delays
         if sample < self._iv_min_rtt:
             self._iv_min_rtt = sample
         self._iv_samples += 1
@@ -500,7 +569,10 @@ class TeleopController(RateController):
             self._start_interval(now)
             return
         deadline = self._nf_deadline
+        if deadline is not None and now >= deadline and now < self._blind_until:
+            deadline = self._nf_deadline = self._blind_until
         if deadline is not None and now >= deadline:
+            self._holding = False
             timeout = self._no_feedback_timeout()
             missed = min(1 + int((now - deadline) // timeout), 64)
             if not self._blackout:
@@ -510,6 +582,8 @@ class TeleopController(RateController):
             self._set_rate(now, self._rate * 0.5**missed)
             self._nf_deadline = now + self._no_feedback_timeout()
             self._start_interval(now)
+        if now >= self._drain_until and self._cruise > 0.0:
+            self._end_drain(now)
         if now >= self._iv_end:
             self._end_interval(now)
 
@@ -519,7 +593,7 @@ class TeleopController(RateController):
         jitter (at most ``JITTER_CAP``): on a jittery FIFO path a fast flow's standing RTT sits
         above a slow flow's by up to the jitter's range with no queue for capacity (docs/CONTROL.md
         9.2)."""
-        jitter = JITTER_SHARE * self._jitter
+        jitter = JITTER_SHARE * (self._signal.jitter if self._owd else self._jitter)
         return (
             self._cfg.target_queue_delay
             + 2.0 * self._noise
@@ -542,13 +616,14 @@ class TeleopController(RateController):
         self._iv_start = now
         self._iv_end = now + self._nominal_interval()
         self._iv_min_rtt = math.inf
+        self._iv_min_sent = now
         self._iv_samples = 0
         self._iv_acked = 0
 
     def _end_interval(self, now: float) -> None:
         cfg = self._cfg
         duration = now - self._iv_start
-        if self._iv_samples < MIN_SAMPLES:
+        if self._iv_samples < (MIN_ONE_WAY_SAMPLES if self._owd else MIN_SAMPLES):
             if self._blackout or not self._iv_samples:
                 self._start_interval(now)  # nothing to judge (the blackout timer acts)
                 return
@@ -579,6 +654,28 @@ class TeleopController(RateController):
         self._noise += NOISE_GAIN * (min(abs(queue - previous), NOISE_CAP) - self._noise)
         target = self._target()
         delivered = self._iv_acked / duration
+        if self._owd and self._signal.rate > 0.0:
+            delivered = self._signal.rate  # measured on the peer's clock
+        competition = self._competition
+        if competition.active:
+            self._compete(now, queue, target, duration)
+            self._start_interval(now)
+            return
+        compete_from = competition.observe(now, queue, target, self._rate, self._srtt)
+        if compete_from > 0.0:
+            # The queue stayed up whatever this flow did: another keeps it (docs/CONTROL.md 9.9).
+            self._drain_until = -math.inf
+            self._cruise = 0.0
+            self._blocked = False
+            self._capped_from = None
+            self._set_rate(now, max(compete_from, self._rate))
+            self._start_interval(now)
+            return
+        if now < self._drain_until:
+            self._start_interval(now)  # a drain sets the rate until it ends
+            return
+        ups = self._ups
+        self._ups = 0  # (kept by an increase)
         if queue > target:
             self._last_congestion = now
             self._congested_once = True
@@ -586,7 +683,9 @@ class TeleopController(RateController):
             # Two intervals in a row: not one jittery floor; or one so far above the target (a
             # start-up that overshot a bottleneck) that no jitter the margin allows explains it.
             sustained = previous > target or queue > DEEP_QUEUE * target
-            if sustained and not draining and now - self._last_decrease >= self._srtt:
+            if sustained and not draining and self._owd:
+                self._drain(now, queue, self._iv_min_sent)
+            elif sustained and not draining and now - self._last_decrease >= self._srtt:
                 base = self._rate_in_use()
                 if delivered > 0.0:
                     base = min(base, delivered)
@@ -594,6 +693,15 @@ class TeleopController(RateController):
                 self._delay_decreases += 1
                 self._last_decrease = now
                 self._reason = LIMIT_QUEUE_DELAY
+        elif (
+            self._owd
+            and queue > 0.25 * target
+            and queue > previous + GROWING * target
+            and previous > self._prev2_queue_delay + GROWING * target
+        ):
+            # The standing queue grew in each of the last two intervals (still short): the probe
+            # went past what the link delivers. Hold, before the queue reaches the target.
+            pass
         elif queue <= 0.5 * target or queue <= previous:
             if self._p > cfg.heavy_loss:
                 self._capped_from = None
@@ -601,6 +709,7 @@ class TeleopController(RateController):
                 self._last_decrease = now
                 self._reason = LIMIT_LOSS
             else:
+                self._ups = ups
                 self._increase(now)
         self._start_interval(now)
         if (
@@ -617,6 +726,37 @@ class TeleopController(RateController):
             self._set_rate(now, self._rate_in_use() * cfg.drain_fraction)
             self._iv_end = now + 2.0 * self._nominal_interval()
 
+    def _compete(self, now: float, queue: float, target: float, duration: float) -> None:
+        """An interval of the competitive mode: TCP's additive increase in bytes, or a check
+        whether the competitor is still there (the loss rule does the halving)."""
+        competition = self._competition
+        if competition.probing:
+            restore = competition.during_probe(now, queue, target)
+            if restore == 0.0:
+                self._ups = 0  # the queue was ours: back to the delay mode from here
+            elif restore > 0.0:
+                self._set_rate(now, restore)
+            return
+        probe = competition.probe_due(now, self._rate_in_use(), self._srtt)
+        if probe > 0.0:
+            self._capped_from = None
+            self._set_rate(now, probe)
+            return
+        if competition.full(now, queue):
+            if now - self._last_decrease >= self._srtt:
+                self._decrease(now, self._rate_in_use() * COMPETE_DECREASE)
+                self._last_decrease = now
+            return
+        cfg = self._cfg
+        size = (self._mean_size if self._mean_size > 0.0 else 100.0) + cfg.ip_overhead
+        rate = self._rate
+        ceiling = min(cfg.max_rate, self._ceiling())
+        if self._sending.app_limited:
+            ceiling = min(ceiling, max(rate, cfg.app_headroom * self._sending.send_rate()))
+        step = competition.step(self._srtt, duration, size, cfg.tcp_segment)
+        if ceiling > rate:
+            self._set_rate(now, min(rate + step, ceiling))
+
     def _increase(self, now: float) -> None:
         cfg = self._cfg
         ramp = not self._congested_once or now - self._last_congestion >= cfg.ramp_reset
@@ -631,9 +771,15 @@ class TeleopController(RateController):
             # The probe is additive below initial_rate (a fixed step for every flow, so that flows
             # sharing a queue converge to equal rates, as AIMD does) and proportional above it.
             grow = gain * rate if ramp else gain * max(rate, cfg.initial_rate)
+            if self._owd and not ramp:
+                # One-way delays show a queue early and exactly: probe in small steps that double
+                # while the queue stays short (Copa's velocity), from 1 % up to 32 %.
+                ups = self._ups
+                grow = OWD_PROBE * max(rate, cfg.initial_rate) * (1 << min(max(ups - 1, 0), 5))
             step = max(grow, 0.5 * (self._rate_before_decrease - rate))
             self._set_rate(now, min(rate + step, ceiling))
             self._increases += 1
+            self._ups += 1
             if not self._sending.app_limited:
                 self._reason = LIMIT_PROBING
 
@@ -709,4 +855,8 @@ class TeleopController(RateController):
         self._schedule.reschedule(now, rate)
 
     def _no_feedback_timeout(self) -> float:
-        return max(self._cfg.no_feedback_rtts * self._srtt, 2.0 / self._rate) + self.feedback_delay
+        timeout = max(self._cfg.no_feedback_rtts * self._srtt, 2.0 / self._rate)
+        if self._owd and timeout < self.silence_timeout:
+            # Silence first: whether the way back or ours failed decides what to do (9.8).
+            timeout = self.silence_timeout
+        return timeout + self.feedback_delay

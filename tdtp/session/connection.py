@@ -43,6 +43,7 @@ from tdtp.session.events import (
 from tdtp.session.handshake import Handshake, Reaction
 from tdtp.session.liveness import Liveness
 from tdtp.session.multipath.paths import Multipath
+from tdtp.session.one_way import STAMP_CODES, STAMP_SIZE, TIMED
 from tdtp.session.outbox import Outbox
 from tdtp.session.path import PeerPath
 from tdtp.session.receive_window import FAR_AHEAD, LATE, NEW, STALE
@@ -124,14 +125,11 @@ class Connection(ConnectionView):
         self._opener: PacketOpener | None = None
         self._overhead = 0  # bytes the peer's protection adds to each session datagram, once keyed
         # PROTOCOL.md 5.5: room for a keyed session's packet number and tag on a full payload.
-        body = max(config.max_payload, _LARGEST_CONTROL, largest_message_body(config))
+        body = max(config.max_payload + STAMP_SIZE, _LARGEST_CONTROL, largest_message_body(config))
         self._size_limit = HEADER_SIZE + body + PROTECTION_OVERHEAD
         self._controller = controller = create_controller(
             config.controller, config.controller_config
         )
-        # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
-        controller.feedback_delay = config.ack_delay
-        controller.sample_waiting = False  # kept up to date by the sender
         self._hint = hint = TimerHint(controller)
         self._recovery = recovery = LossRecovery(
             rng.randrange(SEQ_MODULUS),
@@ -142,7 +140,7 @@ class Connection(ConnectionView):
             hint=hint,
         )
         self._acks = acks = AckScheduler(config, stats=stats, hint=hint)
-        self._sender = SampleSender(
+        self._sender = sender = SampleSender(
             config,
             controller=controller,
             stats=stats,
@@ -163,7 +161,7 @@ class Connection(ConnectionView):
         self._close_event: ConnectionClosed | None = None
         # In order through the reorder wait, timed (PROTOCOL.md 3.6, 5.5).
         self._delivery = delivery = SampleDelivery(
-            config, events=self._events, stats=stats, rtt=recovery.rtt
+            config, events=self._events, stats=stats, rtt=recovery.rtt, one_way=sender.one_way
         )
         self._ages = delivery.ages
         self.multipath: Multipath | None = None  # a multipath session's paths (PROTOCOL.md 5.11)
@@ -289,12 +287,10 @@ class Connection(ConnectionView):
         rx_time: float | None = None,
         ecn: int | None = None,
     ) -> None:
-        """Take one datagram from the network. Never raises on its content.
-
-        Optional inputs a driver may know: ``rx_time``, when the kernel received it (on the same
-        clock as ``now``; kept as :attr:`last_rx_time` for a controller that wants the exact
-        one-way delay), and ``ecn``, the IP header's ECN field (0-3; ``3``, Congestion
-        Experienced, is counted in ``stats.ecn_ce``). The core reads no clock for either."""
+        """Take one datagram from the network. Never raises on its content. Optional inputs a
+        driver may know (the core reads no clock for either): ``rx_time``, when the kernel received
+        it (on ``now``'s clock; :attr:`last_rx_time`, what the peer's send times are read against),
+        and ``ecn``, the IP header's ECN field (``3``, Congestion Experienced: ``stats.ecn_ce``)."""
         stats = self._stats
         stats.datagrams_in += 1
         if self._state is CLOSED:
@@ -306,8 +302,7 @@ class Connection(ConnectionView):
             if paths is None or not paths.admits(data, addr):
                 stats.count_drop(DropReason.WRONG_ADDRESS)
                 return
-        if rx_time is not None:
-            self.last_rx_time = rx_time
+        self.last_rx_time = rx_time
         if ecn == 3:
             stats.ecn_ce += 1
         size = len(data)
@@ -386,6 +381,12 @@ class Connection(ConnectionView):
             self._on_data(data, seq, ack, sack, hold, now)
         elif ptype == _ACK:
             self._on_ack_packet(size, ack, sack, hold, now)
+        elif size > HEADER_SIZE and data[HEADER_SIZE] in STAMP_CODES:  # PROTOCOL.md 5.13
+            kind = self._sender.one_way.take(data, self.last_rx_time, now)
+            if kind == TIMED:
+                self._on_data(data[:5] + data[5 + STAMP_SIZE :], seq, ack, sack, hold, now)
+            elif kind:
+                self._on_ack_packet(size, ack, sack, hold, now)
         elif size > HEADER_SIZE and data[HEADER_SIZE] in MESSAGE_CODES:  # PROTOCOL.md 5.10
             verdict = self._channel.receive(data, self._state is ESTABLISHED, now)
             if verdict is TAKEN:
@@ -556,7 +557,7 @@ class Connection(ConnectionView):
         liveness.last_receive = now
         if liveness.silent_since is not None:
             self._on_peer_resumed(now)
-        sent_at = None if echo is None else now - echo / 2
+        sent_at = self._sender.one_way.sent_at(echo, hold, now)  # PROTOCOL.md 3.6
         if not in_order:
             delivery.deliver(data[HEADER_SIZE:], window.last_seq, now, now, sent_at)
         elif delivery.arrive(data[HEADER_SIZE:], window.last_seq, now, sent_at):
@@ -572,6 +573,7 @@ class Connection(ConnectionView):
             return
         self._accept(size, 0, now)
         stats.received.ack_packets += 1
+        self._sender.one_way.settle(None if hold == HOLD_NO_ACK else self._recovery.echo, hold, now)
 
     def _on_feedback(self, ack: int, sack: int, hold: int, now: float) -> bool:
         """Hand the acknowledgement in a header to loss recovery (False if it acknowledges a packet
@@ -709,6 +711,7 @@ class Connection(ConnectionView):
         self._state = State.ESTABLISHED
         self._hint.value = -math.inf
         self._handshake.confirming = False
+        self._sender.one_way.start(now, self._handshake.stamps)
         liveness = self._liveness
         liveness.last_receive = now
         liveness.last_send = now

@@ -14,6 +14,7 @@ import math
 from tdtp.config import ConnectionConfig
 from tdtp.session.event_queue import EventQueue
 from tdtp.session.events import DataReceived, new_data_received
+from tdtp.session.one_way import OneWayDelay
 from tdtp.session.reorder_buffer import ReorderBuffer
 from tdtp.session.rtt import RttEstimator
 from tdtp.session.sample_age import SampleAgeHistogram
@@ -26,6 +27,7 @@ class SampleDelivery:
     __slots__ = (
         "_config",
         "_events",
+        "_one_way",
         "_rtt",
         "_stats",
         "ages",
@@ -42,11 +44,13 @@ class SampleDelivery:
         events: EventQueue,
         stats: ConnectionStats,
         rtt: RttEstimator,
+        one_way: OneWayDelay,
     ) -> None:
         self._config = config
         self._events = events
         self._stats = stats
         self._rtt = rtt
+        self._one_way = one_way
         self.reorder: ReorderBuffer | None = None
         """Samples that arrived after a gap, waiting for it (``None``: delivered as they arrive)."""
         self.ages = SampleAgeHistogram()
@@ -146,13 +150,7 @@ class SampleDelivery:
         ``sent_at`` when its header timed it)."""
         stats = self._stats
         stats.samples_delivered += 1
-        # self._estimate(arrival, now), inline (once per sample).
-        rtt = self._rtt
-        if rtt.has_sample:
-            estimate: float | None = rtt.srtt / 2 + (now - arrival)
-        else:
-            opening = self.opening_rtt
-            estimate = None if opening is None else opening / 2 + (now - arrival)
+        estimate = self._estimate(arrival, now)
         newest = self.newest_held
         if newest is not None and seq >= newest.seq:
             self.newest_held = None  # delivered in order now
@@ -176,11 +174,13 @@ class SampleDelivery:
             events.push_data(event)
 
     def _estimate(self, arrival: float, now: float) -> float | None:
-        """Half the smoothed RTT (or of the opening's round trip), plus the reorder wait spent."""
+        """The inbound one-way delay the peer's stamps measure, or half the smoothed RTT (or of the
+        opening's round trip), plus the reorder wait spent."""
         rtt = self._rtt
-        if rtt.has_sample:
-            estimate: float | None = rtt.srtt / 2
-        else:
+        estimate = self._one_way.estimate()
+        if estimate is None and rtt.has_sample:
+            estimate = rtt.srtt / 2
+        elif estimate is None:
             opening = self.opening_rtt
             estimate = None if opening is None else opening / 2
         if estimate is not None:

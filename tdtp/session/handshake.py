@@ -29,6 +29,7 @@ from tdtp.protection.keys import KeysInput, OneKeyInput, PresharedKey, as_key, a
 from tdtp.protection.packet_protection import Direction, PacketOpener, PacketSealer
 from tdtp.session.events import Address
 from tdtp.session.liveness import Liveness
+from tdtp.session.one_way import wants_timestamps
 from tdtp.session.outbox import Outbox
 from tdtp.session.stats import ConnectionStats, DropReason
 from tdtp.wire.control import (
@@ -51,6 +52,8 @@ from tdtp.wire.control import (
     PathChallengeBody,
     PathResponseBody,
     ResetBody,
+    TimedDataBody,
+    TimestampBody,
     decode_control,
     encode_open,
     encode_open_ack,
@@ -164,6 +167,10 @@ class Handshake:
         """Why the slave refused us (:attr:`Reaction.REJECTED`)."""
         self.reject_reason: int | None = None
         """The REJECT's reason code (:attr:`Reaction.REJECTED`)."""
+        self.timestamps = self._master and wants_timestamps(config) and not self.multipath
+        """The TIMESTAMPS flag (PROTOCOL.md 5.13): the dialer's choice (its controller reads one-way
+        delays, ``timestamp_interval`` is not 0, and the session is single-path), the listener's
+        from the OPEN. Stamps leave only in a session without MULTIPATH (:attr:`stamps`)."""
         self._open_tagger: Direction | None = None  # a keyed master's OPEN key
         self._cookie = NO_COOKIE
         self._cookie_answered_at = -math.inf
@@ -173,8 +180,16 @@ class Handshake:
         """Bytes of the tag a keyed OPEN or OPEN_ACK ends in."""
         return TAG_SIZE if self.keyed else 0
 
+    @property
+    def stamps(self) -> bool:
+        """Whether the session stamps send times: TIMESTAMPS, and not MULTIPATH (a path's own
+        controller is fed by its MP_REPORTs; PROTOCOL.md 5.13)."""
+        return self.timestamps and not self.multipath
+
     def open_flags(self, ack_mode: AckMode) -> int:
         flags = OpenFlags.SEPARATE_ACKS if ack_mode is AckMode.SEPARATE else OpenFlags.NONE
+        if self.timestamps:
+            flags |= OpenFlags.TIMESTAMPS
         if self._slave_dials:
             flags |= OpenFlags.SLAVE_DIALS
         if self.keyed:
@@ -262,6 +277,8 @@ class Handshake:
             | PathResponseBody
             | MessageBody
             | MessageAckBody
+            | TimestampBody
+            | TimedDataBody
             | MpReportBody,
         ):
             stats.count_drop(DropReason.UNEXPECTED_CONTROL)  # an OPEN sent to a master
@@ -420,6 +437,7 @@ class Handshake:
         the session's :attr:`keys`)."""
         body = admitted.body
         self.master_nonce = body.nonce
+        self.timestamps = bool(body.flags & OpenFlags.TIMESTAMPS)
         self.multipath = bool(body.flags & OpenFlags.MULTIPATH)
         if admitted.key is not None:
             self.key = admitted.key

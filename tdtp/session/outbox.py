@@ -14,9 +14,10 @@ from tdtp.config import ConnectionConfig
 from tdtp.protection.packet_protection import PacketSealer
 from tdtp.session.events import Address
 from tdtp.session.liveness import Liveness
+from tdtp.session.one_way import OneWayDelay
 from tdtp.session.reset_guard import ResetGuard
 from tdtp.session.stats import ConnectionStats
-from tdtp.wire.control import ControlCode, encode_close
+from tdtp.wire.control import ControlCode, encode_close, encode_timestamp
 from tdtp.wire.header import HEADER_SIZE, SEQ_MASK, PacketType, encode_header, pack_header_words
 from tdtp.wire.hold import HOLD_NO_ACK
 
@@ -24,6 +25,7 @@ _ACK = int(PacketType.ACK)
 _CONTROL = int(PacketType.CONTROL)
 _CLOSE_PREFIX = bytes((ControlCode.CLOSE,))
 _KEEPALIVE_PREFIX = bytes((ControlCode.KEEPALIVE,))
+_TIMESTAMP = ControlCode.TIMESTAMP
 
 Datagrams = list[tuple[bytes, Address]]
 
@@ -43,6 +45,9 @@ class Outbox:
         and whether it is session traffic (not: admission's COOKIE or REJECT answering an OPEN)."""
         self.reset_guard: ResetGuard | None = None
         """A master's memory of its recent datagrams, which a RESET must echo (set at connect)."""
+        self.one_way: OneWayDelay | None = None
+        """Our stamps' schedule (the sender's): a stand-alone ACK goes as a TIMESTAMP when one is
+        due."""
         self._ack_padding = bytes(config.ack_size - HEADER_SIZE)
         self._stats = stats
         self._liveness = liveness
@@ -87,13 +92,18 @@ class Outbox:
     ) -> None:
         # self.protect(encode_header(_ACK, seq, ack, sack, hold), padding), inline
         seq &= SEQ_MASK
-        header = pack_header_words(
-            (_ACK << 6) | (seq >> 6),
-            ((seq & 0x3F) << 26) | ((ack & SEQ_MASK) << 14) | (sack << 8) | hold,
-        )
+        word = ((seq & 0x3F) << 26) | ((ack & SEQ_MASK) << 14) | (sack << 8) | hold
+        one_way = self.one_way
+        if one_way is not None and now >= one_way.due:
+            # A TIMESTAMP in its place (PROTOCOL.md 5.13): the same fields, and our clock.
+            stamp = encode_timestamp(_TIMESTAMP, one_way.stamp(now))
+            header = pack_header_words((_CONTROL << 6) | (seq >> 6), word) + stamp[:1]
+            body = stamp[1:]
+        else:
+            header = pack_header_words((_ACK << 6) | (seq >> 6), word)
+            body = self._ack_padding
         sealer = self.sealer
-        padding = self._ack_padding
-        datagram = header + padding if sealer is None else sealer.seal(header, padding)
+        datagram = header + body if sealer is None else sealer.seal(header, body)
         self._stats.sent.ack_packets += 1
         self._count(len(datagram), now, self.overhead, True)
         guard = self.reset_guard

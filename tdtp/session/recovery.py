@@ -80,12 +80,18 @@ class LossRecovery:
         self.rtt = RttEstimator(config.initial_rtt)
         self.loss = LossIntervalEstimator(first_seq)
         self._ack_delay = config.ack_delay
+        # The peer holds ACKs up to its ack_delay; not negotiated, so ours stands for it.
+        controller.feedback_delay = config.ack_delay
         self.loss_delay = self._compute_loss_delay()
         """How long a packet reported absent may still turn up, as of the last RTT sample."""
         self.echo: float | None = None
         """The round trip timed by the last acknowledgement handed in: from our send of the packet
         it names to its arrival here, less the peer's HOLD; ``None`` if it cannot tell (HOLD 254, or
         a packet no longer on record)."""
+        self.echo_sent = 0.0
+        """When the packet the last acknowledgement named was sent (when :attr:`echo_seq` >= 0)."""
+        self.echo_seq = -1
+        """Its sequence number, in full; -1 if the acknowledgement named none on record."""
         self.pending = False
         """An acknowledgement taken (:meth:`take_feedback`) and not yet settled."""
         self._taken_ack = first_seq - 1
@@ -125,9 +131,13 @@ class LossRecovery:
         # The round trip our packet and this datagram made together (PROTOCOL.md 3.6), before the
         # acknowledgement retires the packet's record.
         echo: float | None = None
-        if hold is not None:
-            send_time = sent.send_time(full)
-            if send_time is not None:
+        send_time = sent.send_time(full)
+        if send_time is None:
+            self.echo_seq = -1
+        else:
+            self.echo_sent = send_time
+            self.echo_seq = full
+            if hold is not None:
                 echo = now - send_time - hold
                 if echo < 0.0:  # (max(echo, 0.0) without the call)
                     echo = 0.0

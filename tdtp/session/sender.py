@@ -23,15 +23,18 @@ from tdtp.errors import EmptyPayloadError, PayloadTooLargeError, PayloadTypeErro
 from tdtp.session.ack_scheduler import AckScheduler
 from tdtp.session.events import Address
 from tdtp.session.liveness import Liveness
+from tdtp.session.one_way import OneWayDelay
 from tdtp.session.outbox import Datagrams, Outbox
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.stats import ConnectionStats
 from tdtp.session.timer_hint import TimerHint
-from tdtp.wire.control import RESET_ECHO_SIZE
+from tdtp.wire.control import RESET_ECHO_SIZE, ControlCode, encode_timestamp
 from tdtp.wire.header import HEADER_SIZE, SEQ_MASK, PacketType, encode_header, pack_header_words
 from tdtp.wire.hold import HOLD_NO_ACK
 
 _DATA = int(PacketType.DATA)
+_CONTROL = int(PacketType.CONTROL)
+_TIMED_DATA: Final = ControlCode.TIMED_DATA
 _BIDIRECTIONAL: Final = (
     AckMode.BIDIRECTIONAL
 )  # a module constant: no enum metaclass lookup per sample
@@ -60,12 +63,16 @@ class SampleSender:
         """The largest payload accepted: the smaller of ours and the peer's maximum."""
         self.transmit_errors = 0
         self._controller = controller
+        controller.sample_waiting = False  # kept up to date from here on
         self._stats = stats
         self._recovery = recovery
         self._outbox = outbox
         self._acks = acks
         self._liveness = liveness
         self._hint = hint
+        self.one_way = outbox.one_way = OneWayDelay(config, controller, recovery, stats)
+        """Our stamps and the peer's (PROTOCOL.md 5.13): TIMED_DATA leaves from here."""
+        self._one_way = self.one_way
 
     def offer(self, payload: bytes | bytearray | memoryview, now: float) -> None:
         """Connection.send on an established session: the newest sample takes the slot."""
@@ -127,6 +134,7 @@ class SampleSender:
             or now < controller.next_send_time()
             or window is None
             or window.held
+            or now >= self._one_way.due  # a stamp is due: take_due sends TIMED_DATA
         ):
             self.offer(payload, now)
             return False
@@ -188,9 +196,16 @@ class SampleSender:
         recovery = self._recovery
         ack, sack, hold = acks.piggyback(window, now)
         outbox = self._outbox
-        datagram = outbox.protect(
-            encode_header(_DATA, recovery.sent.next_seq, ack, sack, hold), payload
-        )
+        one_way = self._one_way
+        seq = recovery.sent.next_seq
+        if now >= one_way.due:
+            # TIMED_DATA (PROTOCOL.md 5.13): the header as DATA's, the send time before the sample.
+            stamp = encode_timestamp(_TIMED_DATA, one_way.stamp(now))
+            datagram = outbox.protect(
+                encode_header(_CONTROL, seq, ack, sack, hold) + stamp[:1], stamp[1:] + payload
+            )
+        else:
+            datagram = outbox.protect(encode_header(_DATA, seq, ack, sack, hold), payload)
         size = len(datagram)
         recovery.on_sent(now, size)
         controller.on_packet_sent(now=now, size=size, paced=self._pending_paced)

@@ -144,7 +144,18 @@ class ConnectionStats:
     """The rate controller's allowed rate, packets per second."""
     rate_limit: str = ""
     """What limits the rate now, as the controller says (``"application"``, ``"queue delay 7.2
-    ms"``, ``"loss"``, ``"tcp-friendly ceiling"``, ``"floor"``; empty if it does not say)."""
+    ms one way"``, ``"loss"``, ``"tcp-friendly ceiling"``, ``"floor"``; empty if it does not say)."""
+    timestamps: bool = False
+    """The session stamps send times (the TIMESTAMPS flag, docs/PROTOCOL.md 5.13): each end
+    measures the queue of each direction apart (``queue_delay_out``, ``queue_delay_in``)."""
+    queue_delay_out: float = 0.0
+    """Our packets' queueing delay on their way to the peer, seconds, as the peer's send times
+    measure it (a moving average; 0 in a session without timestamps, docs/PROTOCOL.md 5.13)."""
+    queue_delay_in: float = 0.0
+    """The peer's packets' queueing delay on their way here, seconds (likewise)."""
+    stamps_rejected: int = 0
+    """Peer send times outside the bounds a real one respects (forged, corrupted, a clock jump):
+    not used."""
 
     @property
     def dropped(self) -> int:

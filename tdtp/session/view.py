@@ -214,4 +214,9 @@ class ConnectionView:
         else:
             stats.rate = self._controller.rate
             stats.rate_limit = self._controller.rate_limit
+        one_way = self._sender.one_way
+        stats.timestamps = one_way.enabled
+        stats.queue_delay_out = one_way.queue_out
+        stats.queue_delay_in = one_way.queue_in
+        stats.stamps_rejected = one_way.stamps_rejected
         return stats

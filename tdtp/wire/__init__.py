@@ -16,6 +16,7 @@ from tdtp.wire.control import (
     RESET_ECHO_SIZE,
     RESET_SIZE,
     RESET_TAG_SIZE,
+    STAMP_SIZE,
     CipherSuite,
     CloseBody,
     CloseReason,
@@ -34,6 +35,8 @@ from tdtp.wire.control import (
     PathChallengeBody,
     PathResponseBody,
     ResetBody,
+    TimedDataBody,
+    TimestampBody,
     decode_control,
     decode_reset,
     encode_close,
@@ -50,6 +53,7 @@ from tdtp.wire.control import (
     encode_path_challenge,
     encode_path_response,
     encode_reset,
+    encode_timestamp,
 )
 from tdtp.wire.drop_reason import DropReason
 from tdtp.wire.errors import MalformedPacketError
@@ -86,6 +90,7 @@ __all__ = [
     "RESET_SIZE",
     "RESET_TAG_SIZE",
     "SEQ_MODULUS",
+    "STAMP_SIZE",
     "TAG_SIZE",
     "Address",
     "CipherSuite",
@@ -110,6 +115,8 @@ __all__ = [
     "PathChallengeBody",
     "PathResponseBody",
     "ResetBody",
+    "TimedDataBody",
+    "TimestampBody",
     "decode_control",
     "decode_header",
     "decode_hold",
@@ -130,6 +137,7 @@ __all__ = [
     "encode_path_challenge",
     "encode_path_response",
     "encode_reset",
+    "encode_timestamp",
     "expand_seq",
     "serial_lt",
 ]

@@ -43,8 +43,8 @@ from tdtp.wire.protected import TAG_SIZE
 PROTOCOL_VERSION: Final = 4
 """The only version this implementation speaks (version 1 had no cookie and no keyed mode; version 2
 had no RESET, no path validation, and its KEEPALIVE carried no nonce; version 3 had no multipath,
-no dialing slave (``SLAVE_DIALS``) and no rendezvous messages, and its MESSAGE and MESSAGE_ACK
-carried no nonce)."""
+no send timestamps (TIMESTAMP, TIMED_DATA), no dialing slave (``SLAVE_DIALS``) and no rendezvous
+messages, and its MESSAGE and MESSAGE_ACK carried no nonce)."""
 
 NONCE_SIZE: Final = 16
 """Bytes of a connection nonce (the master's and, in OPEN_ACK, the slave's): 128 random bits."""
@@ -90,6 +90,13 @@ class ControlCode(enum.IntEnum):
     MESSAGE_ACK = 11
     """either way: the master's nonce and the cumulative acknowledgement of the peer's control
     messages alone, when no MESSAGE of ours leaves to carry it."""
+    TIMESTAMP = 15
+    """either way, sessions with the TIMESTAMPS flag: a stand-alone acknowledgement (the header's
+    ACK fields, as an ACK's) with the sender's clock when it left, in microseconds."""
+    TIMED_DATA = 16
+    """either way, sessions with the TIMESTAMPS flag: a DATA packet (its header consumes a data
+    sequence number and carries the acknowledgement as DATA's does) with the sender's clock when it
+    left, in microseconds, before the payload."""
     MP_CHALLENGE = 17
     """either way, multipath sessions: on a path, "answer this token on the same path": validates a
     new path (its opener's first datagram on it; the other side's proof that the opener receives at
@@ -127,6 +134,11 @@ MESSAGE_CODES: Final = frozenset(
     int(code) for code in (ControlCode.MESSAGE, ControlCode.MESSAGE_ACK)
 )
 """The reliable control channel (docs/PROTOCOL.md section 5.10): session control, sealed when keyed."""
+STAMP_CODES: Final = frozenset(
+    int(code) for code in (ControlCode.TIMESTAMP, ControlCode.TIMED_DATA)
+)
+"""Packets that carry their sender's clock (docs/PROTOCOL.md section 5.13): session traffic, sealed
+when keyed."""
 MULTIPATH_CODES: Final = frozenset(
     int(code)
     for code in (
@@ -154,6 +166,9 @@ class OpenFlags(enum.IntFlag):
     TAKEOVER = 0x08
     """OPEN only, keyed only: an exclusive slave hands control to this master at once, ending the
     session of the master that had it (docs/PROTOCOL.md 5.9). Never echoed in the OPEN_ACK."""
+    TIMESTAMPS = 0x20
+    """Both ends time a share of their packets (TIMESTAMP, TIMED_DATA: docs/PROTOCOL.md 5.13), so
+    that each learns the one-way delay of its own direction. Echoed in the OPEN_ACK."""
     MULTIPATH = 0x40
     """The session may run over several paths at once (docs/PROTOCOL.md 5.11): either side may
     validate further paths with MP_CHALLENGE, DATA may travel on several of them, and receivers
@@ -169,6 +184,7 @@ KNOWN_FLAGS: Final = int(
     | OpenFlags.KEYED
     | OpenFlags.ENCRYPTED
     | OpenFlags.TAKEOVER
+    | OpenFlags.TIMESTAMPS
     | OpenFlags.MULTIPATH
     | OpenFlags.SLAVE_DIALS
 )
@@ -373,6 +389,32 @@ class MessageAckBody(NamedTuple):
         return ControlCode.MESSAGE_ACK
 
 
+class TimestampBody(NamedTuple):
+    """TIMESTAMP (either way): the sender's clock when it left; the header carries an ACK's fields."""
+
+    time: int
+    """The sender's clock in microseconds, its low 32 bits (any origin: only differences count)."""
+
+    @property
+    def code(self) -> ControlCode:
+        """The control code this body is sent under."""
+        return ControlCode.TIMESTAMP
+
+
+class TimedDataBody(NamedTuple):
+    """TIMED_DATA (either way): a sample with the sender's clock when it left."""
+
+    time: int
+    """As :attr:`TimestampBody.time`."""
+    payload: bytes
+    """The application's sample, at least one byte."""
+
+    @property
+    def code(self) -> ControlCode:
+        """The control code this body is sent under."""
+        return ControlCode.TIMED_DATA
+
+
 class MpChallengeBody(NamedTuple):
     """MP_CHALLENGE (either way, multipath sessions)."""
 
@@ -457,6 +499,8 @@ ControlBody = (
     | PathResponseBody
     | MessageBody
     | MessageAckBody
+    | TimestampBody
+    | TimedDataBody
     | MpChallengeBody
     | MpResponseBody
     | MpReportBody
@@ -477,6 +521,7 @@ _PATH_CHALLENGE: Final = struct.Struct(">B16s")  # code token
 _PATH_RESPONSE: Final = struct.Struct(">B16s16s")  # code token nonce
 _MESSAGE: Final = struct.Struct(">B16sHH")  # code nonce seq ack, then the message
 _MESSAGE_ACK: Final = struct.Struct(">B16sH")  # code nonce ack
+_STAMP: Final = struct.Struct(">BI")  # code time (TIMESTAMP; TIMED_DATA's payload follows)
 _MP_CHALLENGE: Final = struct.Struct(">B16sB8s")  # code nonce path_id token
 _MP_RESPONSE: Final = struct.Struct(">B16sB8s8s")  # code nonce path_id echo token
 _MP_REPORT: Final = struct.Struct(">B16sBHBIIH")  # code nonce path_id seq hold received first lag
@@ -515,6 +560,11 @@ MESSAGE_NUMBERS_OFFSET: Final = MESSAGE_NONCE_OFFSET + NONCE_SIZE
 """Where a MESSAGE body carries its seq and ack (a MESSAGE_ACK its ack): 17."""
 MESSAGE_ACK_BODY_SIZE: Final = _MESSAGE_ACK.size
 """19 bytes: an unkeyed MESSAGE_ACK is 24 bytes, a keyed one 42."""
+STAMP_SIZE: Final = _STAMP.size
+"""5 bytes: a TIMESTAMP body (code and time); TIMED_DATA puts them before the payload, so a timed
+sample's datagram is 5 bytes longer than its DATA packet would be."""
+STAMP_MODULUS: Final = 1 << 32
+"""Send times travel as their low 32 bits, in microseconds (they wrap every 71.6 minutes)."""
 MESSAGE_SEQ_MODULUS: Final = 1 << 16
 """Message numbers travel as their low 16 bits."""
 MP_TOKEN_SIZE: Final = 8
@@ -623,6 +673,12 @@ def encode_message(nonce: bytes, seq: int, ack: int, data: bytes) -> bytes:
 def encode_message_ack(nonce: bytes, ack: int) -> bytes:
     """A MESSAGE_ACK body (code byte included): the master's nonce and ``ack``'s low 16 bits."""
     return _MESSAGE_ACK.pack(ControlCode.MESSAGE_ACK, nonce, ack & 0xFFFF)
+
+
+def encode_timestamp(code: ControlCode, time_us: int) -> bytes:
+    """A TIMESTAMP body, or the part of a TIMED_DATA body before its payload: the code and the low
+    32 bits of ``time_us``."""
+    return _STAMP.pack(code, time_us & 0xFFFFFFFF)
 
 
 def encode_mp_challenge(nonce: bytes, path_id: int, token: bytes) -> bytes:
@@ -753,6 +809,18 @@ def decode_control(body: bytes | memoryview) -> ControlBody:
             )
         _, nonce, ack = _MESSAGE_ACK.unpack(body)
         return MessageAckBody(nonce, ack)
+    if code is ControlCode.TIMESTAMP:
+        if len(body) != STAMP_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"TIMESTAMP body is {len(body)} bytes, not {STAMP_SIZE}"
+            )
+        return TimestampBody(_STAMP.unpack(body)[1])
+    if code is ControlCode.TIMED_DATA:
+        if len(body) <= STAMP_SIZE:
+            raise MalformedPacketError(
+                "bad_control", f"TIMED_DATA body of {len(body)} bytes carries no payload"
+            )
+        return TimedDataBody(_STAMP.unpack_from(body)[1], bytes(body[STAMP_SIZE:]))
     if raw in MULTIPATH_CODES:
         return _decode_multipath(code, body)
     if code is ControlCode.PATH_CHALLENGE:

@@ -92,6 +92,10 @@ MessageBody: Any = Struct(
 cumulative acknowledgement of the peer's messages (both their low 16 bits), then the message itself
 (at least one byte)."""
 MessageAckBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "ack" / Int16ub)
+TimestampBody: Any = Struct("time" / Int32ub)
+"""TIMESTAMP: the sender's clock (microseconds, low 32 bits) when it left."""
+TimedDataBody: Any = Struct("time" / Int32ub, "payload" / GreedyBytes)
+"""TIMED_DATA: the sender's clock as TIMESTAMP's, then the sample (at least one byte)."""
 MpChallengeBody: Any = Struct(
     "nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "token" / Bytes(MP_TOKEN_SIZE)
 )
@@ -134,6 +138,8 @@ ControlBody: Any = Struct(
             int(ControlCode.PATH_RESPONSE): PathResponseBody,
             int(ControlCode.MESSAGE): MessageBody,
             int(ControlCode.MESSAGE_ACK): MessageAckBody,
+            int(ControlCode.TIMESTAMP): TimestampBody,
+            int(ControlCode.TIMED_DATA): TimedDataBody,
             int(ControlCode.MP_CHALLENGE): MpChallengeBody,
             int(ControlCode.MP_RESPONSE): MpResponseBody,
             int(ControlCode.MP_REPORT): MpReportBody,
@@ -169,8 +175,8 @@ ProtectedControl: Any = Struct(
     "sealed" / Bytes(lambda ctx: _remaining(ctx) - TAG_SIZE),
     "tag" / Bytes(TAG_SIZE),
 )
-"""A keyed session's KEEPALIVE, CLOSE, MESSAGE, MESSAGE_ACK, MP_REPORT or MP_ABANDON: as
-ProtectedData, with the control code in the clear after the header."""
+"""A keyed session's KEEPALIVE, CLOSE, MESSAGE, MESSAGE_ACK, TIMESTAMP, TIMED_DATA, MP_REPORT or
+MP_ABANDON: as ProtectedData, with the control code in the clear after the header."""
 
 ProtectedProbe: Any = Struct(
     "header" / Header,
@@ -203,4 +209,6 @@ __all__ = [
     "ProtectedData",
     "ProtectedProbe",
     "ResetBody",
+    "TimedDataBody",
+    "TimestampBody",
 ]

@@ -61,10 +61,10 @@ async def test_both_ends_capture_exactly_what_their_sockets_carried(tmp_path: Pa
         udp_payload(r.packet) for r in slave_records if r.packet[20:22] in master_port
     ]
     assert sorted(sent_by_master) == sorted(received_by_slave)
-    data = [p for p in sent_by_master if p[0] >> 6 == 0]
-    assert len(data) == EXCHANGE and {p[5:] for p in data} == {
-        b"m%04d" % i for i in range(EXCHANGE)
-    }
+    # Samples: DATA, and TIMED_DATA (code 16: the sender's clock, 4 bytes, before the sample).
+    data = [p[5:] for p in sent_by_master if p[0] >> 6 == 0]
+    data += [p[10:] for p in sent_by_master if p[0] >> 6 == 2 and p[5] == 16]
+    assert len(data) == EXCHANGE and set(data) == {b"m%04d" % i for i in range(EXCHANGE)}
 
 
 @pytest.mark.asyncio

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tdtp import Connection, Role, State, Ticker, connect, listen
+from tdtp import Connection, ConnectionConfig, Role, State, Ticker, connect, listen
 from tdtp.aio.api import _DialerProtocol, _limit_write_buffer
 from tdtp.aio.endpoint import Endpoint
 from tdtp.aio.timer import monotonic
@@ -27,7 +27,8 @@ SLAVE = ("192.0.2.2", 2)
 
 def _established_pair() -> tuple[Connection, Connection]:
     """A master and a slave connection opened in memory, on the real clock."""
-    master = Connection(role=Role.MASTER)
+    # Without send timestamps: every sample a DATA, as the reader below counts them.
+    master = Connection(ConnectionConfig(timestamp_interval=0.0), role=Role.MASTER)
     slave = Connection(role=Role.SLAVE)
     now = monotonic()
     master.connect(SLAVE, now=now)

@@ -236,7 +236,8 @@ def test_link_refuses_a_second_binding() -> None:
 
 
 def test_tdtp_one_way_delay_is_exact_on_an_idle_path() -> None:
-    # 100-byte samples: 125 bytes on the wire, 1 ms at 1 Mbit/s, plus 10 ms: every sample, 11 ms.
+    # 100-byte samples at 100/s, each one stamped (one stamp per 4 ms at most: PROTOCOL.md 5.13):
+    # 130 bytes on the wire, 1.04 ms at 1 Mbit/s, plus 10 ms: every sample, 11.04 ms.
     net = Network()
     net.connect("M", "S", "rate 1mbit delay 10ms limit 15")
     net.compute_routes()
@@ -248,9 +249,9 @@ def test_tdtp_one_way_delay_is_exact_on_an_idle_path() -> None:
         summary = recorder.summary(1.0, 5.0)
         assert summary.delivered_pps == pytest.approx(100.0, abs=1.0)
         assert summary.dropped_packets == 0
-        assert summary.mean_delay == pytest.approx(0.011, abs=1e-9)
-        assert summary.p95_delay == pytest.approx(0.011, abs=1e-9)
-        assert summary.mean_age == pytest.approx(0.011, abs=1e-9)  # never held by the pacer
+        assert summary.mean_delay == pytest.approx(0.01104, abs=1e-9)
+        assert summary.p95_delay == pytest.approx(0.01104, abs=1e-9)
+        assert summary.mean_age == pytest.approx(0.01104, abs=1e-9)  # never held by the pacer
     assert session.master.ack_packets <= 2 and session.slave.ack_packets <= 2
 
 

@@ -98,6 +98,8 @@ def make_config(config: dict[str, Any]) -> ConnectionConfig:
         # The reorder wait is the receiver's local choice (PROTOCOL.md 5.5): the scripts pin
         # delivery without one, each new sample at once.
         max_reorder_wait=config.get("max_reorder_wait", 0.0),
+        # Scripts are sessions without send timestamps unless they ask (PROTOCOL.md 5.13).
+        timestamp_interval=config.get("timestamp_interval", 0.0),
         multipath=MultipathConfig(**config["multipath"]) if "multipath" in config else None,
     )
 

@@ -49,13 +49,25 @@ from tdtp.wire.control import (
     PATH_CHALLENGE_BODY_SIZE,
     PATH_RESPONSE_BODY_SIZE,
     RESET_ECHO_SIZE,
+    STAMP_SIZE,
     ControlBody,
+    MpAbandonBody,
+    MpChallengeBody,
+    MpReportBody,
+    MpResponseBody,
     PathChallengeBody,
     PathResponseBody,
     ResetBody,
+    TimedDataBody,
+    TimestampBody,
+    encode_mp_abandon,
+    encode_mp_challenge,
+    encode_mp_report,
+    encode_mp_response,
     encode_path_challenge,
     encode_path_response,
     encode_reset,
+    encode_timestamp,
     open_version,
 )
 
@@ -78,6 +90,8 @@ UNKEYED_SIZES = {
     ControlCode.PATH_RESPONSE: PATH_RESPONSE_BODY_SIZE,
     ControlCode.MESSAGE: 22,  # the smallest: code, nonce, seq, ack and a one-byte message
     ControlCode.MESSAGE_ACK: 19,
+    ControlCode.TIMESTAMP: 5,
+    ControlCode.TIMED_DATA: 6,  # the smallest: code, time and a one-byte sample
     ControlCode.MP_CHALLENGE: 26,
     ControlCode.MP_RESPONSE: 34,
     ControlCode.MP_REPORT: 31,
@@ -190,6 +204,22 @@ GOLDEN_PACKETS: list[tuple[str, Header, ControlBody, bytes]] = [
         MessageAckBody(NONCE, 0),
         b"",
     ),
+    # TIMESTAMP: an ACK's header (SEQ 0xABD, ACK 0x124, SACK 000001, HOLD 0) as TYPE 10 ->
+    # aa f4 49 01 00; code 0f, the sender's clock 0x89abcdef microseconds.
+    (
+        "aa f4 49 01 00 0f 89abcdef",
+        Header(PacketType.CONTROL, 0xABD, 0x124, 1, 0),
+        TimestampBody(0x89ABCDEF),
+        b"",
+    ),
+    # TIMED_DATA: a DATA header as TYPE 10 -> aa f4 49 01 00; code 10, the clock 00 00 00 01
+    # (just past a wrap), the sample 00 01 02.
+    (
+        "aa f4 49 01 00 10 00000001 000102",
+        Header(PacketType.CONTROL, 0xABD, 0x124, 1, 0),
+        TimedDataBody(1, bytes(range(3))),
+        b"",
+    ),
 ]
 
 
@@ -212,6 +242,18 @@ def encode_body(body: ControlBody) -> bytes:
         return encode_message(body.nonce, body.seq, body.ack, body.data)
     if isinstance(body, MessageAckBody):
         return encode_message_ack(body.nonce, body.ack)
+    if isinstance(body, TimestampBody):
+        return encode_timestamp(ControlCode.TIMESTAMP, body.time)
+    if isinstance(body, TimedDataBody):
+        return encode_timestamp(ControlCode.TIMED_DATA, body.time) + body.payload
+    if isinstance(body, MpChallengeBody):
+        return encode_mp_challenge(body.nonce, body.path_id, body.token)
+    if isinstance(body, MpResponseBody):
+        return encode_mp_response(body.nonce, body.path_id, body.echo, body.token)
+    if isinstance(body, MpReportBody):
+        return encode_mp_report(body)
+    if isinstance(body, MpAbandonBody):
+        return encode_mp_abandon(body.nonce, body.path_id, body.reason)
     return encode_keepalive(body.nonce)
 
 
@@ -229,6 +271,8 @@ def test_codes_and_constants_are_pinned() -> None:
         "PATH_RESPONSE": 9,
         "MESSAGE": 10,
         "MESSAGE_ACK": 11,
+        "TIMESTAMP": 15,
+        "TIMED_DATA": 16,
         "MP_CHALLENGE": 17,
         "MP_RESPONSE": 18,
         "MP_REPORT": 19,
@@ -266,6 +310,7 @@ def test_codes_and_constants_are_pinned() -> None:
         "KEYED": 2,
         "ENCRYPTED": 4,
         "TAKEOVER": 8,
+        "TIMESTAMPS": 0x20,
         "MULTIPATH": 0x40,
         "SLAVE_DIALS": 128,
     }
@@ -278,6 +323,7 @@ def test_codes_and_constants_are_pinned() -> None:
     assert (CLOSE_BODY_SIZE, KEEPALIVE_BODY_SIZE, TAG_SIZE) == (18, 17, 16)
     assert (PATH_CHALLENGE_BODY_SIZE, PATH_RESPONSE_BODY_SIZE) == (17, 33)
     assert (MESSAGE_PREFIX_SIZE, MESSAGE_ACK_BODY_SIZE) == (21, 19)
+    assert STAMP_SIZE == 5
 
 
 def test_no_answer_to_an_unvalidated_open_is_larger_than_the_open() -> None:
@@ -298,6 +344,8 @@ def test_golden_control_packets(
     assert decode_control(raw[HEADER_SIZE:]) == body
     assert decode_control(memoryview(raw)[HEADER_SIZE:]) == body
     message = len(body.data) - 1 if isinstance(body, MessageBody) else 0  # beyond the smallest
+    if isinstance(body, TimedDataBody):
+        message = len(body.payload) - 1
     assert len(raw) == HEADER_SIZE + UNKEYED_SIZES[body.code] + message + len(tag)
 
 
@@ -385,7 +433,7 @@ def test_empty_body_is_rejected() -> None:
     assert_bad_control(b"")
 
 
-@pytest.mark.parametrize("code", [0, *range(12, 256)])
+@pytest.mark.parametrize("code", [0, 12, 13, 14, *range(17, 256)])
 def test_unknown_code_is_rejected(code: int) -> None:
     assert_bad_control(bytes([code]))
     assert_bad_control(bytes([code]) + bytes(12))
@@ -398,7 +446,8 @@ def test_every_wrong_size_is_rejected(code: ControlCode) -> None:
         # Flag byte 0xA9 (where a body has flags): KEYED clear, so no tag is expected.
         body = bytes([code]) + b"\xa9" * (size - 1)
         tags = size - good  # a RESET carries whole 16-byte tags after its echo (keyed)
-        longer = code is ControlCode.MESSAGE and size > good  # a message of any length
+        # A message, or a timed sample, of any length.
+        longer = code in (ControlCode.MESSAGE, ControlCode.TIMED_DATA) and size > good
         if size == good or longer or (code is ControlCode.RESET and tags > 0 and tags % 16 == 0):
             assert decode_control(body).code == code
         else:
@@ -415,7 +464,7 @@ def test_arbitrary_bytes_decode_or_raise_bad_control(body: bytes) -> None:
     tag = b""
     if isinstance(decoded, OpenBody | OpenAckBody) and decoded.flags & OpenFlags.KEYED:
         tag = body[-TAG_SIZE:]
-    if isinstance(decoded, ResetBody | MessageBody):  # of variable length
+    if isinstance(decoded, ResetBody | MessageBody | TimedDataBody):  # of variable length
         assert encode_body(decoded) == body
         return
     assert len(body) == UNKEYED_SIZES[decoded.code] + len(tag)

@@ -66,6 +66,7 @@ from tdtp.wire import (  # noqa: E402
     encode_path_challenge,
     encode_path_response,
     encode_reset,
+    encode_timestamp,
     expand_seq,
 )
 from tdtp.wire.errors import MalformedPacketError  # noqa: E402
@@ -432,6 +433,20 @@ def control_vectors() -> dict[str, Any]:
             "MP_ABANDON of path 1, PATH_CLOSED",
             encode_mp_abandon(MASTER_NONCE, 1, CloseReason.PATH_CLOSED),
         ),
+        (
+            "OPEN asking for send timestamps (flag TIMESTAMPS, 0x20)",
+            encode_open(
+                OpenBody(WIRE_VERSION, 0x20, 0, 1200, 0, MASTER_NONCE, bytes(8), bytes(16))
+            ),
+        ),
+        (
+            "TIMESTAMP: the sender's clock 0x89abcdef us (its header carries an ACK's fields)",
+            encode_timestamp(ControlCode.TIMESTAMP, 0x89ABCDEF),
+        ),
+        (
+            "TIMED_DATA: the clock 1 us past a wrap, then a 3-byte sample",
+            encode_timestamp(ControlCode.TIMED_DATA, 1) + bytes(range(3)),
+        ),
     ]
     valid = []
     for name, body in bodies:
@@ -479,7 +494,10 @@ def control_vectors() -> dict[str, Any]:
             encode_path_challenge(COOKIE_BYTES)[:1].replace(b"\x08", b"\x09") + COOKIE_BYTES,
         ),
         ("CLOSE without its reason", encode_close(ControlCode.CLOSE, MASTER_NONCE, 0)[:-1]),
-        ("code 16 (unassigned)", b"\x10" + bytes(20)),
+        ("code 14 (unassigned)", b"\x0e" + bytes(20)),
+        ("TIMESTAMP one byte short", encode_timestamp(ControlCode.TIMESTAMP, 7)[:-1]),
+        ("TIMESTAMP one byte long", encode_timestamp(ControlCode.TIMESTAMP, 7) + b"\x00"),
+        ("TIMED_DATA without a sample", encode_timestamp(ControlCode.TIMED_DATA, 7)),
         ("code 21 (REGISTER: never a session's, and too short)", b"\x15" + bytes(20)),
         ("code 25 (unassigned)", b"\x19" + bytes(20)),
         ("MP_CHALLENGE one byte short", encode_mp_challenge(MASTER_NONCE, 1, MP_TOKEN)[:-1]),

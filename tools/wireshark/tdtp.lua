@@ -9,8 +9,9 @@
 -- microseconds, and which peer packets the ACK/SACK fields report received or absent), DATA
 -- payloads, ACK padding, every CONTROL body (OPEN, OPEN_ACK, COOKIE, KEEPALIVE, CLOSE, REJECT, RESET,
 -- PATH_CHALLENGE, PATH_RESPONSE, the reliable control channel's MESSAGE and MESSAGE_ACK, and the
--- multipath MP_CHALLENGE, MP_RESPONSE, MP_REPORT and MP_ABANDON, and the rendezvous messages
--- REGISTER, REFERRAL, PROBE and PROBE_ACK of a relay and its pairs), and
+-- multipath MP_CHALLENGE, MP_RESPONSE, MP_REPORT and MP_ABANDON, the send timestamps TIMESTAMP and
+-- TIMED_DATA, and the rendezvous messages REGISTER, REFERRAL, PROBE and PROBE_ACK of a relay and
+-- its pairs), and
 -- the keyed layout (packet number, sealed body, authentication tag). It cannot decrypt or verify
 -- a keyed session: the keys derive from a pre-shared key it does not have. Malformed packets get
 -- expert info (Analyze > Expert Information; tshark: -z expert).
@@ -32,6 +33,7 @@ local CODE_NAMES = {
     [7] = "RESET",
     [8] = "PATH_CHALLENGE", [9] = "PATH_RESPONSE",
     [10] = "MESSAGE", [11] = "MESSAGE_ACK",
+    [15] = "TIMESTAMP", [16] = "TIMED_DATA",
     [17] = "MP_CHALLENGE", [18] = "MP_RESPONSE", [19] = "MP_REPORT", [20] = "MP_ABANDON",
     [21] = "REGISTER", [22] = "REFERRAL", [23] = "PROBE", [24] = "PROBE_ACK",
 }
@@ -56,6 +58,8 @@ local RESET_ECHO = 16
 -- MESSAGE: code, the master's nonce, seq, ack before the message; MESSAGE_ACK: code, nonce, ack.
 local MESSAGE_PREFIX = 21
 local MESSAGE_ACK = 19
+-- TIMESTAMP: code, the sender's clock (u32, microseconds); TIMED_DATA: the same, then the sample.
+local STAMP = 5
 -- Bytes of a control datagram by code: unkeyed, keyed (nil: never protected).
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
@@ -82,9 +86,10 @@ f.flag_separate = ProtoField.bool("tdtp.flags.separate_acks", "SEPARATE_ACKS", 8
 f.flag_keyed = ProtoField.bool("tdtp.flags.keyed", "KEYED", 8, nil, 0x02)
 f.flag_encrypted = ProtoField.bool("tdtp.flags.encrypted", "ENCRYPTED", 8, nil, 0x04)
 f.flag_takeover = ProtoField.bool("tdtp.flags.takeover", "TAKEOVER", 8, nil, 0x08)
+f.flag_timestamps = ProtoField.bool("tdtp.flags.timestamps", "TIMESTAMPS", 8, nil, 0x20)
 f.flag_multipath = ProtoField.bool("tdtp.flags.multipath", "MULTIPATH", 8, nil, 0x40)
 f.flag_slave_dials = ProtoField.bool("tdtp.flags.slave_dials", "SLAVE_DIALS", 8, nil, 0x80)
-f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0x30)
+f.flag_reserved = ProtoField.uint8("tdtp.flags.reserved", "Reserved", base.HEX, nil, 0x10)
 f.rv_flags = ProtoField.uint8("tdtp.register.flags", "Register flags", base.HEX)
 f.rv_listener = ProtoField.bool("tdtp.register.listener", "LISTENER", 8, nil, 0x01)
 f.rv_leave = ProtoField.bool("tdtp.register.leave", "LEAVE", 8, nil, 0x02)
@@ -123,6 +128,7 @@ f.mp_hold = ProtoField.uint8("tdtp.mp.hold", "Its HOLD code", base.DEC, HOLD_NAM
 f.mp_received = ProtoField.uint32("tdtp.mp.received", "DATA received on the path", base.DEC)
 f.mp_first = ProtoField.uint32("tdtp.mp.first", "Of those, first copies", base.DEC)
 f.mp_lag = ProtoField.uint16("tdtp.mp.lag", "Lag behind the first copy (100 us)", base.DEC)
+f.stamp = ProtoField.uint32("tdtp.stamp", "Sender's clock (us, low 32 bits)", base.DEC)
 
 local e = tdtp.experts
 e.truncated = ProtoExpert.new("tdtp.truncated", "Truncated: shorter than the 5-byte header",
@@ -279,11 +285,13 @@ local function add_flags(tree, tvb, offset)
     item:add(f.flag_keyed, tvb(offset, 1))
     item:add(f.flag_encrypted, tvb(offset, 1))
     item:add(f.flag_takeover, tvb(offset, 1))
+    item:add(f.flag_timestamps, tvb(offset, 1))
     item:add(f.flag_multipath, tvb(offset, 1))
     item:add(f.flag_slave_dials, tvb(offset, 1))
     item:add(f.flag_reserved, tvb(offset, 1))
     local flags = tvb(offset, 1):uint()
-    if low_bits(rshift(flags, 4), 2) ~= 0 then item:add_proto_expert_info(e.reserved_flags) end
+    -- Bit 4 is reserved.
+    if low_bits(rshift(flags, 4), 1) == 1 then item:add_proto_expert_info(e.reserved_flags) end
     return flags, item
 end
 
@@ -303,6 +311,16 @@ local function add_sealed(tree, tvb, offset, length)
 end
 
 -- CLOSE (unkeyed) and REJECT: the master's nonce and a reason.
+-- A keyed session's control packet (code in the clear): its packet number and the length of its
+-- sealed body, or nil and the summary when it is too short to hold them.
+local function keyed_control(tree, tvb, length, name)
+    if length < HEADER + 1 + PN + TAG then
+        tree:add_proto_expert_info(e.keyed_short)
+        return nil, name .. " (truncated)"
+    end
+    return add_sealed(tree, tvb, HEADER + 1, length)
+end
+
 local function close_fields(tree, tvb, length, name)
     if length ~= CONTROL_SIZES[5][1] then
         tree:add_proto_expert_info(e.bad_control)
@@ -407,7 +425,8 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         tree:add_proto_expert_info(e.unknown_code)
         return string.format("CONTROL code %d", code)
     end
-    if code ~= 3 and hold ~= 255 then tree:add_proto_expert_info(e.hold_control) end
+    -- KEEPALIVE, TIMESTAMP and TIMED_DATA carry an acknowledgement; the others HOLD 255.
+    if code ~= 3 and code ~= 15 and code ~= 16 and hold ~= 255 then tree:add_proto_expert_info(e.hold_control) end
     if code >= 21 then return dissect_rendezvous(tvb, tree, length, code, name) end
     if code == 1 or code == 2 then
         -- OPEN / OPEN_ACK: fields in the clear, a 16-byte tag when KEYED.
@@ -557,14 +576,35 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 17, 1):uint(),
             tvb(HEADER + 21, 4):uint(), tvb(HEADER + 25, 4):uint())
     end
+    -- Send timestamps (section 5.13): an ACK's or a DATA's stand-in, protected in a keyed session.
+    if code == 15 or code == 16 then
+        if keyed then
+            local pn, sealed = keyed_control(tree, tvb, length, name)
+            if pn == nil then return sealed end
+            if (code == 15 and sealed ~= STAMP - 1) or (code == 16 and sealed < STAMP) then
+                tree:add_proto_expert_info(e.bad_control)
+            end
+            return string.format("%s pn=%d", name, pn)
+        end
+        if (code == 15 and length ~= HEADER + STAMP) or (code == 16 and length <= HEADER + STAMP) then
+            tree:add_proto_expert_info(e.bad_control)
+            return name .. " (wrong length)"
+        end
+        tree:add(f.stamp, tvb(HEADER + 1, 4))
+        local stamp = tvb(HEADER + 1, 4):uint()
+        if code == 15 then
+            return string.format("TIMESTAMP time=%d", stamp)
+        end
+        local data = length - HEADER - STAMP
+        tree:add(f.payload_len, data):set_generated()
+        tree:add(f.payload, tvb(HEADER + STAMP, data))
+        return string.format("TIMED_DATA time=%d len=%d", stamp, data)
+    end
     -- The reliable control channel (section 5.10): session control, protected in a keyed session.
     if code == 10 or code == 11 then
         if keyed then
-            if length < HEADER + 1 + PN + TAG then
-                tree:add_proto_expert_info(e.keyed_short)
-                return name .. " (truncated)"
-            end
-            local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
+            local pn, sealed = keyed_control(tree, tvb, length, name)
+            if pn == nil then return sealed end
             -- Sealed: the nonce and the numbers (MESSAGE: and at least one message byte).
             if (code == 10 and sealed < MESSAGE_PREFIX) or (code == 11 and sealed ~= MESSAGE_ACK - 1) then
                 tree:add_proto_expert_info(e.bad_control)
@@ -596,11 +636,8 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
     end
     -- KEEPALIVE and CLOSE: session control, protected in a keyed session.
     if keyed then
-        if length < HEADER + 1 + PN + TAG then
-            tree:add_proto_expert_info(e.keyed_short)
-            return name .. " (truncated)"
-        end
-        local pn, sealed = add_sealed(tree, tvb, HEADER + 1, length)
+        local pn, sealed = keyed_control(tree, tvb, length, name)
+        if pn == nil then return sealed end
         -- What is sealed: the body after the code byte, less the packet number and the tag.
         if sealed ~= CONTROL_SIZES[code][2] - HEADER - 1 - PN - TAG then
             tree:add_proto_expert_info(e.bad_control)
