@@ -44,6 +44,7 @@ def make_config(c: Vec, role: str) -> Config:
         "exclusive",
         "takeover_after",
         "reclaim_after",
+        "timestamp_interval",
     ):
         if k in c:
             setattr(cfg, k, c[k])

@@ -34,6 +34,8 @@ class Config:
     control_max_rate: float = 200.0
     control_burst: int = 8
     control_timeout: float = 20.0
+    # send timestamps (5.13): a master with an interval sets TIMESTAMPS (not with multipath)
+    timestamp_interval: float = 0.0
     # admission (5.1 rule 2) and the slave's budgets
     cookie_lifetime: float = 5.0
     opens_per_source: float = 20.0

@@ -5,7 +5,7 @@ multipath rows (the path table itself is multipath.py)."""
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from . import crypto, wire
 from .admission import Admission, Verdict
@@ -114,6 +114,9 @@ class Connection:
         self.rx_path: Path | None = None  # the path the datagram being read came on
         self.mp_queue: list[Sent] = []  # MP_RESPONSEs and refusals, for the next flush
         self.mp_traffic = False  # a multipath packet of ours since the last KEEPALIVE check
+        # send timestamps (section 5.13): the interval when the session stamps, the last stamp
+        self.stamp_interval: float | None = None
+        self.last_stamp = -INF
 
     # -- helpers --------------------------------------------------------------------------------
     def drop(self, reason: str) -> None:
@@ -251,6 +254,8 @@ class Connection:
             self.flags |= wire.FLAG_TAKEOVER if self.cfg.takeover else 0
         if self.cfg.multipath:
             self.flags |= wire.FLAG_MULTIPATH
+        elif self.cfg.timestamp_interval > 0:  # never together with MULTIPATH (5.13)
+            self.flags |= wire.FLAG_TIMESTAMPS
         self.state = OPENING
         self.opened_at = now
         self.last_life = now
@@ -300,6 +305,8 @@ class Connection:
         self._send_open_ack(now)
 
     def _start_session(self, peer_isn: int, now: float) -> None:
+        if self.flags & wire.FLAG_TIMESTAMPS and not self.flags & wire.FLAG_MULTIPATH:
+            self.stamp_interval = self.cfg.timestamp_interval or 0.004  # a slave's 0: 4 ms
         self.window = ReceiveWindow(
             peer_isn, self.cfg.silence_timeout, far_ahead_check=not self.keyed
         )
@@ -398,10 +405,10 @@ class Connection:
             self.validated = True  # a DATA packet sent on the new path acknowledged (5.8)
         return not res.optimistic
 
-    def _data(self, plain: bytes, hdr: wire.Header, now: float) -> None:
+    def _data(self, plain: bytes, hdr: wire.Header, now: float, skip: int = 5) -> None:
         if self.state != ESTABLISHED:
             return self.drop("not_established")
-        payload = plain[5:]
+        payload = plain[skip:]  # after the header (a TIMED_DATA's: its code and time too)
         if len(payload) > self.cfg.max_payload:
             return self.drop("oversized")
         if not payload:
@@ -432,6 +439,16 @@ class Connection:
         code = plain[5] if len(plain) > 5 else None
         if code in (wire.MESSAGE, wire.MESSAGE_ACK):
             return self._message(plain, now)
+        if code in wire.STAMP_CODES:  # section 5.13, then as the ACK or DATA they stand for
+            if self.stamp_interval is None:
+                return self.drop("unexpected_control")
+            try:
+                wire.decode_control(plain[5:])
+            except wire.BadControlError:
+                return self.drop("bad_control")
+            if code == wire.TIMESTAMP:
+                return self._ack(replace(hdr, type=wire.ACK), now)
+            return self._data(plain, replace(hdr, type=wire.DATA), now, skip=10)
         try:
             msg = wire.decode_control(plain[5:])
         except wire.BadControlError:
@@ -844,6 +861,12 @@ class Connection:
             owed.sack,
             wire.hold_encode_seconds(now - owed.since),
         )
+        if self.stamp_interval is not None and now - self.last_stamp >= self.stamp_interval:
+            # a stamp is due: the ACK leaves as a TIMESTAMP, unpadded (section 5.13)
+            self.last_stamp = now
+            stamp = wire.Timestamp(round(now * 1e6) & 0xFFFFFFFF)
+            dg = self._session_control(stamp, replace(hdr, type=wire.CONTROL))
+            return self._send_traffic(dg, "TIMESTAMP", now)
         pad = bytes(self.cfg.ack_size - 5)
         dg = self.sealer.seal(hdr.encode(), pad) if self.sealer else hdr.encode() + pad
         self._send_traffic(dg, "ACK", now)
@@ -855,7 +878,7 @@ class Connection:
     def _send_traffic(self, dg: bytes, label: str, now: float) -> None:
         assert self.peer is not None
         self.last_traffic = now
-        if self.role == "master" and label in ("DATA", "ACK", "KEEPALIVE"):
+        if self.role == "master" and label in ("DATA", "ACK", "KEEPALIVE", "TIMESTAMP"):
             self.echoes.append(dg[:16])  # what a RESET may echo (section 5.7)
         self._emit(Sent(dg, None, label), now)
 

@@ -12,10 +12,13 @@ RESET_MIN = 22
 
 
 def is_session_datagram(data: bytes) -> bool:
-    """What a RESET answers (section 5.7): DATA, ACK, or a CONTROL whose code byte is KEEPALIVE."""
+    """What a RESET answers (section 5.7): DATA, ACK, or a CONTROL whose code byte is KEEPALIVE,
+    TIMESTAMP or TIMED_DATA."""
     t = data[0] >> 6
     return t in (wire.DATA, wire.ACK) or (
-        t == wire.CONTROL and len(data) >= 6 and data[5] == wire.KEEPALIVE
+        t == wire.CONTROL
+        and len(data) >= 6
+        and data[5] in (wire.KEEPALIVE, wire.TIMESTAMP, wire.TIMED_DATA)
     )
 
 

@@ -13,6 +13,7 @@ HEADER_SIZE = 5
 # -- CONTROL codes (section 4.3) ---------------------------------------------------------------
 OPEN, OPEN_ACK, KEEPALIVE, CLOSE, REJECT, COOKIE, RESET = 1, 2, 3, 4, 5, 6, 7
 PATH_CHALLENGE, PATH_RESPONSE, MESSAGE, MESSAGE_ACK = 8, 9, 10, 11
+TIMESTAMP, TIMED_DATA = 15, 16  # send timestamps (section 5.13)
 MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON = 17, 18, 19, 20  # multipath (section 5.11)
 CODE_NAMES = {
     OPEN: "OPEN",
@@ -26,6 +27,8 @@ CODE_NAMES = {
     PATH_RESPONSE: "PATH_RESPONSE",
     MESSAGE: "MESSAGE",
     MESSAGE_ACK: "MESSAGE_ACK",
+    TIMESTAMP: "TIMESTAMP",
+    TIMED_DATA: "TIMED_DATA",
     MP_CHALLENGE: "MP_CHALLENGE",
     MP_RESPONSE: "MP_RESPONSE",
     MP_REPORT: "MP_REPORT",
@@ -34,11 +37,12 @@ CODE_NAMES = {
 HANDSHAKE_CODES = (OPEN, OPEN_ACK, COOKIE, REJECT)  # row 5 of section 5.5
 PATH_CODES = (PATH_CHALLENGE, PATH_RESPONSE)  # row 5b
 MP_CODES = (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON)  # row 6a
+STAMP_CODES = (TIMESTAMP, TIMED_DATA)  # row 13, section 5.13
 
 # -- OPEN flags (section 4.3) ------------------------------------------------------------------
 FLAG_SEPARATE_ACKS, FLAG_KEYED, FLAG_ENCRYPTED, FLAG_TAKEOVER = 0x01, 0x02, 0x04, 0x08
-FLAG_MULTIPATH, FLAG_SLAVE_DIALS = 0x40, 0x80
-MODE_FLAGS = 0xC7  # bits 0..2, 6 and 7: what an OPEN_ACK echoes
+FLAG_TIMESTAMPS, FLAG_MULTIPATH, FLAG_SLAVE_DIALS = 0x20, 0x40, 0x80
+MODE_FLAGS = 0xE7  # bits 0..2 and 5..7: what an OPEN_ACK echoes
 
 # -- CLOSE / REJECT reasons (section 4.3) ------------------------------------------------------
 REASON_NAMES = [
@@ -299,6 +303,23 @@ class MessageAck:
     code: int = field(default=MESSAGE_ACK, init=False)
 
 
+@dataclass
+class Timestamp:
+    """Stands for a stand-alone ACK; its header carries the ACK's fields (section 5.13)."""
+
+    time: int  # the sender's clock, µs, low 32 bits
+    code: int = field(default=TIMESTAMP, init=False)
+
+
+@dataclass
+class TimedData:
+    """Stands for a DATA: its SEQ is a data sequence number (section 5.13)."""
+
+    time: int
+    payload: bytes  # the sample, at least one byte
+    code: int = field(default=TIMED_DATA, init=False)
+
+
 ControlBody = (
     Open
     | OpenAck
@@ -311,6 +332,8 @@ ControlBody = (
     | PathResponse
     | Message
     | MessageAck
+    | Timestamp
+    | TimedData
     | MpChallenge
     | MpResponse
     | MpReport
@@ -394,6 +417,14 @@ def decode_control(body: bytes) -> ControlBody:
         if n != 19:
             raise BadControlError("MESSAGE_ACK length")
         return MessageAck(body[1:17], _u16(body, 17))
+    if code == TIMESTAMP:
+        if n != 5:
+            raise BadControlError("TIMESTAMP length")
+        return Timestamp(int.from_bytes(body[1:5], "big"))
+    if code == TIMED_DATA:
+        if n < 6:  # the time and at least one byte of sample
+            raise BadControlError("TIMED_DATA without a sample")
+        return TimedData(int.from_bytes(body[1:5], "big"), body[5:])
     if code == MP_CHALLENGE:
         if n != 26:
             raise BadControlError("MP_CHALLENGE length")
@@ -467,6 +498,10 @@ def encode_control(msg: ControlBody) -> bytes:
         )
     if isinstance(msg, MessageAck):
         return c + msg.nonce + (msg.ack & 0xFFFF).to_bytes(2, "big")
+    if isinstance(msg, Timestamp):
+        return c + (msg.time & 0xFFFFFFFF).to_bytes(4, "big")
+    if isinstance(msg, TimedData):
+        return c + (msg.time & 0xFFFFFFFF).to_bytes(4, "big") + msg.payload
     if isinstance(msg, MpChallenge):
         return c + msg.nonce + bytes([msg.path_id]) + msg.token
     if isinstance(msg, MpResponse):
