@@ -79,5 +79,5 @@ class Config:
 
     @property
     def largest_datagram(self) -> int:
-        """Row 4 of section 5.5: 5 + max(max_payload, 64, 21 + control_max_message) + 18."""
-        return 5 + max(self.max_payload, 64, 21 + self.control_max_message) + 18
+        """Row 4 of section 5.5: 5 + max(max_payload + 5, 64, 21 + control_max_message) + 18."""
+        return 5 + max(self.max_payload + 5, 64, 21 + self.control_max_message) + 18
