@@ -56,6 +56,8 @@ from tdtp.analysis.bandwidth import (
     scheme,
     wire_bandwidth,
 )
+from tdtp.wire.control import ControlCode
+from tdtp.wire.header import HEADER_SIZE
 
 TARGET_DEVIATION = 0.005
 RATE = 1000.0
@@ -101,6 +103,7 @@ TALLIES: dict[str, Tally] = {}
 # datagram layer it runs on by default (this benchmark counts bytes, not time).
 os.environ["TDTP_DATAGRAM_LAYER"] = "0"
 _TYPE_NAMES = {0: "data", 1: "ack", 2: "control", 3: "reserved"}
+TIMED_DATA = int(ControlCode.TIMED_DATA)
 
 
 class CountingTransport:
@@ -116,6 +119,8 @@ class CountingTransport:
         tally.datagrams += 1
         tally.udp_payload += len(data)
         kind = "data" if self._raw else _TYPE_NAMES[data[0] >> 6]
+        if kind == "control" and len(data) > HEADER_SIZE and data[HEADER_SIZE] == TIMED_DATA:
+            kind = "data"  # a sample with a send stamp (PROTOCOL.md 5.13): data on the wire
         tally.by_type[kind] = tally.by_type.get(kind, 0) + 1
         if kind == "data":
             now = time.monotonic()
