@@ -23,15 +23,13 @@ def _open_flags(config: ConnectionConfig) -> int:
     return datagram[HEADER_SIZE + 2]
 
 
-def test_a_teleop_master_asks_for_stamps_unless_told_not_to_multipath_or_separate_acks() -> None:
+def test_a_teleop_master_asks_for_stamps_unless_told_not_to_or_multipath() -> None:
     assert _open_flags(ConnectionConfig()) & OpenFlags.TIMESTAMPS
+    assert _open_flags(ConnectionConfig(ack_mode=AckMode.SEPARATE)) & OpenFlags.TIMESTAMPS
     assert not _open_flags(ConnectionConfig(timestamp_interval=0.0)) & OpenFlags.TIMESTAMPS
     assert not _open_flags(ConnectionConfig(controller="trinomial")) & OpenFlags.TIMESTAMPS
     multipath = ConnectionConfig(multipath=MultipathConfig())
     assert not _open_flags(multipath) & OpenFlags.TIMESTAMPS
-    # Separate ACKs (the paper's comparison) keep judging round trips: stamped, they held ~75 %.
-    separate = ConnectionConfig(ack_mode=AckMode.SEPARATE)
-    assert not _open_flags(separate) & OpenFlags.TIMESTAMPS
 
 
 def _stamped(datagram: bytes) -> bool:
@@ -54,6 +52,35 @@ def test_both_ends_stamp_about_once_per_interval_and_the_slave_follows_its_maste
     # The samples all arrive, stamped or not.
     assert len(pair.slave.received) >= 1990
     assert len(pair.master.received) >= 1990
+
+
+def test_separate_acks_stamp_only_acks_and_keep_1_khz_on_a_clean_path() -> None:
+    # A separate-ACK session's DATA acknowledges nothing: a stamp on one would time none of the
+    # peer's packets. Stamped DATA left the peer's window accounting without news for tens of ms
+    # whenever its own DATA, not its ACK, was first out after each interval (a matter of phase), so
+    # it read a full window and fell to its probes: 20 samples/s here.
+    ticks = random.Random(5)
+    late = [ticks.uniform(0.0, 0.0005) for _ in range(4000)]
+    ms, sm = Direction(delay=0.002, keep_wire=True), Direction(delay=0.002, keep_wire=True)
+    config = ConnectionConfig(ack_mode=AckMode.SEPARATE)
+    pair = Pair(config, ConnectionConfig(), ms=ms, sm=sm)
+    pair.open()
+    pair.start_samples(1000, 1000, jitter=lambda k: late[k % len(late)])
+    limits: set[str] = set()
+    for _ in range(20):
+        pair.run_for(0.1)
+        limits |= {pair.master.conn.stats.rate_limit, pair.slave.conn.stats.rate_limit}
+    assert "window full" not in limits
+    for direction, conn, peer in (
+        (ms, pair.master.conn, pair.slave.conn),
+        (sm, pair.slave.conn, pair.master.conn),
+    ):
+        assert conn.stats.timestamps and conn.stats.stamps_rejected == 0
+        codes = [d[HEADER_SIZE] for d in direction.wire if _stamped(d)]
+        assert 400 <= len(codes) <= 520, len(codes)  # every 4 ms for 2 s...
+        assert set(codes) == {ControlCode.TIMESTAMP}  # ...on ACKs only
+        assert conn.stats.samples_superseded <= 10
+        assert peer.stats.received.data_packets >= 1990
 
 
 def test_stamps_off_nothing_stamped_and_a_stamp_is_dropped() -> None:

@@ -711,7 +711,7 @@ class Connection(ConnectionView):
         self._state = State.ESTABLISHED
         self._hint.value = -math.inf
         self._handshake.confirming = False
-        self._sender.one_way.start(now, self._handshake.stamps)
+        self._sender.one_way.start(now, self._handshake.stamps, self._acks.mode is AckMode.SEPARATE)
         liveness = self._liveness
         liveness.last_receive = now
         liveness.last_send = now

@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 from typing import Final
 
-from tdtp.config import AckMode, ConnectionConfig
+from tdtp.config import ConnectionConfig
 from tdtp.control.base import RateController
 from tdtp.control.registry import judges_one_way_delay
 from tdtp.session.recovery import LossRecovery
@@ -66,14 +66,8 @@ QUEUE_GAIN: Final = 0.125
 
 def wants_timestamps(config: ConnectionConfig) -> bool:
     """Whether a master with this config opens with the TIMESTAMPS flag: its controller reads
-    one-way delays, ``timestamp_interval`` is not 0 and its ACKs ride the reverse data (a session of
-    separate ACKs, the paper's comparison, keeps judging round trips: stamped there, teleop held
-    the rate at ~75 % of 1 kHz on a clean path)."""
-    return (
-        config.timestamp_interval > 0.0
-        and config.ack_mode is not AckMode.SEPARATE
-        and judges_one_way_delay(config.controller)
-    )
+    one-way delays and ``timestamp_interval`` is not 0."""
+    return config.timestamp_interval > 0.0 and judges_one_way_delay(config.controller)
 
 
 class WindowMin:
@@ -116,6 +110,7 @@ class OneWayDelay:
         "_controller",
         "_interval",
         "_last_raw",
+        "_on_data",
         "_optimistic",
         "_peer_clock",
         "_recovery",
@@ -125,6 +120,7 @@ class OneWayDelay:
         "_stats",
         "_taken_with",
         "_timed",
+        "data_due",
         "due",
         "enabled",
         "pending",
@@ -156,6 +152,9 @@ class OneWayDelay:
         """The session was opened with the TIMESTAMPS flag: both ends stamp."""
         self.due = math.inf
         """Our next stamp may leave from this time on (``inf`` while stamps are off)."""
+        self.data_due = math.inf
+        """...on a DATA (a TIMED_DATA): ``due``, or ``inf`` where only ACKs are stamped."""
+        self._on_data = True
         self.pending = False
         """A peer stamp taken (:meth:`take`) and not yet read (:meth:`sent_at`, :meth:`settle`)."""
         self._last_raw = -1
@@ -174,19 +173,25 @@ class OneWayDelay:
         self.stamps_rejected = 0
         """Peer stamps outside the bounds a real one respects (forged, corrupted, a clock jump)."""
 
-    def start(self, now: float, flagged: bool) -> None:
+    def start(self, now: float, flagged: bool, separate_acks: bool) -> None:
         """The session opened, with the TIMESTAMPS flag if ``flagged``: then stamps are on, and
-        our first one may leave at once."""
+        our first one may leave at once. With ``separate_acks`` only our ACKs carry them: a DATA
+        there acknowledges nothing, and a stamp that times none of the peer's packets leaves its
+        controller without news of its own direction (docs/PROTOCOL.md 5.13)."""
         if flagged:
             self.enabled = True
             self.due = now
+            self._on_data = not separate_acks
+            self.data_due = now if self._on_data else math.inf
 
     # ------------------------------------------------------------------ ours
 
     def stamp(self, now: float) -> int:
         """Our clock for a stamp leaving at ``now`` (microseconds, low 32 bits); the next one is
         due an interval later."""
-        self.due = now + self._interval
+        due = self.due = now + self._interval
+        if self._on_data:
+            self.data_due = due
         return int(now * 1e6) & (STAMP_MODULUS - 1)
 
     # ------------------------------------------------------------------ the peer's

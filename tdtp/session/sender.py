@@ -134,7 +134,7 @@ class SampleSender:
             or now < controller.next_send_time()
             or window is None
             or window.held
-            or now >= self._one_way.due  # a stamp is due: take_due sends TIMED_DATA
+            or now >= self._one_way.data_due  # a stamp is due: take_due sends TIMED_DATA
         ):
             self.offer(payload, now)
             return False
@@ -198,7 +198,7 @@ class SampleSender:
         outbox = self._outbox
         one_way = self._one_way
         seq = recovery.sent.next_seq
-        if now >= one_way.due:
+        if now >= one_way.data_due:
             # TIMED_DATA (PROTOCOL.md 5.13): the header as DATA's, the send time before the sample.
             stamp = encode_timestamp(_TIMED_DATA, one_way.stamp(now))
             datagram = outbox.protect(
