@@ -104,6 +104,7 @@ TALLIES: dict[str, Tally] = {}
 os.environ["TDTP_DATAGRAM_LAYER"] = "0"
 _TYPE_NAMES = {0: "data", 1: "ack", 2: "control", 3: "reserved"}
 TIMED_DATA = int(ControlCode.TIMED_DATA)
+TIMESTAMP = int(ControlCode.TIMESTAMP)
 
 
 class CountingTransport:
@@ -119,8 +120,12 @@ class CountingTransport:
         tally.datagrams += 1
         tally.udp_payload += len(data)
         kind = "data" if self._raw else _TYPE_NAMES[data[0] >> 6]
-        if kind == "control" and len(data) > HEADER_SIZE and data[HEADER_SIZE] == TIMED_DATA:
-            kind = "data"  # a sample with a send stamp (PROTOCOL.md 5.13): data on the wire
+        if kind == "control" and len(data) > HEADER_SIZE:
+            code = data[HEADER_SIZE]
+            if code == TIMED_DATA:
+                kind = "data"  # a sample with a send stamp (PROTOCOL.md 5.13): data on the wire
+            elif code == TIMESTAMP:
+                kind = "ack"  # an acknowledgement with a send stamp
         tally.by_type[kind] = tally.by_type.get(kind, 0) + 1
         if kind == "data":
             now = time.monotonic()
