@@ -522,11 +522,11 @@ def test_forged_multipath_packets_are_dropped_by_reason() -> None:
     pair.inject(bogus, to_slave=True, local=1)
     assert slave.stats.drops.get("bad_token", 0) == 1
     # A report naming path 1 arriving on path 0.
-    report = encode_mp_report(MpReportBody(nonce, 1, 5, 0, 10, 10, 0))
+    report = encode_mp_report(MpReportBody(nonce, 1, 5, 0, 10, 10, 0, 0))
     pair.inject(_probe(ControlCode.MP_REPORT, report), to_slave=True, local=0)
     assert slave.stats.drops.get("unknown_path", 0) == 1
     # A report and an abandon with another session's nonce (a blind forgery).
-    report = encode_mp_report(MpReportBody(bytes(16), 1, 5, 0, 10, 10, 0))
+    report = encode_mp_report(MpReportBody(bytes(16), 1, 5, 0, 10, 10, 0, 0))
     pair.inject(_probe(ControlCode.MP_REPORT, report), to_slave=True, local=1)
     abandon = encode_mp_abandon(bytes(16), 1, 19)
     pair.inject(_probe(ControlCode.MP_ABANDON, abandon), to_slave=True, local=0)

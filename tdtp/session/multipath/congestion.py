@@ -154,7 +154,8 @@ class PathPacer:
         offered, and spacing a burst of samples (a late tick and the next) would only take the copy
         of one of them off this path, not delay it."""
         self._offered.on_departure(now, False)
-        if now >= self.controller.next_send_time() or not self.congested():
+        controller = self.controller
+        if now >= controller.next_send_time() or not (controller.stalled or self.congested()):
             return True
         self._held = True
         return False
@@ -162,7 +163,10 @@ class PathPacer:
     @property
     def next_departure(self) -> float:
         """When the path allows its next copy (:data:`NO_LIMIT` if now)."""
-        return self.controller.next_send_time() if self.congested() else NO_LIMIT
+        controller = self.controller
+        if controller.stalled or self.congested():
+            return controller.next_send_time()
+        return NO_LIMIT
 
     def congested(self) -> bool:
         """Whether the path's controller holds copies back: it allows fewer than
@@ -230,6 +234,17 @@ class PathPacer:
                 last[2] += 1.0
             else:
                 series.append([point, queue, 1.0])
+
+    def on_one_way(
+        self, now: float, delay: float, sent_at: float, copies: int, hold: float, unacked: int
+    ) -> None:
+        """A report timed our copy's arrival on the peer's clock: ``delay`` is its one-way delay
+        plus the clocks' offset (report_clock.py), ``copies`` the copy's number among the path's
+        own, ``unacked`` the copies sent on the path since. The controller judges the path's
+        queue in our direction alone, and what the path delivered, from these."""
+        self.controller.on_one_way_delay(
+            now=now, delay=delay, sent_at=sent_at, seq=copies, hold=hold, unacked=unacked
+        )
 
 
 class MultipathController(RateController):
