@@ -116,13 +116,6 @@ class RateController(abc.ABC):
         ``"floor"``, ...); empty when the controller does not say."""
         return ""
 
-    @property
-    def stalled(self) -> bool:
-        """Whether the controller holds packets back until feedback arrives (its window of
-        packets on their way is full), whatever its rate: :meth:`next_send_time` is then a probe's
-        time, not the pacer's. ``False`` for a controller without a window."""
-        return False
-
     @abc.abstractmethod
     def next_send_time(self) -> float:
         """Earliest absolute time the next data packet may leave; :data:`NO_LIMIT` if any time."""

@@ -238,10 +238,6 @@ class TeleopController(RateController):
         return self._ceiling()
 
     @property
-    def stalled(self) -> bool:
-        return self._blocked
-
-    @property
     def rate_limit(self) -> str:
         """What limits the rate now: one of the ``LIMIT_*`` strings, ``queue delay`` with the delay
         (``"queue delay 7.2 ms"``)."""
