@@ -219,7 +219,7 @@ class PathPacer:
         self._losses = LossIntervalEstimator(0)
         self.series.clear()
         self._held = False
-        self._unreported_since = math.inf
+        # (Not the stall: a path heard from again says nothing of our way out; a report does.)
 
     def detach(self) -> None:
         """The path is gone: it no longer counts among the session's bottlenecks."""
