@@ -5,8 +5,10 @@
   with no list of arrivals kept;
 * ``duplicates``: copies of the peer's samples the receiver dropped because an earlier copy had been
   taken (a multipath session; a network that duplicates in any session);
-* ``paths``: the sender's paths, each ``{id, sent, first_delivered, srtt_ms, state}`` (what it sent
-  on the path, how many of those were the first copy to reach the peer, by the peer's reports).
+* ``paths``: the sender's paths, each ``{id, sent, first_delivered, srtt_ms, state, loss,
+  one_way_delay_ms, one_way_queue_ms}`` (what it sent on the path, how many of those were the first
+  copy to reach the peer, by the peer's reports; the last, the queue in our direction alone, from
+  the clocks of those reports).
 """
 
 from __future__ import annotations
@@ -66,6 +68,7 @@ def paths_view(sender: Endpoint | None) -> list[dict[str, Any]] | None:
             "state": path.state,
             "loss": round(path.loss, 4),
             "one_way_delay_ms": round(path.one_way_delay * 1e3, 3),
+            "one_way_queue_ms": round(path.one_way_queue * 1e3, 3),
         }
         for path in sender.paths
     ]

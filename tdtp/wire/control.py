@@ -466,6 +466,10 @@ class MpReportBody(NamedTuple):
     """Of those, the first copies of their sequence number (mod 2^32)."""
     lag: int
     """How far the path recently lagged the first copy, in units of 100 us (65535: saturated)."""
+    clock: int
+    """The reporter's clock when the report was built: microseconds, low 32 bits, any origin (as a
+    TIMESTAMP's): with ``hold`` it times the named packet's arrival on the reporter's clock, so
+    its sender learns the path's delay in its own direction alone."""
 
     @property
     def code(self) -> ControlCode:
@@ -524,7 +528,9 @@ _MESSAGE_ACK: Final = struct.Struct(">B16sH")  # code nonce ack
 _STAMP: Final = struct.Struct(">BI")  # code time (TIMESTAMP; TIMED_DATA's payload follows)
 _MP_CHALLENGE: Final = struct.Struct(">B16sB8s")  # code nonce path_id token
 _MP_RESPONSE: Final = struct.Struct(">B16sB8s8s")  # code nonce path_id echo token
-_MP_REPORT: Final = struct.Struct(">B16sBHBIIH")  # code nonce path_id seq hold received first lag
+_MP_REPORT: Final = struct.Struct(
+    ">B16sBHBIIHI"
+)  # code nonce path seq hold received first lag clock
 _MP_ABANDON: Final = struct.Struct(">B16sBB")  # code nonce path_id reason
 
 OPEN_BODY_SIZE: Final = _OPEN.size
@@ -578,7 +584,7 @@ MP_CHALLENGE_BODY_SIZE: Final = _MP_CHALLENGE.size
 MP_RESPONSE_BODY_SIZE: Final = _MP_RESPONSE.size
 """34 bytes: an unkeyed MP_RESPONSE is 39 bytes, a keyed one 57."""
 MP_REPORT_BODY_SIZE: Final = _MP_REPORT.size
-"""31 bytes: an unkeyed MP_REPORT is 36 bytes, a keyed one 54."""
+"""35 bytes: an unkeyed MP_REPORT is 40 bytes, a keyed one 58."""
 MP_ABANDON_BODY_SIZE: Final = _MP_ABANDON.size
 """19 bytes: an unkeyed MP_ABANDON is 24 bytes, a keyed one 42."""
 MP_LAG_UNIT: Final = 0.0001
@@ -692,7 +698,8 @@ def encode_mp_response(nonce: bytes, path_id: int, echo: bytes, token: bytes) ->
 
 
 def encode_mp_report(body: MpReportBody) -> bytes:
-    """An MP_REPORT body (code byte included); counters wrap at 2^32, the lag saturates."""
+    """An MP_REPORT body (code byte included); counters and the clock wrap at 2^32, the lag
+    saturates."""
     return _MP_REPORT.pack(
         ControlCode.MP_REPORT,
         body.nonce,
@@ -702,6 +709,7 @@ def encode_mp_report(body: MpReportBody) -> bytes:
         body.received & 0xFFFFFFFF,
         body.first & 0xFFFFFFFF,
         min(body.lag, MP_LAG_MAX),
+        body.clock & 0xFFFFFFFF,
     )
 
 
@@ -732,8 +740,8 @@ def _decode_multipath(code: ControlCode, body: bytes | memoryview) -> ControlBod
             raise MalformedPacketError(
                 "bad_control", f"MP_REPORT body is {size} bytes, not {MP_REPORT_BODY_SIZE}"
             )
-        _, nonce, path_id, seq, hold, received, first, lag = _MP_REPORT.unpack(body)
-        return MpReportBody(nonce, path_id, seq & 0xFFF, hold, received, first, lag)
+        _, nonce, path_id, seq, hold, received, first, lag, clock = _MP_REPORT.unpack(body)
+        return MpReportBody(nonce, path_id, seq & 0xFFF, hold, received, first, lag, clock)
     if size != MP_ABANDON_BODY_SIZE:
         raise MalformedPacketError(
             "bad_control", f"MP_ABANDON body is {size} bytes, not {MP_ABANDON_BODY_SIZE}"

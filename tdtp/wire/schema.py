@@ -117,8 +117,10 @@ MpReportBody: Any = Struct(
     "received" / Int32ub,
     "first" / Int32ub,
     "lag" / Int16ub,
+    "clock" / Int32ub,
 )
-"""MP_REPORT (multipath): the master's nonce and one path's receiver report."""
+"""MP_REPORT (multipath): the master's nonce and one path's receiver report, timed on the reporter's
+clock."""
 MpAbandonBody: Any = Struct("nonce" / Bytes(NONCE_SIZE), "path_id" / Int8ub, "reason" / Int8ub)
 
 ControlBody: Any = Struct(

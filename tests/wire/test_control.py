@@ -94,7 +94,7 @@ UNKEYED_SIZES = {
     ControlCode.TIMED_DATA: 6,  # the smallest: code, time and a one-byte sample
     ControlCode.MP_CHALLENGE: 26,
     ControlCode.MP_RESPONSE: 34,
-    ControlCode.MP_REPORT: 31,
+    ControlCode.MP_REPORT: 35,
     ControlCode.MP_ABANDON: 19,
 }
 

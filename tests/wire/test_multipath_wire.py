@@ -56,7 +56,7 @@ b16 = st.binary(min_size=16, max_size=16)
 
 def test_sizes_are_pinned() -> None:
     assert (MP_CHALLENGE_BODY_SIZE, MP_RESPONSE_BODY_SIZE) == (26, 34)
-    assert (MP_REPORT_BODY_SIZE, MP_ABANDON_BODY_SIZE) == (31, 19)
+    assert (MP_REPORT_BODY_SIZE, MP_ABANDON_BODY_SIZE) == (35, 19)
     assert MP_PROBE_PREFIX_SIZE == 17
     assert {17, 18, 19, 20} == MULTIPATH_CODES
     assert {17, 18} == PROBE_CODES
@@ -81,10 +81,10 @@ GOLDEN = [
         MpResponseBody(NONCE, 1, ECHO, TOKEN),
     ),
     # MP_REPORT for path 2: code 13 (19), nonce, path 02, seq 0abc, hold 0x40 (512 us), received
-    # 1000, first 600, lag 150 (15 ms).
+    # 1000, first 600, lag 150 (15 ms), clock 0x89ABCDEF.
     (
-        "80 00 00 00 ff 13" + NONCE.hex() + "02 0abc 40 000003e8 00000258 0096",
-        MpReportBody(NONCE, 2, 0xABC, 0x40, 1000, 600, 150),
+        "80 00 00 00 ff 13" + NONCE.hex() + "02 0abc 40 000003e8 00000258 0096 89abcdef",
+        MpReportBody(NONCE, 2, 0xABC, 0x40, 1000, 600, 150, 0x89ABCDEF),
     ),
     # MP_ABANDON of path 1: code 14 (20), nonce, path 01, reason 13 (19, PATH_CLOSED).
     (
@@ -143,19 +143,26 @@ def test_response_round_trip_and_schema(
     assert decode_control(fast) == MpResponseBody(nonce, path_id, echo, token)
 
 
-@given(st.binary(min_size=16, max_size=16), u8, u12, u8, u32, u32, u16)
+@given(st.binary(min_size=16, max_size=16), u8, u12, u8, u32, u32, u16, u32)
 def test_report_round_trip_and_schema(
-    nonce: bytes, path_id: int, seq: int, hold: int, received: int, first: int, lag: int
+    nonce: bytes,
+    path_id: int,
+    seq: int,
+    hold: int,
+    received: int,
+    first: int,
+    lag: int,
+    clock: int,
 ) -> None:
-    body = MpReportBody(nonce, path_id, seq, hold, received, first, lag)
+    body = MpReportBody(nonce, path_id, seq, hold, received, first, lag, clock)
     fast = encode_mp_report(body)
     assert schema.ControlBody.build({"code": 19, "body": body._asdict()}) == fast
     assert decode_control(fast) == body
 
 
-def test_report_counters_wrap_and_the_lag_saturates() -> None:
-    body = MpReportBody(NONCE, 1, 0x1ABC, 0, (1 << 32) + 5, (1 << 33) + 7, 1 << 20)
-    expected = MpReportBody(NONCE, 1, 0xABC, 0, 5, 7, 0xFFFF)
+def test_report_counters_and_clock_wrap_and_the_lag_saturates() -> None:
+    body = MpReportBody(NONCE, 1, 0x1ABC, 0, (1 << 32) + 5, (1 << 33) + 7, 1 << 20, (1 << 32) + 9)
+    expected = MpReportBody(NONCE, 1, 0xABC, 0, 5, 7, 0xFFFF, 9)
     assert decode_control(encode_mp_report(body)) == expected
 
 
@@ -187,10 +194,10 @@ def test_a_body_of_the_wrong_length_is_bad_control(
 
 
 def test_a_reports_top_four_sequence_bits_are_ignored() -> None:
-    raw = bytearray(encode_mp_report(MpReportBody(NONCE, 1, 0x123, 0, 0, 0, 0)))
+    raw = bytearray(encode_mp_report(MpReportBody(NONCE, 1, 0x123, 0, 0, 0, 0, 0)))
     assert raw[18:20] == bytes.fromhex("0123")
     raw[18] |= 0xF0
-    assert decode_control(bytes(raw)) == MpReportBody(NONCE, 1, 0x123, 0, 0, 0, 0)
+    assert decode_control(bytes(raw)) == MpReportBody(NONCE, 1, 0x123, 0, 0, 0, 0, 0)
 
 
 @pytest.mark.parametrize("code", [12, 13, 14, 21, 255])
@@ -224,7 +231,7 @@ def test_the_worked_examples_of_protocol_md_7_8() -> None:
     built = [
         header + encode_mp_challenge(NONCE, 1, TOKEN),
         header + encode_mp_response(NONCE, 1, TOKEN, ECHO),
-        header + encode_mp_report(MpReportBody(NONCE, 1, 0x123, 0x40, 1000, 600, 150)),
+        header + encode_mp_report(MpReportBody(NONCE, 1, 0x123, 0x40, 1000, 600, 150, 0x89ABCDEF)),
         header + encode_mp_abandon(NONCE, 1, 19),
     ]
     text = " ".join(PROTOCOL_MD.read_text(encoding="utf-8").split())

@@ -749,7 +749,7 @@ def slave_multipath() -> dict[str, Any]:
         _step(
             0.027,
             "master",
-            _mp(encode_mp_report(MpReportBody(MASTER_NONCE, 1, SLAVE_ISN, 255, 0, 0, 0))),
+            _mp(encode_mp_report(MpReportBody(MASTER_NONCE, 1, SLAVE_ISN, 255, 0, 0, 0, 0))),
             note="a report naming path 1 that came on path 0",
         ),
         _step(
@@ -889,7 +889,7 @@ def slave_multipath_codes_elsewhere() -> dict[str, Any]:
     """Sections 5.5 (row 13) and 5.11: the multipath codes outside an established multipath
     session, and a multipath packet as the master's first packet of the session."""
     token = bytes.fromhex("0102030405060708")
-    report = encode_mp_report(MpReportBody(MASTER_NONCE, 0, SLAVE_ISN, 255, 0, 0, 0))
+    report = encode_mp_report(MpReportBody(MASTER_NONCE, 0, SLAVE_ISN, 255, 0, 0, 0, 0))
     steps = [
         *_mp_opening(flags=0),
         _step(
@@ -914,7 +914,7 @@ def slave_multipath_codes_elsewhere() -> dict[str, Any]:
 def slave_multipath_first_packet() -> dict[str, Any]:
     """Section 5.11: before the session is established an MP code is a session CONTROL; at a slave
     in OPENING, from the master's address, it is the master's first packet (section 5.1 rule 3)."""
-    report = encode_mp_report(MpReportBody(MASTER_NONCE, 0, SLAVE_ISN, 255, 0, 0, 0))
+    report = encode_mp_report(MpReportBody(MASTER_NONCE, 0, SLAVE_ISN, 255, 0, 0, 0, 0))
     token = bytes.fromhex("0102030405060708")
     steps = [
         _step(0.0, "master", _mp(report), note="a LISTENING slave: not_established"),

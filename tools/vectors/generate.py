@@ -427,7 +427,9 @@ def control_vectors() -> dict[str, Any]:
         ),
         (
             "MP_REPORT for path 2: the nonce, newest 0xabc held 512 us, 1000 received, 600 first, lag 15 ms",
-            encode_mp_report(MpReportBody(MASTER_NONCE, 2, 0xABC, 0x40, 1000, 600, 150)),
+            encode_mp_report(
+                MpReportBody(MASTER_NONCE, 2, 0xABC, 0x40, 1000, 600, 150, 0x89ABCDEF)
+            ),
         ),
         (
             "MP_ABANDON of path 1, PATH_CLOSED",
@@ -507,7 +509,7 @@ def control_vectors() -> dict[str, Any]:
         ),
         (
             "MP_REPORT one byte long",
-            encode_mp_report(MpReportBody(MASTER_NONCE, 1, 0, 0, 0, 0, 0)) + b"\x00",
+            encode_mp_report(MpReportBody(MASTER_NONCE, 1, 0, 0, 0, 0, 0, 0)) + b"\x00",
         ),
         ("MP_ABANDON without its reason", encode_mp_abandon(MASTER_NONCE, 1, 19)[:-1]),
         ("REJECT one byte long", encode_close(ControlCode.REJECT, MASTER_NONCE, 0) + b"\x00"),
@@ -976,7 +978,7 @@ def keyed_vectors() -> dict[str, Any]:
         (
             "MP_REPORT",
             encode_header(2, 0x0ABD, 0, 0, 255) + b"\x13",
-            encode_mp_report(MpReportBody(MASTER_NONCE, 1, 0x123, 0x40, 7, 5, 3))[1:],
+            encode_mp_report(MpReportBody(MASTER_NONCE, 1, 0x123, 0x40, 7, 5, 3, 0x01020304))[1:],
         ),
     ]
     for suite in (CipherSuite.AES_128_GCM, CipherSuite.CHACHA20_POLY1305):

@@ -64,7 +64,7 @@ local STAMP = 5
 local CONTROL_SIZES = {
     [1] = { 53, 69 }, [2] = { 45, 61 }, [3] = { 22, 40 }, [4] = { 23, 41 }, [5] = { 23 }, [6] = { 39 },
     [8] = { 22 }, [9] = { 38 }, [23] = { 38 }, [24] = { 38 },
-    [17] = { 31, 49 }, [18] = { 39, 57 }, [19] = { 36, 54 }, [20] = { 24, 42 },
+    [17] = { 31, 49 }, [18] = { 39, 57 }, [19] = { 40, 58 }, [20] = { 24, 42 },
 }
 
 local f = tdtp.fields
@@ -128,6 +128,7 @@ f.mp_hold = ProtoField.uint8("tdtp.mp.hold", "Its HOLD code", base.DEC, HOLD_NAM
 f.mp_received = ProtoField.uint32("tdtp.mp.received", "DATA received on the path", base.DEC)
 f.mp_first = ProtoField.uint32("tdtp.mp.first", "Of those, first copies", base.DEC)
 f.mp_lag = ProtoField.uint16("tdtp.mp.lag", "Lag behind the first copy (100 us)", base.DEC)
+f.mp_clock = ProtoField.uint32("tdtp.mp.clock", "Reporter's clock (us, low 32 bits)", base.DEC)
 f.stamp = ProtoField.uint32("tdtp.stamp", "Sender's clock (us, low 32 bits)", base.DEC)
 
 local e = tdtp.experts
@@ -573,6 +574,7 @@ local function dissect_control(tvb, pinfo, tree, length, keyed, hold)
         tree:add(f.mp_received, tvb(HEADER + 21, 4))
         tree:add(f.mp_first, tvb(HEADER + 25, 4))
         tree:add(f.mp_lag, tvb(HEADER + 29, 2))
+        tree:add(f.mp_clock, tvb(HEADER + 31, 4))
         return string.format("MP_REPORT path=%d received=%d first=%d", tvb(HEADER + 17, 1):uint(),
             tvb(HEADER + 21, 4):uint(), tvb(HEADER + 25, 4):uint())
     end

@@ -43,6 +43,11 @@ MIN_SPREAD: Final = 0.002
 compare: it shares nothing."""
 SHARED: Final = 0.6
 """Correlation of two paths' queueing delays above which they share a bottleneck."""
+STALL_MARGIN: Final = 0.02
+"""Seconds beyond the round trip and two report intervals after which copies that no report has
+acknowledged mean a stalled path (:meth:`PathPacer.stalled`)."""
+STALL_PROBE: Final = 0.05
+"""Seconds between the copies a stalled path still takes (to learn that it delivers again)."""
 
 
 class Bottlenecks:
@@ -107,9 +112,13 @@ class PathPacer:
         "_bottlenecks",
         "_feedback_delay",
         "_held",
+        "_last_copy",
         "_losses",
         "_make",
+        "_now",
         "_offered",
+        "_stall_after",
+        "_unreported_since",
         "controller",
         "series",
     )
@@ -127,6 +136,10 @@ class PathPacer:
         self._offered = SendMeter()
         self._held = False
         self._losses = LossIntervalEstimator(0)
+        self._unreported_since = math.inf  # the first copy sent since a report showed progress
+        self._last_copy = -math.inf
+        self._stall_after = math.inf
+        self._now = -math.inf  # the latest time a hook told
         self.series: deque[list[float]] = deque(maxlen=WINDOW)
         """The path's queueing delay: ``[point, sum, count]`` per :data:`BIN` seconds."""
         bottlenecks.pacers.append(self)
@@ -153,7 +166,13 @@ class PathPacer:
         While the path is not congested every copy may: its controller allows more than is
         offered, and spacing a burst of samples (a late tick and the next) would only take the copy
         of one of them off this path, not delay it."""
+        self._now = now
         self._offered.on_departure(now, False)
+        if self.stalled(now):
+            if now - self._last_copy >= STALL_PROBE:
+                return True
+            self._held = True
+            return False
         if now >= self.controller.next_send_time() or not self.congested():
             return True
         self._held = True
@@ -162,7 +181,20 @@ class PathPacer:
     @property
     def next_departure(self) -> float:
         """When the path allows its next copy (:data:`NO_LIMIT` if now)."""
+        if self.stalled(self._now):
+            return self._last_copy + STALL_PROBE  # its next probe
         return self.controller.next_send_time() if self.congested() else NO_LIMIT
+
+    def stalled(self, now: float) -> bool:
+        """Whether the path has stopped delivering our copies: the first copy sent since its
+        last report that showed progress went out longer ago than the path's round trip, two of
+        the peer's report intervals and :data:`STALL_MARGIN` (a path that delivers, however
+        slowly, is reported every interval). The peer reports a path only when our copies arrive
+        on it, and reports travel on it, so while the path's way back works (the path is not
+        failed) silence there means our way is out: a link in an outage, which would hold every
+        copy for the outage's length. A stalled path takes one copy per :data:`STALL_PROBE`, as
+        a single-path session's full window does (CONTROL.md 11.2)."""
+        return now - self._unreported_since > self._stall_after
 
     def congested(self) -> bool:
         """Whether the path's controller holds copies back: it allows fewer than
@@ -176,6 +208,9 @@ class PathPacer:
         # Paced: the path held a copy back since its last one (a newer sample went instead).
         self.controller.on_packet_sent(now=now, size=size, paced=self._held)
         self._held = False
+        self._now = self._last_copy = now
+        if self._unreported_since == math.inf:
+            self._unreported_since = now
 
     def reset(self) -> None:
         """The path came back from an outage: a fresh controller (what was lost in the outage says
@@ -184,15 +219,21 @@ class PathPacer:
         self._losses = LossIntervalEstimator(0)
         self.series.clear()
         self._held = False
+        # (Not the stall: a path heard from again says nothing of our way out; a report does.)
 
     def detach(self) -> None:
         """The path is gone: it no longer counts among the session's bottlenecks."""
         self._bottlenecks.forget(self)
 
     def get_timer(self) -> float | None:
-        return self.controller.get_timer()
+        deadline = self.controller.get_timer()
+        stall = self._unreported_since + self._stall_after
+        if stall > self._now and stall < math.inf and (deadline is None or stall < deadline):
+            deadline = stall  # (the path stalls then unless a report comes first)
+        return deadline
 
     def on_timer(self, now: float) -> None:
+        self._now = now
         self.controller.on_timer(now=now)
 
     def on_feedback(
@@ -210,6 +251,10 @@ class PathPacer:
         ``reported`` copies sent on it."""
         controller = self.controller
         losses = self._losses
+        self._now = now
+        self._stall_after = srtt + 2.0 * self._feedback_delay + STALL_MARGIN
+        if delivered > 0:
+            self._unreported_since = math.inf  # progress: what was sent since is on its way
         if lost > 0 and losses.on_packet_lost(reported - lost, now - srtt, srtt, reported):
             controller.on_loss_event(now=now, srtt=srtt, loss_event_rate=losses.loss_event_rate)
         controller.on_ack(
@@ -230,6 +275,17 @@ class PathPacer:
                 last[2] += 1.0
             else:
                 series.append([point, queue, 1.0])
+
+    def on_one_way(
+        self, now: float, delay: float, sent_at: float, copies: int, hold: float, unacked: int
+    ) -> None:
+        """A report timed our copy's arrival on the peer's clock: ``delay`` is its one-way delay
+        plus the clocks' offset (report_clock.py), ``copies`` the copy's number among the path's
+        own, ``unacked`` the copies sent on the path since. The controller judges the path's
+        queue in our direction alone, and what the path delivered, from these."""
+        self.controller.on_one_way_delay(
+            now=now, delay=delay, sent_at=sent_at, seq=copies, hold=hold, unacked=unacked
+        )
 
 
 class MultipathController(RateController):

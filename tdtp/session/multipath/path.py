@@ -21,6 +21,7 @@ from typing import Final
 
 from tdtp.session.events import Address
 from tdtp.session.multipath.congestion import PathPacer
+from tdtp.session.multipath.report_clock import PathDelay
 from tdtp.session.rtt import RttEstimator
 
 PROBING: Final = "probing"
@@ -84,6 +85,9 @@ class PathStats:
     one_way_delay: float
     """Estimated one-way delay towards the peer: half the recent round trip plus the lag the peer
     measured behind the first copy (s; 0 before a sample)."""
+    one_way_queue: float
+    """Our copies' queue on their way along it, in our direction alone (s, moving average; from
+    the clocks of the peer's reports, 0 before a sample)."""
     loss: float
     """Recent loss of our copies on it (fraction, from the peer's reports)."""
     lag: float
@@ -152,6 +156,8 @@ class Path:
         self.deficit = 0
         self._resync = False  # after an outage: the next report sets the baselines, counts nothing
         self.pacer = pacer
+        self.delay = PathDelay()
+        """Our direction's delay on it, from the clocks of the peer's reports."""
         # Receiver side: the peer's data that arrived on it.
         self.received = 0
         self.first = 0
@@ -227,6 +233,11 @@ class Path:
             self._min_rtt = sample
         if sample < self._min_rtt_next:
             self._min_rtt_next = sample
+
+    def copies_through(self, seq: int) -> int:
+        """Copies sent on the path up to sample ``seq`` (one of the last ``RING`` sent here): a
+        number of the path's own, counting its copies alone."""
+        return self._counts[seq & (RING - 1)]
 
     @property
     def reported_copies(self) -> int:
@@ -333,6 +344,7 @@ class Path:
             srtt=rtt.srtt if rtt.has_sample else 0.0,
             min_rtt=self.min_rtt,
             one_way_delay=owd if owd < math.inf else 0.0,
+            one_way_queue=self.delay.queue,
             loss=self.loss,
             lag=self.lag,
             rate=self.pacer.rate,

@@ -55,6 +55,7 @@ from tdtp.session.multipath.path import (
     Path,
     PathStats,
 )
+from tdtp.session.multipath.report_clock import ReportClock
 from tdtp.session.multipath.scheduler import Scheduler, rank
 from tdtp.session.outbox import Outbox
 from tdtp.session.recovery import LossRecovery
@@ -69,6 +70,7 @@ from tdtp.wire.control import (
     MULTIPATH_CODES,
     NO_MP_TOKEN,
     PROBE_CODES,
+    STAMP_MODULUS,
     CloseReason,
     ControlCode,
     MpAbandonBody,
@@ -166,6 +168,9 @@ class MultipathStats:
     """Adaptive: times the best path broke a bound and every path took the samples."""
     bottleneck_skips: int = 0
     """Copies not sent because another congested path of the sample shares its bottleneck."""
+    report_clocks_rejected: int = 0
+    """Reports whose clock put our direction's delay outside the bounds a real one respects
+    (forged, corrupted, or the peer's clock jumped): their delay sample was not used."""
 
 
 class Multipath:
@@ -216,6 +221,7 @@ class Multipath:
             opener.window = wide
         self._peer: Address = (peer[0], peer[1])
         self._bottlenecks = Bottlenecks()
+        self._report_clock = ReportClock()
         self._controller = (config.controller, config.controller_config)
         self._copies = CopyFilter()
         self._ring = SentRing()
@@ -506,9 +512,20 @@ class Multipath:
             full, sent_here, hold, send_time, body.received, body.first, lag, now
         )
         rtt = path.rtt
-        path.pacer.on_feedback(
+        pacer = path.pacer
+        pacer.on_feedback(
             now, got, lost, sample, rtt.srtt, rtt.rttvar, path.min_rtt, path.reported_copies
         )
+        clock = self._report_clock.read(body.clock)
+        if sample is not None and full is not None and send_time is not None and hold is not None:
+            # Our direction alone on this path: the named copy's arrival on the peer's clock less
+            # its send time on ours (report_clock.py).
+            delay = clock - hold - send_time
+            if path.delay.take(delay, sample, path.min_rtt, now):
+                copies = path.copies_through(full)
+                pacer.on_one_way(now, delay, send_time, copies, hold, path.sent_data - copies)
+            else:
+                self.stats.report_clocks_rejected += 1
         self._judge(path, now)
 
     def _on_abandon(self, body: MpAbandonBody, size: int, now: float) -> None:
@@ -716,6 +733,7 @@ class Multipath:
                 path.received,
                 path.first,
                 lag if lag < MP_LAG_MAX else MP_LAG_MAX,
+                int(now * 1e6) & (STAMP_MODULUS - 1),
             )
         )
         self._queue(self._seal(body, 1), path)

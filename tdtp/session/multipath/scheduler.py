@@ -146,7 +146,9 @@ class Scheduler:
             return False
         if best.loss > config.loss_bound:
             reason = "loss"
-        elif best.queue_delay / 2.0 > config.delay_bound:
+        elif (
+            best.delay.queue if best.delay.samples else best.queue_delay / 2.0
+        ) > config.delay_bound:
             reason = "delay"
         else:
             overdue = self._overdue(best, now)

@@ -864,7 +864,7 @@ class Connection:
         if self.stamp_interval is not None and now - self.last_stamp >= self.stamp_interval:
             # a stamp is due: the ACK leaves as a TIMESTAMP, unpadded (section 5.13)
             self.last_stamp = now
-            stamp = wire.Timestamp(round(now * 1e6) & 0xFFFFFFFF)
+            stamp = wire.Timestamp(wire.clock_us(now))
             dg = self._session_control(stamp, replace(hdr, type=wire.CONTROL))
             return self._send_traffic(dg, "TIMESTAMP", now)
         pad = bytes(self.cfg.ack_size - 5)

@@ -199,8 +199,15 @@ class Multipath:
                 else wire.HOLD_NO_ACK
             )
             lag = min(int(p.lag / LAG_UNIT), 0xFFFF)
-            report = wire.MpReport(
-                self.nonce, p.path_id, (p.newest or 0) & 0xFFF, hold, p.received, p.first, lag
+            report = wire.MpReport(  # the clock read as it is built, with the hold (4.3)
+                self.nonce,
+                p.path_id,
+                (p.newest or 0) & 0xFFF,
+                hold,
+                p.received,
+                p.first,
+                lag,
+                wire.clock_us(now),
             )
             p.unreported_since = None
             p.last_report = now

@@ -164,6 +164,13 @@ def hold_encode_seconds(hold_s: float) -> int:
     return hold_encode_ns(int(hold_s * 1e9))
 
 
+def clock_us(now: float) -> int:
+    """A side's clock as TIMESTAMP, TIMED_DATA and MP_REPORT carry it (sections 4.3, 5.13): µs,
+    its low 32 bits, from any origin; the clean room's origin is the runner's time 0 and it rounds
+    to the nearest µs (FINDINGS.md, clock)."""
+    return round(now * 1e6) & 0xFFFFFFFF
+
+
 # -- serial arithmetic (section 3.1; 16-bit variant in 5.6 and 5.10) ---------------------------
 def expand(value: int, expected: int, bits: int = 12) -> int:
     """The full number with these low bits nearest to `expected` (-half..half-1 around it)."""
@@ -276,6 +283,7 @@ class MpReport:
     received: int
     first: int
     lag: int  # 100-us units, saturating at 65535
+    clock: int  # the reporter's clock when it built the report, µs, low 32 bits
     code: int = field(default=MP_REPORT, init=False)
 
 
@@ -434,7 +442,7 @@ def decode_control(body: bytes) -> ControlBody:
             raise BadControlError("MP_RESPONSE length")
         return MpResponse(body[1:17], body[17], body[18:26], body[26:34])
     if code == MP_REPORT:
-        if n != 31:
+        if n != 35:
             raise BadControlError("MP_REPORT length")
         return MpReport(
             body[1:17],
@@ -444,6 +452,7 @@ def decode_control(body: bytes) -> ControlBody:
             int.from_bytes(body[21:25], "big"),
             int.from_bytes(body[25:29], "big"),
             _u16(body, 29),
+            int.from_bytes(body[31:35], "big"),
         )
     if code == MP_ABANDON:
         if n != 19:
@@ -516,6 +525,7 @@ def encode_control(msg: ControlBody) -> bytes:
             + (msg.received & 0xFFFFFFFF).to_bytes(4, "big")
             + (msg.first & 0xFFFFFFFF).to_bytes(4, "big")
             + min(msg.lag, 0xFFFF).to_bytes(2, "big")
+            + (msg.clock & 0xFFFFFFFF).to_bytes(4, "big")
         )
     if isinstance(msg, MpAbandon):
         return c + msg.nonce + bytes([msg.path_id, msg.reason])

@@ -1,0 +1,162 @@
+"""Each path's own direction in a multipath session (PROTOCOL.md 5.11, "What a report tells"): the
+clock of the peer's MP_REPORTs gives a path's queue in our direction alone, and a path that stops
+delivering our copies stops taking them. Fake time."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import pytest
+from test_multipath import running, silences, two_paths
+
+from tdtp.session.multipath.congestion import STALL_PROBE
+from tdtp.session.multipath.report_clock import PathDelay, ReportClock
+from tdtp.session.one_way import RESET_AFTER
+from tdtp.wire import HEADER_SIZE, ControlCode
+
+from multipath_pair import MultipathPair
+
+
+def _queue_growing_to(cap: float, per_datagram: float = 0.0005) -> Callable[[int], float]:
+    return lambda i: min(cap, i * per_datagram)
+
+
+def _path(pair: MultipathPair, path_id: int) -> object:
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    return paths.paths[path_id]
+
+
+def test_a_queue_on_the_way_back_does_not_cut_the_way_out() -> None:
+    """Path 1's way back (the slave's uplink, which carries the reports on path 1) queues up to
+    150 ms; the master's copies on path 1 cross freely. Judged from round trips the master's
+    path 1 controller would cut its copies for a queue that is not in its direction; judged from
+    the reports' clocks it sees none, and path 1 keeps every copy."""
+    links = two_paths(0.010, 0.012)
+    pair = running(links)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    start = links[1].sm.datagrams
+    links[1].sm.extra_delay = lambda i: min(0.15, (i - start) * 0.0005)
+    path = paths.paths[1]
+    pair.run_for(1.0)
+    sent = path.sent_data
+    pair.run_for(2.0)
+    assert path.rtt.srtt > 0.15  # the round trip shows the way back's queue ...
+    assert path.delay.queue < 0.005  # ... our direction's own delay does not
+    assert path.delay.samples > 100
+    assert not path.pacer.congested()
+    assert path.sent_data - sent > 0.97 * 2000  # every copy still goes on path 1
+    assert paths.stats.report_clocks_rejected == 0
+
+
+def test_a_queue_on_the_way_out_is_seen_and_drained() -> None:
+    """The converse: path 1's way out queues. The reports' clocks show it as our direction's
+    queue, and the path's controller cuts its copies (path 0 carries the samples meanwhile)."""
+    links = two_paths(0.010, 0.012)
+    pair = running(links)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    free = [0.0]
+
+    def slow_link(_: int) -> float:  # path 1's way out carries 500 datagrams/s
+        free[0] = max(pair.now, free[0]) + 1.0 / 500.0
+        return free[0] - pair.now
+
+    links[1].ms.extra_delay = slow_link
+    before = len(pair.slave.received)
+    pair.run_for(3.0)
+    path = paths.paths[1]
+    assert path.pacer.rate < 700.0
+    assert path.delay.samples > 100
+    assert free[0] - pair.now < 0.1  # the queue it built was drained
+    assert len(pair.slave.received) - before > 0.97 * 3000
+
+
+def test_a_path_whose_way_out_fails_takes_only_probes_and_returns() -> None:
+    """Path 1's way out drops everything while its way back works: the slave's copies still
+    arrive on it, so it comes back each time its unanswered probes judge it failed, and each
+    return would have fed it copies again. The master stops feeding it after a round trip, two
+    report intervals and a margin, sends one copy per STALL_PROBE there through every such
+    return, and uses it again as soon as a report shows progress."""
+    links = two_paths(0.010, 0.012)
+    pair = running(links)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    path = paths.paths[1]
+    links[1].ms.drop = lambda _: True
+    before = len(pair.slave.received)
+    pair.run_for(0.2)
+    sent = path.sent_data
+    pair.run_for(1.0)
+    probes = path.sent_data - sent
+    assert probes <= 1.0 / STALL_PROBE + 2
+    assert path.pacer.stalled(pair.now)
+    assert len(pair.slave.received) - before > 0.97 * 1200  # path 0 carried every sample
+    assert silences(pair.master.events) == silences(pair.slave.events) == 0
+    links[1].ms.drop = lambda _: False
+    pair.run_for(0.3)
+    sent = path.sent_data
+    pair.run_for(0.5)
+    assert not path.pacer.stalled(pair.now)
+    assert path.sent_data - sent > 0.95 * 500
+
+
+def test_a_report_clock_beyond_the_round_trip_is_not_used() -> None:
+    """An on-path attacker (or corruption) moves every fifth report's clock on path 1 five
+    seconds ahead: those reports would read a 5 s queue in our direction, more than their round
+    trip allows. They are counted and not used; the path's copies go on."""
+    links = two_paths(0.010, 0.012)
+    pair = running(links)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    seen = [0]
+
+    def rewrite(_: int, datagram: bytes) -> bytes:
+        if len(datagram) > HEADER_SIZE and datagram[HEADER_SIZE] == ControlCode.MP_REPORT:
+            seen[0] += 1
+            if seen[0] % 5 == 0:
+                clock = int.from_bytes(datagram[-4:], "big")
+                moved = (clock + 5_000_000) & 0xFFFFFFFF
+                return datagram[:-4] + moved.to_bytes(4, "big")
+        return datagram
+
+    pair.run_for(0.5)
+    links[1].sm.rewrite = rewrite
+    path = paths.paths[1]
+    sent = path.sent_data
+    pair.run_for(2.0)
+    assert paths.stats.report_clocks_rejected >= seen[0] // 5 - 1 > 20
+    assert path.delay.queue < 0.005
+    assert path.sent_data - sent > 0.97 * 2000
+
+
+# --------------------------------------------------------------------------- the pieces
+
+
+def test_the_report_clock_unwraps_forward_and_back() -> None:
+    clock = ReportClock()
+    assert clock.read(0xFFFF_FF00) == 0.0
+    assert clock.read(0x0000_0100) == pytest.approx(512e-6)  # across the wrap
+    assert clock.read(0x0000_0000) == pytest.approx(256e-6)  # an older report, overtaken
+    assert clock.read(0x0000_0200) == pytest.approx(768e-6)  # (the newest stays the anchor)
+
+
+def test_path_delay_bounds_and_restart() -> None:
+    delay = PathDelay()
+    assert delay.base == math.inf
+    assert delay.take(1.000, echo=0.040, min_rtt=0.040, now=0.0)
+    assert delay.take(1.010, echo=0.050, min_rtt=0.040, now=0.1)
+    assert delay.queue == pytest.approx(0.125 * 0.010)
+    # Below the base by more than the smallest round trip plus 2 ms: no real sample is.
+    assert not delay.take(0.950, echo=0.040, min_rtt=0.040, now=0.2)
+    # A queue longer than the round trip it came with: neither.
+    assert not delay.take(1.100, echo=0.050, min_rtt=0.040, now=0.3)
+    assert delay.rejected == 2
+    # The peer's clock jumped: after RESET_AFTER rejections in a row the base starts over.
+    for k in range(RESET_AFTER - 2):
+        assert not delay.take(-5.0, echo=0.040, min_rtt=0.040, now=0.4 + k * 0.01)
+    assert delay.base == math.inf
+    assert delay.take(-5.0, echo=0.040, min_rtt=0.040, now=2.0)
+    assert delay.base == -5.0
