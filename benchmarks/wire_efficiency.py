@@ -11,6 +11,8 @@ at the same time, each side sending one 100-byte sample per tick of a 1 kHz ``td
   ``SA = 0``);
 - ``Trinomial, 40-byte ACKs``: the same with ``ack_size=12``, the paper's simulated 40-byte ACK packets
   (eq. 7 with ``SA = 7``);
+  both without send timestamps (``timestamp_interval=0``): the paper's formats carry none, and these
+  rows check its equations (a separate-ACK session stamps its ACKs by default, PROTOCOL.md 5.13);
 - ``raw UDP``: two plain ``DatagramProtocol`` sockets, no header, no ACKs.
 
 **Counting.** The loop is a subclass whose ``create_datagram_endpoint`` hands out a transport proxy that
@@ -72,12 +74,12 @@ MODES: dict[str, tuple[str, ConnectionConfig | None, Scheme]] = {
     "tdtp": ("TDTP (piggybacked ACKs)", ConnectionConfig(), scheme("tdtp", Encapsulation.UDP)),
     "trinomial": (
         "Trinomial, 5-byte ACKs",
-        ConnectionConfig(ack_mode=AckMode.SEPARATE),
+        ConnectionConfig(ack_mode=AckMode.SEPARATE, timestamp_interval=0.0),
         TRINOMIAL,
     ),
     "trinomial-40": (
         "Trinomial, 40-byte ACK packets",
-        ConnectionConfig(ack_mode=AckMode.SEPARATE, ack_size=12),
+        ConnectionConfig(ack_mode=AckMode.SEPARATE, ack_size=12, timestamp_interval=0.0),
         Scheme("Trinomial-40", TRINOMIAL.header, 40),
     ),
     "udp": ("raw UDP", None, scheme("udp", Encapsulation.UDP)),
