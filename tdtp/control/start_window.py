@@ -12,8 +12,11 @@ queued before either heard anything. So the start counts packets, as TCP's slow 
   controller makes), or once the application no longer fills it (the window is twice what is in
   flight: the loop runs at its own rate), and hands over to the controller's own rules.
 
-Packets lost are never acknowledged and keep their place in the count, which only slows the start
-down (a path that loses most of its packets stays in it): the bound stays an upper bound.
+Packets lost are never acknowledged and keep their place in the count: the bound stays an upper
+bound, and a loss only slows the window's growth (with half the packets lost it stops growing, and
+the sender goes at what the acknowledgements clock out, plus the controller's probe every 50 ms).
+An acknowledgement names only packets we sent (the connection drops the others), so a forged one can
+end the start early, which is where the controller was without it, never widen it beyond that.
 """
 
 from __future__ import annotations

@@ -170,12 +170,13 @@ class TeleopConfig:
             f"no_feedback_rtts must be a finite number of RTTs, at least 1, "
             f"got {self.no_feedback_rtts!r}",
         )
+        # (Read untyped: the compiled build checks an int field's type on a typed read, and would
+        # raise TypeError for 4.5 instead of naming the field.)
+        window: object = getattr(self, "start_window")  # noqa: B009
         need(
-            isinstance(self.start_window, int)
-            and not isinstance(self.start_window, bool)
-            and 0 <= self.start_window <= 1_000_000,
+            isinstance(window, int) and not isinstance(window, bool) and 0 <= window <= 1_000_000,
             f"start_window must be a whole number of packets from 0 (off) to 1000000, "
-            f"got {self.start_window!r}",
+            f"got {window!r}",
         )
         need(
             positive_finite(self.initial_rtt),
