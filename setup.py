@@ -69,6 +69,7 @@ COMPILED = [
     "tdtp/control/trinomial.py",
     "tdtp/control/registry.py",
     "tdtp/control/send_meter.py",
+    "tdtp/control/start_window.py",
     "tdtp/aio/outbox.py",
     "tdtp/aio/loop_timers.py",
     "tdtp/aio/endpoint.py",

@@ -79,6 +79,7 @@ COMPILED_MODULES: Final = (
     "tdtp.control.trinomial",
     "tdtp.control.registry",
     "tdtp.control.send_meter",
+    "tdtp.control.start_window",
     "tdtp.aio.outbox",
     "tdtp.aio.loop_timers",
     "tdtp.aio.endpoint",

@@ -43,6 +43,7 @@ from tdtp.control.competition import Competition
 from tdtp.control.equations import padhye_rate
 from tdtp.control.one_way_signal import OneWaySignal
 from tdtp.control.send_meter import GAP_GAIN, SendMeter
+from tdtp.control.start_window import StartWindow
 from tdtp.control.teleop_config import TeleopConfig, positive_finite
 
 __all__ = [
@@ -204,6 +205,8 @@ class TeleopController(RateController):
         self._blind_until = -math.inf
         self._holding = False
         self._competition = Competition()
+        self._start = StartWindow(cfg.start_window)  # (docs/CONTROL.md 9.10)
+        self._owd_min = math.inf  # the smallest one-way sample (what the start's queue is above)
         self._ups = 0  # increases in a row (one-way delays: the probe's step doubles with them)
         # Counters, for tests and statistics.
         self._delay_decreases = 0
@@ -312,14 +315,20 @@ class TeleopController(RateController):
 
     def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
         self._advance(now)
-        self._sending.on_departure(now, paced)
+        start = self._start
+        # (A packet the start's window held was held by the path's silence, not by the pacer: the
+        # application still sets the pace, and decreases start from what it sends.)
+        self._sending.on_departure(now, paced and not start.active)
         mean = self._mean_size
         self._mean_size = float(size) if mean == 0.0 else mean + GAP_GAIN * (size - mean)
         if self._nf_deadline is None:
             self._nf_deadline = now + self._no_feedback_timeout()
         self._schedule.on_departure(now, self._rate)
         self._in_flight += 1
-        if (
+        if start.active:
+            if start.on_sent():
+                self._blocked = True
+        elif (
             self._in_flight >= self._window
             and self._owd
             and not self._holding
@@ -350,6 +359,13 @@ class TeleopController(RateController):
         if rtt_sample is not None and rtt_sample > 0.0:
             self._on_rtt_sample(now, rtt_sample)
         self._iv_acked += max(acked, 0)
+        start = self._start
+        if start.active:
+            start.on_acked(acked)
+            if start.active:
+                self._blocked = start.full()
+            else:
+                self._end_start()
         self._nf_deadline = None  # re-armed by the next packet sent
         if self._blackout:
             self._blackout = False
@@ -431,7 +447,7 @@ class TeleopController(RateController):
     ) -> None:
         self._advance(now)
         self._in_flight = unacked
-        if unacked < self._window:
+        if unacked < self._window and not self._start.active:
             self._blocked = False
         if not self._owd:
             # From now on the queue is our direction's alone: the round trip's base and minima,
@@ -444,6 +460,12 @@ class TeleopController(RateController):
         timed = not math.isnan(delay)  # (NaN: the stamp timed none of our packets)
         if timed:
             signal.add(delay, sent_at, seq, hold)
+            if delay < self._owd_min:
+                self._owd_min = delay
+            if self._start.active:
+                floor = signal.queue_floor()  # (inf until RECENT samples)
+                if floor < math.inf and floor - self._owd_min > self._target():
+                    self._end_start()  # a queue: the start overshot what the path carries
             if delay < self._iv_min_rtt:
                 self._iv_min_rtt = delay
                 self._iv_min_sent = sent_at
@@ -464,6 +486,8 @@ class TeleopController(RateController):
                 allowance = WINDOW_QUEUE
             window = delivered * (self._lag + allowance)
             self._window = window if window > WINDOW_MIN else WINDOW_MIN
+            if self._start.active:
+                return  # (the start's window holds the sender until it ends)
             self._blocked = (
                 unacked >= self._window and not self._holding and not self._competition.active
             )
@@ -487,6 +511,11 @@ class TeleopController(RateController):
                 self._end_drain(now)
         elif floor > DEEP_QUEUE * target and not self._competition.active:
             self._drain(now, floor, sent_at)
+
+    def _end_start(self) -> None:
+        """The start is over: from now on the window of section 9.7 (if any) holds the sender."""
+        self._start.end()
+        self._blocked = self._owd and self._in_flight >= self._window
 
     def _end_drain(self, now: float) -> None:
         """The drain is over: on at ``CRUISE`` times what the link delivered, as it delivered
@@ -816,7 +845,11 @@ class TeleopController(RateController):
     def _set_p(self, loss_event_rate: float) -> None:
         p = min(max(loss_event_rate, 0.0), 1.0)
         if p > 0.0 and self._p <= 0.0 and self._first_loss_rate <= 0.0:
-            self._first_loss_rate = self._rate_in_use()  # the ceiling's floor for now
+            # The ceiling's floor for now; during the start, what the application offers (the start's
+            # window, not the path, held the sender).
+            used = self._rate_in_use()
+            start = self._cfg.initial_rate if self._start.active else 0.0
+            self._first_loss_rate = used if used > start else start
         self._p = p
 
     def _apply_ceiling(self, now: float) -> None:
@@ -844,6 +877,8 @@ class TeleopController(RateController):
         delivered while the queue built, when known; recovery aims no higher (after the start-up's
         doubling the allowed rate can be twice what the path ever carried)."""
         self._capped_from = None
+        if self._start.active:
+            self._end_start()
         self._rate_before_decrease = self._rate if carried is None else min(self._rate, carried)
         self._set_rate(now, rate)
 

@@ -71,6 +71,11 @@ class TeleopConfig:
     """While the application sets the pace, the allowance grows to at most this multiple of its rate."""
     no_feedback_rtts: float = 4.0
     """Blackout: halve the rate after ``max(this * srtt, 2 / rate)`` without feedback (RFC 5348)."""
+    start_window: int = 48
+    """Packets in flight before the first acknowledgement; each one acknowledged lets two more go,
+    until the first sign of a queue or the application's own rate (slow start, docs/CONTROL.md
+    9.10). 48 is a 1 kHz loop's round trip on a 48 ms path, and 0.15 s of queue behind 300 kbit/s.
+    ``0``: no start window (the full ``initial_rate`` from the first packet)."""
     initial_rtt: float = 0.5
     """srtt assumed before the first feedback."""
     blind_hold: float = 2.0
@@ -164,6 +169,14 @@ class TeleopConfig:
             1.0 <= self.no_feedback_rtts < math.inf,
             f"no_feedback_rtts must be a finite number of RTTs, at least 1, "
             f"got {self.no_feedback_rtts!r}",
+        )
+        # (Read untyped: the compiled build checks an int field's type on a typed read, and would
+        # raise TypeError for 4.5 instead of naming the field.)
+        window: object = getattr(self, "start_window")  # noqa: B009
+        need(
+            isinstance(window, int) and not isinstance(window, bool) and 0 <= window <= 1_000_000,
+            f"start_window must be a whole number of packets from 0 (off) to 1000000, "
+            f"got {window!r}",
         )
         need(
             positive_finite(self.initial_rtt),

@@ -12,7 +12,12 @@ import pytest
 
 from tdtp.control import TeleopConfig, TeleopController, create_controller
 from tdtp.control.equations import padhye_rate
-from tdtp.control.teleop import LIMIT_APPLICATION, LIMIT_FLOOR, LIMIT_TCP_FRIENDLY
+from tdtp.control.teleop import (
+    LIMIT_APPLICATION,
+    LIMIT_FLOOR,
+    LIMIT_STALLED,
+    LIMIT_TCP_FRIENDLY,
+)
 
 SIZE = 105  # a 100-byte sample and the 5-byte header
 
@@ -235,6 +240,40 @@ def test_without_the_floor_the_same_congestion_goes_lower() -> None:
     assert controller.rate < 600.0
 
 
+class Counting(TeleopController):
+    """Counts the packets the controller let go."""
+
+    sent = 0
+
+    def on_packet_sent(self, *, now: float, size: int, paced: bool = True) -> None:
+        self.sent += 1
+        super().on_packet_sent(now=now, size=size, paced=paced)
+
+
+def test_before_any_acknowledgement_one_start_window_leaves_then_two_per_packet_acked() -> None:
+    # Nothing comes back for a second: a 1 kHz loop sends its start window, not 1000 blind packets
+    # into a path that may carry a third of them (docs/CONTROL.md 9.10).
+    controller = Counting(TeleopConfig(start_window=10))
+    end = drive(controller, duration=0.045, rtt=flat(1.0))
+    assert controller.sent == 10
+    assert controller.rate_limit == LIMIT_STALLED
+    controller.on_ack(now=end, acked=3, rtt_sample=0.04, srtt=0.04, rttvar=0.0, loss_event_rate=0.0)
+    drive(controller, start=end, duration=0.0095, rtt=flat(1.0))  # (the probe: at 59 ms)
+    assert controller.sent == 16  # three acknowledged let six more go
+    off = Counting(TeleopConfig(start_window=0))
+    drive(off, duration=0.045, rtt=flat(1.0))
+    assert off.sent >= 44  # the application's rate from the first packet
+
+
+def test_the_start_reaches_the_loops_rate_within_a_few_round_trips_and_ends() -> None:
+    controller = Counting()
+    end = drive(controller, duration=0.3, rtt=flat(0.080))
+    before = controller.sent
+    drive(controller, start=end, duration=0.2, rtt=flat(0.080))
+    assert controller.sent - before >= 199  # 1 kHz by 0.3 s on an 80 ms round trip
+    assert controller.rate_limit == LIMIT_APPLICATION  # the start has handed over
+
+
 def test_it_is_the_default_and_selectable_by_name() -> None:
     controller = create_controller("teleop")
     assert isinstance(controller, TeleopController)
@@ -268,6 +307,9 @@ def test_it_is_the_default_and_selectable_by_name() -> None:
         ("drain_every", 0.0, "drain_every must be"),
         ("drain_fraction", 1.0, "drain_fraction must be"),
         ("target_queue_delay", math.nan, "target_queue_delay must be"),
+        ("start_window", -1, "start_window must be a whole number"),
+        ("start_window", 4.5, "start_window must be a whole number"),
+        ("start_window", True, "start_window must be a whole number"),
     ],
 )
 def test_config_validation(field: str, value: object, words: str) -> None:
