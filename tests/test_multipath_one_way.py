@@ -11,8 +11,8 @@ import pytest
 from test_multipath import running, silences, two_paths
 
 from tdtp.session.multipath.congestion import STALL_PROBE
-from tdtp.session.multipath.report_clock import PathDelay, ReportClock
-from tdtp.session.one_way import RESET_AFTER
+from tdtp.session.multipath.report_clock import PathDelay
+from tdtp.session.one_way import RESET_AFTER, PeerClock
 from tdtp.wire import HEADER_SIZE, ControlCode
 
 from multipath_pair import MultipathPair
@@ -136,7 +136,7 @@ def test_a_report_clock_beyond_the_round_trip_is_not_used() -> None:
 
 
 def test_the_report_clock_unwraps_forward_and_back() -> None:
-    clock = ReportClock()
+    clock = PeerClock()
     assert clock.read(0xFFFF_FF00) == 0.0
     assert clock.read(0x0000_0100) == pytest.approx(512e-6)  # across the wrap
     assert clock.read(0x0000_0000) == pytest.approx(256e-6)  # an older report, overtaken

@@ -50,7 +50,15 @@ from tdtp.wire.hold import HOLD_SATURATED
 _WRAP_HALF: Final = STAMP_MODULUS // 2
 _TIMESTAMP: Final = int(ControlCode.TIMESTAMP)
 TIMED: Final = int(ControlCode.TIMED_DATA)
-__all__ = ["STAMP_CODES", "STAMP_SIZE", "TIMED", "OneWayDelay", "WindowMin", "wants_timestamps"]
+__all__ = [
+    "STAMP_CODES",
+    "STAMP_SIZE",
+    "TIMED",
+    "OneWayDelay",
+    "PeerClock",
+    "WindowMin",
+    "wants_timestamps",
+]
 DEFAULT_INTERVAL: Final = 0.004
 """Seconds between stamps of an end whose ``timestamp_interval`` is 0 in a session with stamps."""
 BASE_WINDOW: Final = 10.0
@@ -101,6 +109,34 @@ class WindowMin:
         self._since = -math.inf
 
 
+class PeerClock:
+    """The peer's clock as its stamps carry it (microseconds, low 32 bits) on one scale: seconds
+    since its first stamp, each stamp read against the newest before it as a step of less than half
+    the wrap, forward or (a stamp overtaken on the way, or on a faster path) back. Send timestamps
+    (section 5.13) and multipath reports (section 5.11) read it alike."""
+
+    __slots__ = ("_last_raw", "_seconds")
+
+    def __init__(self) -> None:
+        self._last_raw = -1
+        self._seconds = 0.0
+
+    def read(self, raw: int) -> float:
+        """The stamp ``raw`` on the unwrapped scale."""
+        last = self._last_raw
+        if last < 0:
+            self._last_raw = raw
+            return 0.0
+        step = (raw - last) & (STAMP_MODULUS - 1)
+        if step >= _WRAP_HALF:
+            step -= STAMP_MODULUS  # an older stamp, overtaken on the way
+        seconds = self._seconds + step * 1e-6
+        if step > 0:
+            self._last_raw = raw
+            self._seconds = seconds
+        return seconds
+
+
 class OneWayDelay:
     """Our stamps' schedule, and the peer's stamps read into each direction's base and queue."""
 
@@ -109,7 +145,6 @@ class OneWayDelay:
         "_base_out",
         "_controller",
         "_interval",
-        "_last_raw",
         "_on_data",
         "_optimistic",
         "_peer_clock",
@@ -157,8 +192,7 @@ class OneWayDelay:
         self._on_data = True
         self.pending = False
         """A peer stamp taken (:meth:`take`) and not yet read (:meth:`sent_at`, :meth:`settle`)."""
-        self._last_raw = -1
-        self._peer_clock = 0.0  # the peer's newest stamp, unwrapped, seconds from its first
+        self._peer_clock = PeerClock()
         self._stamp_clock = 0.0  # the pending stamp's, on the same scale
         self._rx = 0.0
         self._base_in = WindowMin(BASE_WINDOW)
@@ -211,19 +245,7 @@ class OneWayDelay:
             stats.count_drop(DropReason.BAD_CONTROL)
             return 0
         raw = int.from_bytes(data[HEADER_SIZE + 1 : HEADER_SIZE + STAMP_SIZE], "big")
-        last = self._last_raw
-        clock = self._peer_clock
-        if last >= 0:
-            step = (raw - last) & (STAMP_MODULUS - 1)
-            if step >= _WRAP_HALF:
-                step -= STAMP_MODULUS  # an older stamp, overtaken on the way
-            clock += step * 1e-6
-            if step > 0:
-                self._last_raw = raw
-                self._peer_clock = clock
-        else:
-            self._last_raw = raw
-        self._stamp_clock = clock
+        self._stamp_clock = self._peer_clock.read(raw)
         self._rx = now if rx is None else rx
         self.pending = True
         self._taken_with = stats.datagrams_in

@@ -55,8 +55,8 @@ from tdtp.session.multipath.path import (
     Path,
     PathStats,
 )
-from tdtp.session.multipath.report_clock import ReportClock
 from tdtp.session.multipath.scheduler import Scheduler, rank
+from tdtp.session.one_way import PeerClock
 from tdtp.session.outbox import Outbox
 from tdtp.session.recovery import LossRecovery
 from tdtp.session.sender import SampleSender
@@ -221,7 +221,7 @@ class Multipath:
             opener.window = wide
         self._peer: Address = (peer[0], peer[1])
         self._bottlenecks = Bottlenecks()
-        self._report_clock = ReportClock()
+        self._report_clock = PeerClock()
         self._controller = (config.controller, config.controller_config)
         self._copies = CopyFilter()
         self._ring = SentRing()

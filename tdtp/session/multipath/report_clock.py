@@ -4,8 +4,9 @@ A path's round trip is the sum of its two directions, and on a cellular path the
 queue on the way back (the reports' way) lifts the round trip while our copies pass freely. Judged
 from round trips, a path's controller then holds back copies the path would carry. So every
 MP_REPORT carries the reporter's clock when it left, and the report names a packet of ours and how
-long before that (HOLD) it arrived. With ``T`` that clock (unwrapped, seconds), ``h`` the hold and
-``t_s`` our send time of the named packet,
+long before that (HOLD) it arrived. With ``T`` that clock (unwrapped to seconds by
+:class:`~tdtp.session.one_way.PeerClock`, as send timestamps are), ``h`` the hold and ``t_s`` our
+send time of the named packet,
 
 ``T - h - t_s = d_out + theta``
 
@@ -30,38 +31,9 @@ import math
 from typing import Final
 
 from tdtp.session.one_way import BASE_WINDOW, RESET_AFTER, TOLERANCE, WindowMin
-from tdtp.wire.control import STAMP_MODULUS
 
-_HALF: Final = STAMP_MODULUS // 2
 QUEUE_GAIN: Final = 0.125
 """Gain of the moving average of a path's outbound queue (what its stats show)."""
-
-
-class ReportClock:
-    """The peer's report clocks (microseconds, low 32 bits) on one scale: seconds since its first
-    report, stepping forward or (a report overtaken on another path) back by less than half the
-    wrap."""
-
-    __slots__ = ("_last_raw", "_seconds")
-
-    def __init__(self) -> None:
-        self._last_raw = -1
-        self._seconds = 0.0
-
-    def read(self, raw: int) -> float:
-        """The clock ``raw`` on the unwrapped scale."""
-        last = self._last_raw
-        if last < 0:
-            self._last_raw = raw
-            return 0.0
-        step = (raw - last) & (STAMP_MODULUS - 1)
-        if step >= _HALF:
-            step -= STAMP_MODULUS
-        seconds = self._seconds + step * 1e-6
-        if step > 0:
-            self._last_raw = raw
-            self._seconds = seconds
-        return seconds
 
 
 class PathDelay:
