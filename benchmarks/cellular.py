@@ -14,7 +14,10 @@ opportunities with Mahimahi's semantics (docs/NETEM.md, "Recorded traces"). The 
 **Load.** Both ends offer one 100-byte sample per millisecond for ``--duration`` seconds (60; --quick 5).
 
 **Rows.** ``ideal``: computed from the trace itself, the trace's own capacity with nothing queued (the
-newest samples ride each opportunity; tdtp.sim.scenarios.cellular.ideal). Every controller
+newest samples ride each opportunity; tdtp.sim.scenarios.cellular.ideal). ``oracle``: also from the
+trace, the most samples a sender that knew the trace's future could deliver with every one within
+60 ms (tdtp.sim.scenarios.cellular.deadline): where it meets issue 32's bars, they are reachable on
+that trace, by a sender that could see the capacity coming. Every controller
 registered in ``tdtp.control`` (the default marked) and ``udp`` (raw UDP: 1 kHz, no header, no
 feedback) run in **virtual time** (tdtp.sim: the unchanged Connection, the same trace queue as the
 emulator; deterministic, immune to the machine's load). ``--real`` rows run on **real sockets** in
@@ -66,6 +69,8 @@ TRACES: dict[str, str] = {
     "att": "ATT-LTE-driving-2016",
 }
 QUEUES: dict[str, int] = {"150kB": 150_000, "15kB": 15_000}
+COMPUTED = ("ideal", "oracle")
+"""Rows computed from the trace alone, not run."""
 DELAY = "20ms"
 PROPAGATION = 0.020
 RATE = 1000.0
@@ -125,10 +130,20 @@ def sim_job(job: Json) -> Json:
     return out
 
 
+ORACLE_BOUND = 0.060
+"""The deadline oracle's bound: issue 32's p95 target, met by every sample."""
+
+
 def ideal_job(job: Json) -> Json:
+    """A row computed from the trace alone: ``ideal`` or ``oracle``."""
     out: Json = {**job, "time": "computed"}
     for way in ("ms", "sm"):
-        arrivals = scenario.ideal(job[way], start=0.0, duration=job["duration"])
+        if job["row"] == "oracle":
+            arrivals = scenario.deadline(
+                job[way], start=0.0, duration=job["duration"], bound=ORACLE_BOUND
+            )
+        else:
+            arrivals = scenario.ideal(job[way], start=0.0, duration=job["duration"])
         figures = scenario.direction_figures(arrivals, propagation=PROPAGATION)
         allowed = scenario.allowed(job[way], start=0.0, duration=job["duration"])
         out[way] = with_allowed(figures, allowed, job["duration"])
@@ -286,6 +301,7 @@ def cell_text(stat: Json, key: str, digits: int = 0, scale: float = 1.0) -> str:
 def row_label(row: str, default: str) -> str:
     labels = {
         "ideal": "ideal (trace, nothing queued)",
+        "oracle": f"oracle (knows the trace, all within {ORACLE_BOUND * 1e3:.0f} ms)",
         "udp": "raw UDP, fixed 1 kHz",
         "udp-real": "raw UDP, fixed 1 kHz",
         "zenoh": "Zenoh (best effort)",
@@ -392,7 +408,7 @@ def _stat(s: Json, n: int) -> Stat:
 
 # ---------------------------------------------------------------------------- the plot
 
-MARKERS = {"ideal": "*", "udp": "x", "udp-real": "X", "zenoh": "s"}
+MARKERS = {"ideal": "*", "oracle": "P", "udp": "x", "udp-real": "X", "zenoh": "s"}
 CONTROLLER_MARKERS = "o^Dv<>ph"
 
 
@@ -414,7 +430,7 @@ def plot(summary: Json, default: str, out: Path) -> list[Path]:
         for ax, (way, label) in zip(axes, WAYS.items(), strict=True):
             for queue, rows in queues.items():
                 for row, s in rows.items():
-                    if row == "ideal" and queue != next(iter(queues)):
+                    if row in COMPUTED and queue != next(iter(queues)):
                         continue  # the ideal does not depend on the queue: once is enough
                     w = s[way]
                     base = row.removesuffix("-real")
@@ -434,12 +450,12 @@ def plot(summary: Json, default: str, out: Path) -> list[Path]:
                         xerr=[[x["median"] - x["min"]], [x["max"] - x["median"]]],
                         yerr=[[100 * (y["median"] - y["min"])], [100 * (y["max"] - y["median"])]],
                         fmt=marker,
-                        markersize=12 if row == "ideal" else 8,
+                        markersize=12 if row in COMPUTED else 8,
                         mfc=None if queue == "150kB" else "none",
                         color=f"C{names.index(row) % 10}",
                         capsize=2,
                         label=f"{row_label(row, default)}{real}"
-                        + ("" if row == "ideal" else f", {queue}"),
+                        + ("" if row in COMPUTED else f", {queue}"),
                     )
             ax.set_xscale("log")
             ax.xaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
@@ -611,12 +627,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             "sm": spec(args.traces, trace, "sm", QUEUES[queue], offset, overhead),
         }
 
-    # The ideal: from the trace alone (the same for both queues).
+    # The ideal and the oracle: from the trace alone (the same for both queues).
     for trace in args.trace:
         for i, offset in enumerate(args.offsets):
-            result = ideal_job(job(trace, args.queue[0], "ideal", offset, i, 0))
-            for queue in args.queue:
-                results.append({**result, "queue": queue})
+            for row in COMPUTED:
+                result = ideal_job(job(trace, args.queue[0], row, offset, i, 0))
+                for queue in args.queue:
+                    results.append({**result, "queue": queue})
     # Virtual time: every controller and raw UDP, in a pool.
     sim_jobs = [
         job(trace, queue, row, offset, i, 0)
@@ -664,7 +681,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         summary[trace] = {}
         for queue in args.queue:
             cells: Json = {}
-            for row in ("ideal", *args.controller, *args.real):
+            for row in (*COMPUTED, *args.controller, *args.real):
                 runs = [
                     r
                     for r in results

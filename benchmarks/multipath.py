@@ -20,9 +20,14 @@ the receiver's timeline with no sample), one-way delay p50/p95/p99 from generati
 samples/s, and bytes on the wire (TDTP datagrams plus 28 bytes of IPv4 + UDP each, every path and
 every datagram: copies, ACKs, probes, reports) per sample delivered. ``min(A,B)``: each sample's
 lower delay of the two single-path runs (a sample lost in both is lost): the issue's replay of "the
-first copy of two independent paths wins".
+first copy of two independent paths wins". ``ideal(A|B)`` (traces only): each sample's earlier
+arrival of the two paths' ideal senders (tdtp.sim.scenarios.cellular.ideal: every delivery
+opportunity carries the newest samples, nothing queued), the floor of dropouts and delay for any
+sender on the pair: where both traces are out at once for over 100 ms it has dropouts too, and no
+scheduler can have fewer.
 
-Issue 33's targets, each way: redundant 0 dropouts and p99 within 1.2x of ``min(A,B)``'s;
+Issue 33's targets, each way: redundant 0 dropouts (shown beside the ideal's) and p99 within 1.2x of
+``min(A,B)``'s;
 adaptive at most 1.3x the bytes of one path (the better of A and B) with p99 within 10 % of
 redundant's.
 """
@@ -47,7 +52,7 @@ from cellular import TRACES, find_traces
 import tdtp
 from tdtp import Connection, ConnectionConfig, MultipathConfig, Role
 from tdtp.netem import NetemLink, parse_netem
-from tdtp.sim.scenarios.cellular import Arrivals, direction_figures
+from tdtp.sim.scenarios.cellular import Arrivals, direction_figures, ideal
 
 Json = dict[str, Any]
 
@@ -248,6 +253,25 @@ def per_sample_minimum(a: Json, b: Json, start: float, end: float) -> Json:
     return figures(gens, delays, start, end, 0)
 
 
+def ideal_pair(specs: list[list[str]], start: float, duration: float) -> Json:
+    """Each way: the figures of each sample's earlier arrival over the pair's two ideal senders."""
+    out: Json = {}
+    for i, key in enumerate(("ms", "sm")):
+        first: dict[float, float] = {}
+        for spec in specs:
+            if parse_netem(spec[i]).trace is None:
+                return {}  # static profiles: no capacity to compute an ideal from
+            arrivals = ideal(spec[i], start=start, duration=duration, rate=RATE)
+            for g, a in zip(arrivals.generated, arrivals.arrived, strict=True):
+                first[g] = min(a, first.get(g, math.inf))
+        union = Arrivals(start, start + duration, round(duration * RATE))
+        pairs = sorted((a, g) for g, a in first.items())
+        union.arrived = [a for a, _ in pairs]
+        union.generated = [g for _, g in pairs]
+        out[key] = direction_figures(union, propagation=PROPAGATION)
+    return out
+
+
 def jobs(args: argparse.Namespace, traces: Path | None) -> list[Json]:
     out = []
     for pair in args.pair:
@@ -255,7 +279,13 @@ def jobs(args: argparse.Namespace, traces: Path | None) -> list[Json]:
         for offset in args.offsets:
             pa = [path_spec(traces, a, w, args.queue, offset) for w in ("ms", "sm")]
             pb = [path_spec(traces, b, w, args.queue, offset) for w in ("ms", "sm")]
-            base = {"pair": pair, "offset": offset, "duration": args.duration, "seed": 7}
+            base = {
+                "pair": pair,
+                "offset": offset,
+                "duration": args.duration,
+                "seed": 7,
+                "specs": [pa, pb],
+            }
             out.append({**base, "run": "A", "paths": [pa]})
             out.append({**base, "run": "B", "paths": [pb]})
             for scheduler in ("redundant", "adaptive"):
@@ -274,6 +304,7 @@ def summarise(results: list[Json]) -> list[Json]:
             start = 1.0
             end = start + runs["A"]["duration"]
             best = per_sample_minimum(runs["A"][way], runs["B"][way], start, end)
+            floor = ideal_pair(runs["A"]["specs"], start, end - start).get(way)
             figs = {name: runs[name][way]["figures"] for name in RUNS}
             one_path = min(figs["A"]["bytes_per_sample"], figs["B"]["bytes_per_sample"])
             red, ada = figs["redundant"], figs["adaptive"]
@@ -284,8 +315,10 @@ def summarise(results: list[Json]) -> list[Json]:
                     "way": way,
                     "runs": {name: brief(f) for name, f in figs.items()},
                     "min_AB": brief(best),
+                    **({"ideal_AB": brief(floor)} if floor is not None else {}),
                     "targets": {
                         "redundant_dropouts": red["dropouts"],
+                        "ideal_dropouts": floor["dropouts"] if floor is not None else None,
                         "redundant_p99_over_min": red["delay_ms"]["p99"] / best["delay_ms"]["p99"],
                         "adaptive_bytes_over_one_path": ada["bytes_per_sample"] / one_path,
                         "adaptive_p99_over_redundant": ada["delay_ms"]["p99"]
@@ -313,15 +346,19 @@ def table(rows: list[Json]) -> str:
         "|---|---:|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for row in rows:
-        for name, f in (*row["runs"].items(), ("min(A,B)", row["min_AB"])):
+        extra = [("min(A,B)", row["min_AB"])]
+        if "ideal_AB" in row:
+            extra.append(("ideal(A|B)", row["ideal_AB"]))
+        for name, f in (*row["runs"].items(), *extra):
             lines.append(
                 f"| {row['pair']} | {row['offset']:g} | {row['way']} | {name} | {f['dropouts']} | "
                 f"{f['p50']} | {f['p95']} | {f['p99']} | {f['samples_per_s']} | "
-                f"{f['bytes_per_sample'] if name != 'min(A,B)' else '-'} |"
+                f"{f['bytes_per_sample'] if name in row['runs'] else '-'} |"
             )
         t = row["targets"]
+        floor = "" if t.get("ideal_dropouts") is None else f" (ideal {t['ideal_dropouts']})"
         lines.append(
-            f"| | | | **targets** | red. {t['redundant_dropouts']} | red. p99/min "
+            f"| | | | **targets** | red. {t['redundant_dropouts']}{floor} | red. p99/min "
             f"{t['redundant_p99_over_min']:.2f} (<= {TARGET_REDUNDANT_P99}) | adapt. bytes "
             f"{t['adaptive_bytes_over_one_path']:.2f} (<= {TARGET_ADAPTIVE_BYTES}) | adapt. p99/red. "
             f"{t['adaptive_p99_over_redundant']:.2f} (<= {TARGET_ADAPTIVE_P99}) | | |"

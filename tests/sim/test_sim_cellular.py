@@ -11,6 +11,7 @@ import pytest
 from tdtp.sim.scenarios.cellular import (
     Arrivals,
     allowed,
+    deadline,
     direction_figures,
     ideal,
     run_tdtp,
@@ -70,6 +71,23 @@ def test_ideal_skips_what_does_not_fit_instead_of_queueing(trace_file) -> None: 
     delays = [a - g for g, a in zip(arrivals.generated, arrivals.arrived, strict=True)]
     assert max(delays) <= 0.0125  # only the newest samples before each opportunity
     assert allowed(spec, start=0.0, duration=1.0) == pytest.approx(per_second, rel=0.01)
+
+
+def test_the_deadline_oracle_delivers_a_burst_oldest_first_within_its_bound(trace_file) -> None:  # type: ignore[no-untyped-def]
+    # Three opportunities at the end of every 30 ms (33 samples' worth): the ideal sends only the
+    # newest 11 each time; the oracle carries all 30 waiting, oldest first, each within 50 ms.
+    spec = f"delay 20ms trace {trace_file([30, 30, 30])}"
+    assert len(ideal(spec, start=0.0, duration=0.9).arrived) == pytest.approx(330, abs=11)
+    full = deadline(spec, start=0.0, duration=0.9, bound=0.060)
+    assert len(full.arrived) == 900
+    delays = [a - g for g, a in zip(full.generated, full.arrived, strict=True)]
+    assert max(delays) <= 0.050 + 1e-9
+    # A tighter bound: samples older than 15 ms at an opportunity can no longer make it; given up.
+    tight = deadline(spec, start=0.0, duration=0.9, bound=0.035)
+    delays = [a - g for g, a in zip(tight.generated, tight.arrived, strict=True)]
+    assert len(tight.arrived) == pytest.approx(450, abs=30)
+    assert max(delays) <= 0.035 + 1e-9
+    assert sorted(tight.generated) == tight.generated  # oldest first, never reordered
 
 
 def test_allowed_is_zero_in_an_outage_and_follows_the_offset(trace_file) -> None:  # type: ignore[no-untyped-def]

@@ -31,6 +31,13 @@ wait for an opportunity plus the propagation delay: the floor of what any sender
 rather than queueing costs it samples where the capacity comes in bursts (an opportunity after a
 20 ms gap carries 11 of the 20 samples waiting), so it delivers less than :func:`allowed`: a scheme
 that queues a little delivers more, at some delay.
+
+**The deadline oracle** (:func:`deadline`): the most samples any sender could deliver with every one
+within ``bound`` of its generation, had it known the trace's future. Each opportunity carries the
+oldest samples not yet sent that can still arrive within the bound (earliest deadline first, which
+maximises the count when every sample has the same relative deadline); older ones are given up. It
+answers "is this bar reachable at all on this trace": where it delivers less than a target share at a
+60 ms bound, no sender can meet both.
 """
 
 from __future__ import annotations
@@ -54,6 +61,7 @@ __all__ = [
     "Arrivals",
     "CellularRun",
     "allowed",
+    "deadline",
     "direction_figures",
     "ideal",
     "run_tdtp",
@@ -193,6 +201,48 @@ def ideal(
             out.arrived.append(when + propagation)
         carry = budget - fit * ideal_wire if waiting > fit else 0
         sent = made
+    return out
+
+
+def deadline(
+    spec: str | NetemSpec,
+    *,
+    start: float,
+    duration: float,
+    bound: float,
+    rate: float = 1000.0,
+    ideal_wire: int = SAMPLE_SIZE + UDP_IP,
+    origin: float = 0.0,
+) -> Arrivals:
+    """The deadline oracle (see the module's docstring): samples generated at ``rate`` from
+    ``start`` for ``duration``, each delivered within ``bound`` seconds or not at all."""
+    trace, offset_ms, propagation = _trace_of(spec)
+    count = round(duration * rate)
+    out = Arrivals(start, start + duration, count)
+    index = trace.first_after(max(0.0, (start - origin) * 1e3 + offset_ms))
+    oldest = 0  # samples [0, oldest) were sent or given up
+    carry = 0
+    horizon = start + duration + bound
+    while oldest < count:
+        when = origin + (trace.time_ms(index) - offset_ms) / 1e3
+        if when >= horizon:
+            break
+        index += 1
+        made = min(count, math.ceil((when - start) * rate - 1e-9))  # generated before `when`
+        # (a sample generated at start + k / rate arrives by its deadline iff k >= expired)
+        expired = math.ceil((when + propagation - bound - start) * rate - 1e-9)
+        oldest = max(oldest, expired)
+        waiting = made - oldest
+        if waiting <= 0:
+            carry = 0
+            continue
+        budget = OPPORTUNITY_BYTES + carry
+        fit = min(waiting, budget // ideal_wire)
+        for k in range(oldest, oldest + fit):
+            out.generated.append(start + k / rate)
+            out.arrived.append(when + propagation)
+        oldest += fit
+        carry = budget - fit * ideal_wire if waiting > fit else 0
     return out
 
 
