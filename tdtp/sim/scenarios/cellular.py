@@ -177,31 +177,7 @@ def ideal(
     """What a sender that knew the link would deliver with nothing queued (see the module's
     docstring): samples generated at ``rate`` from ``start`` for ``duration``, the trace's clock
     started at ``origin`` (at its offset)."""
-    trace, offset_ms, propagation = _trace_of(spec)
-    count = round(duration * rate)
-    out = Arrivals(start, start + duration, count)
-    index = trace.first_after(max(0.0, (start - origin) * 1e3 + offset_ms))
-    sent = 0  # samples [0, sent) were sent or skipped
-    carry = 0
-    horizon = start + duration + DRAIN
-    while True:
-        when = origin + (trace.time_ms(index) - offset_ms) / 1e3
-        if when >= horizon or sent >= count:
-            break
-        index += 1
-        made = min(count, math.ceil((when - start) * rate - 1e-9))  # generated before `when`
-        waiting = made - sent
-        if waiting <= 0:
-            carry = 0
-            continue
-        budget = OPPORTUNITY_BYTES + carry
-        fit = min(waiting, budget // ideal_wire)
-        for k in range(made - fit, made):
-            out.generated.append(start + k / rate)
-            out.arrived.append(when + propagation)
-        carry = budget - fit * ideal_wire if waiting > fit else 0
-        sent = made
-    return out
+    return _serve(spec, start, duration, rate, ideal_wire, origin, None)
 
 
 def deadline(
@@ -216,33 +192,47 @@ def deadline(
 ) -> Arrivals:
     """The deadline oracle (see the module's docstring): samples generated at ``rate`` from
     ``start`` for ``duration``, each delivered within ``bound`` seconds or not at all."""
+    return _serve(spec, start, duration, rate, ideal_wire, origin, bound)
+
+
+def _serve(
+    spec: str | NetemSpec,
+    start: float,
+    duration: float,
+    rate: float,
+    ideal_wire: int,
+    origin: float,
+    bound: float | None,
+) -> Arrivals:
+    """The trace's opportunities, in order, each carrying what fits of the samples waiting: the
+    newest (the rest skipped) with no ``bound``, else the oldest still able to arrive within it."""
     trace, offset_ms, propagation = _trace_of(spec)
     count = round(duration * rate)
     out = Arrivals(start, start + duration, count)
     index = trace.first_after(max(0.0, (start - origin) * 1e3 + offset_ms))
-    oldest = 0  # samples [0, oldest) were sent or given up
+    oldest = 0  # samples [0, oldest) were sent, skipped or given up
     carry = 0
-    horizon = start + duration + bound
+    horizon = start + duration + (DRAIN if bound is None else bound)
     while oldest < count:
         when = origin + (trace.time_ms(index) - offset_ms) / 1e3
         if when >= horizon:
             break
         index += 1
         made = min(count, math.ceil((when - start) * rate - 1e-9))  # generated before `when`
-        # (a sample generated at start + k / rate arrives by its deadline iff k >= expired)
-        expired = math.ceil((when + propagation - bound - start) * rate - 1e-9)
-        oldest = max(oldest, expired)
+        if bound is not None:  # (sample k arrives within the bound iff k >= this)
+            oldest = max(oldest, math.ceil((when + propagation - bound - start) * rate - 1e-9))
         waiting = made - oldest
         if waiting <= 0:
             carry = 0
             continue
         budget = OPPORTUNITY_BYTES + carry
         fit = min(waiting, budget // ideal_wire)
-        for k in range(oldest, oldest + fit):
+        first = made - fit if bound is None else oldest
+        for k in range(first, first + fit):
             out.generated.append(start + k / rate)
             out.arrived.append(when + propagation)
-        oldest += fit
         carry = budget - fit * ideal_wire if waiting > fit else 0
+        oldest = made if bound is None else oldest + fit
     return out
 
 
