@@ -20,11 +20,12 @@ the receiver's timeline with no sample), one-way delay p50/p95/p99 from generati
 samples/s, and bytes on the wire (TDTP datagrams plus 28 bytes of IPv4 + UDP each, every path and
 every datagram: copies, ACKs, probes, reports) per sample delivered. ``min(A,B)``: each sample's
 lower delay of the two single-path runs (a sample lost in both is lost): the issue's replay of "the
-first copy of two independent paths wins". ``ideal(A|B)`` (traces only): each sample's earlier
+first copy of two independent paths wins". ``ideal(A+B)`` (traces only): each sample's earlier
 arrival of the two paths' ideal senders (tdtp.sim.scenarios.cellular.ideal: every delivery
-opportunity carries the newest samples, nothing queued), the floor of dropouts and delay for any
-sender on the pair: where both traces are out at once for over 100 ms it has dropouts too, and no
-scheduler can have fewer.
+opportunity carries the newest samples, nothing queued; the traces' clocks started as the redundant
+run's links started them): what the pair's capacity allows. Where both traces are out at once for
+over 100 ms it has dropouts too: a window without a delivery opportunity on either path is a
+dropout for any sender.
 
 Issue 33's targets, each way: redundant 0 dropouts (shown beside the ideal's) and p99 within 1.2x of
 ``min(A,B)``'s;
@@ -200,6 +201,10 @@ def run(job: Json) -> Json:
             next_tick += 1.0 / RATE
         flush(now)
     out: Json = {**job, "cpu_seconds": round(time.process_time() - t0, 1)}
+    out["origins"] = {  # when each link's trace clock started (the ideal is computed from them)
+        key: [q.origin if (q := link.trace_queue) is not None else None for link in way.links]
+        for key, way in (("ms", ms), ("sm", sm))
+    }
     for key, way in (("ms", ms), ("sm", sm)):
         gens = generated[key]
         out[key] = {
@@ -253,15 +258,16 @@ def per_sample_minimum(a: Json, b: Json, start: float, end: float) -> Json:
     return figures(gens, delays, start, end, 0)
 
 
-def ideal_pair(specs: list[list[str]], start: float, duration: float) -> Json:
-    """Each way: the figures of each sample's earlier arrival over the pair's two ideal senders."""
+def ideal_pair(run: Json, start: float, duration: float) -> Json:
+    """Each way: the figures of each sample's earlier arrival over the two ideal senders of the
+    paths ``run`` used, their traces' clocks started where its links' started."""
     out: Json = {}
     for i, key in enumerate(("ms", "sm")):
         first: dict[float, float] = {}
-        for spec in specs:
-            if parse_netem(spec[i]).trace is None:
+        for spec, origin in zip(run["paths"], run["origins"][key], strict=True):
+            if origin is None:
                 return {}  # static profiles: no capacity to compute an ideal from
-            arrivals = ideal(spec[i], start=start, duration=duration, rate=RATE)
+            arrivals = ideal(spec[i], start=start, duration=duration, rate=RATE, origin=origin)
             for g, a in zip(arrivals.generated, arrivals.arrived, strict=True):
                 first[g] = min(a, first.get(g, math.inf))
         union = Arrivals(start, start + duration, round(duration * RATE))
@@ -279,13 +285,7 @@ def jobs(args: argparse.Namespace, traces: Path | None) -> list[Json]:
         for offset in args.offsets:
             pa = [path_spec(traces, a, w, args.queue, offset) for w in ("ms", "sm")]
             pb = [path_spec(traces, b, w, args.queue, offset) for w in ("ms", "sm")]
-            base = {
-                "pair": pair,
-                "offset": offset,
-                "duration": args.duration,
-                "seed": 7,
-                "specs": [pa, pb],
-            }
+            base = {"pair": pair, "offset": offset, "duration": args.duration, "seed": 7}
             out.append({**base, "run": "A", "paths": [pa]})
             out.append({**base, "run": "B", "paths": [pb]})
             for scheduler in ("redundant", "adaptive"):
@@ -304,7 +304,7 @@ def summarise(results: list[Json]) -> list[Json]:
             start = 1.0
             end = start + runs["A"]["duration"]
             best = per_sample_minimum(runs["A"][way], runs["B"][way], start, end)
-            floor = ideal_pair(runs["A"]["specs"], start, end - start).get(way)
+            floor = ideal_pair(runs["redundant"], start, end - start).get(way)
             figs = {name: runs[name][way]["figures"] for name in RUNS}
             one_path = min(figs["A"]["bytes_per_sample"], figs["B"]["bytes_per_sample"])
             red, ada = figs["redundant"], figs["adaptive"]
@@ -348,7 +348,7 @@ def table(rows: list[Json]) -> str:
     for row in rows:
         extra = [("min(A,B)", row["min_AB"])]
         if "ideal_AB" in row:
-            extra.append(("ideal(A|B)", row["ideal_AB"]))
+            extra.append(("ideal(A+B)", row["ideal_AB"]))
         for name, f in (*row["runs"].items(), *extra):
             lines.append(
                 f"| {row['pair']} | {row['offset']:g} | {row['way']} | {name} | {f['dropouts']} | "

@@ -404,8 +404,18 @@ def test_cellular_runs_every_kind_of_row_and_writes_its_results(tmp_path: Path) 
     report = json.loads(done.stdout)
     assert report["benchmark"] == "cellular"
     cells = report["details"]["summary"]["verizon"]["15kB"]
-    assert list(cells) == ["ideal", "fixed", "udp", "udp-real"]
-    assert [cells[r]["time"] for r in cells] == ["computed", "virtual", "virtual", "real"]
+    assert list(cells) == ["ideal", "oracle", "fixed", "udp", "udp-real"]
+    assert [cells[r]["time"] for r in cells] == [
+        "computed",
+        "computed",
+        "virtual",
+        "virtual",
+        "real",
+    ]
+    oracle = [run for run in report["details"]["runs"] if run["row"] == "oracle"]
+    assert oracle and all(
+        run[w]["delay_ms"]["max"] <= 60.0 + 1e-6 for run in oracle for w in ("ms", "sm")
+    )
     for run in report["details"]["runs"]:
         for way in ("ms", "sm"):
             figures = run[way]
