@@ -4,6 +4,7 @@ delivering our copies stops taking them. Fake time."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 
@@ -75,11 +76,12 @@ def test_a_queue_on_the_way_out_is_seen_and_drained() -> None:
 
 
 def test_a_path_whose_way_out_fails_takes_only_probes_and_returns() -> None:
-    """Path 1's way out drops everything while its way back works: the slave's copies still
-    arrive on it, so it comes back each time its unanswered probes judge it failed, and each
-    return would have fed it copies again. The master stops feeding it after a round trip, two
-    report intervals and a margin, sends one copy per STALL_PROBE there through every such
-    return, and uses it again as soon as a report shows progress."""
+    """Path 1's way out drops everything while its way back works: the slave, which hears
+    nothing on it, judges it failed yet sends a probe copy there every STALL_PROBE, so the
+    master keeps hearing it. The master stops feeding it after a round trip, two report
+    intervals and a margin, sends one copy per STALL_PROBE there, and uses it again as soon as a
+    report shows progress (a stall over LONG_STALL restarts the path's controller, which had no
+    feedback all along)."""
     links = two_paths(0.010, 0.012)
     pair = running(links)
     paths = pair.master.conn.multipath
@@ -89,11 +91,11 @@ def test_a_path_whose_way_out_fails_takes_only_probes_and_returns() -> None:
     before = len(pair.slave.received)
     pair.run_for(0.2)
     sent = path.sent_data
-    pair.run_for(1.0)
+    pair.run_for(1.3)  # (a stall over LONG_STALL: its end restarts the path's controller)
     probes = path.sent_data - sent
-    assert probes <= 1.0 / STALL_PROBE + 2
+    assert probes <= 1.3 / STALL_PROBE + 2
     assert path.pacer.stalled(pair.now)
-    assert len(pair.slave.received) - before > 0.97 * 1200  # path 0 carried every sample
+    assert len(pair.slave.received) - before > 0.97 * 1500  # path 0 carried every sample
     assert silences(pair.master.events) == silences(pair.slave.events) == 0
     links[1].ms.drop = lambda _: False
     pair.run_for(0.3)
@@ -101,6 +103,31 @@ def test_a_path_whose_way_out_fails_takes_only_probes_and_returns() -> None:
     pair.run_for(0.5)
     assert not path.pacer.stalled(pair.now)
     assert path.sent_data - sent > 0.95 * 500
+
+
+def test_a_path_silent_on_its_way_in_still_takes_probe_copies_out() -> None:
+    """The converse: path 1's way back drops everything, so the master hears nothing on it and
+    judges it failed, while its way out works (two radios' uplink and downlink fail apart). When
+    path 0's way out fails too, one copy per STALL_PROBE on the failed path is all that reaches
+    the slave: a sample every 50 ms instead of none (redundant's dropouts on two recorded LTE
+    paths were one above what the traces allow until failed paths took these copies)."""
+    links = two_paths(0.010, 0.012)
+    pair = running(links)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    path = paths.paths[1]
+    links[1].sm.drop = lambda _: True
+    pair.run_for(0.5)
+    assert path.state == "failed"
+    links[0].ms.drop = lambda _: True
+    sent, before, start = path.sent_data, len(pair.slave.received), pair.now
+    pair.run_for(1.0)
+    copies = path.sent_data - sent
+    assert copies <= 1.0 / STALL_PROBE + 2  # probes only: the path may be out both ways
+    arrivals = [start] + [e.received_at for e in pair.slave.received[before:]]
+    assert len(arrivals) > 1.0 / STALL_PROBE - 2
+    assert max(b - a for a, b in itertools.pairwise(arrivals)) < 1.5 * STALL_PROBE
+    assert path.state == "failed"  # (nothing heard on it yet)
 
 
 def test_a_report_clock_beyond_the_round_trip_is_not_used() -> None:

@@ -48,6 +48,10 @@ STALL_MARGIN: Final = 0.02
 acknowledged mean a stalled path (:meth:`PathPacer.stalled`)."""
 STALL_PROBE: Final = 0.05
 """Seconds between the copies a stalled path still takes (to learn that it delivers again)."""
+LONG_STALL: Final = 1.0
+"""Seconds of a stall after which the report that ends it restarts the path's controller, as a
+path heard again after a failure restarts: a stall that long is our way out's failure (what its
+probes lost was the outage's)."""
 
 
 class Bottlenecks:
@@ -169,7 +173,7 @@ class PathPacer:
         self._now = now
         self._offered.on_departure(now, False)
         if self.stalled(now):
-            if now - self._last_copy >= STALL_PROBE:
+            if self.probe_due(now):
                 return True
             self._held = True
             return False
@@ -177,6 +181,16 @@ class PathPacer:
             return True
         self._held = True
         return False
+
+    def probe_due(self, now: float) -> bool:
+        """Whether a path that takes probes only (stalled, or failed: nothing heard on it) is due
+        its next copy: one per :data:`STALL_PROBE`."""
+        return now - self._last_copy >= STALL_PROBE
+
+    @property
+    def next_probe(self) -> float:
+        """When such a path is due its next copy."""
+        return self._last_copy + STALL_PROBE
 
     @property
     def next_departure(self) -> float:
@@ -252,9 +266,13 @@ class PathPacer:
         controller = self.controller
         losses = self._losses
         self._now = now
+        stalled_for = now - self._unreported_since - self._stall_after
         self._stall_after = srtt + 2.0 * self._feedback_delay + STALL_MARGIN
         if delivered > 0:
             self._unreported_since = math.inf  # progress: what was sent since is on its way
+            if stalled_for > LONG_STALL:
+                self.reset()  # (its controller, without feedback all along, is at its floor)
+                return
         if lost > 0 and losses.on_packet_lost(reported - lost, now - srtt, srtt, reported):
             controller.on_loss_event(now=now, srtt=srtt, loss_event_rate=losses.loss_event_rate)
         controller.on_ack(
@@ -290,9 +308,10 @@ class PathPacer:
 
 class MultipathController(RateController):
     """The session's rate controller in a multipath session: a sample may leave once some usable
-    path's pacer allows a copy (``pacers`` names theirs, best first); the acknowledgements of the
-    first copies, which mix the paths, move nothing (each path's pacer hears its own reports). Its
-    timer is the paths' (``deadline``, ``on_timer``)."""
+    path's pacer allows a copy (``pacers`` names theirs, best first) or a failed path is due a
+    probe copy (``probing``: theirs); the acknowledgements of the first copies, which mix the
+    paths, move nothing (each path's pacer hears its own reports). Its timer is the paths'
+    (``deadline``, ``on_timer``)."""
 
     name = "multipath"
 
@@ -301,8 +320,10 @@ class MultipathController(RateController):
         pacers: Callable[[], list[PathPacer]],
         deadline: Callable[[], float | None],
         on_timer: Callable[[float], None],
+        probing: Callable[[], list[PathPacer]] = list,
     ) -> None:
         self._pacers = pacers
+        self._probing = probing
         self._deadline = deadline
         self._on_timer = on_timer
 
@@ -325,6 +346,10 @@ class MultipathController(RateController):
         earliest = math.inf
         for pacer in self._pacers():
             due = pacer.next_departure
+            if due < earliest:
+                earliest = due
+        for pacer in self._probing():
+            due = pacer.next_probe
             if due < earliest:
                 earliest = due
         return NO_LIMIT if earliest == math.inf else earliest

@@ -8,17 +8,16 @@ session opened with the MULTIPATH flag is established. The seam is narrow:
   of the other paths (``rx_local`` names the local socket, set by a driver with several), or is the
   challenge that opens a new one; otherwise the connection drops it (``wrong_address``);
 * ``intercept(data, addr, ptype, now)``: which path it came on; takes the multipath control packets
-  (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON) and drops a copy of a sample already taken
-  in, as ``duplicate``, before the
-  packet protection sees it (a sample counts as taken in once the connection's receive window holds
-  it, which the next datagram or flush checks: a forged datagram never shadows a real sample);
+  (MP_CHALLENGE, MP_RESPONSE, MP_REPORT, MP_ABANDON) and drops a copy of a sample already taken in,
+  as ``duplicate``, before the packet protection sees it (a sample counts as taken in once the
+  connection's receive window holds it, which the next datagram or flush checks: a forged datagram
+  never shadows a real sample);
 * ``route(out, now)``: the connection's datagrams for the peer spread over the paths (a sample on
   the paths the scheduler names, the rest on the best path), with the paths' own control packets;
   what leaves through another local socket than the session's own goes to :attr:`routed`;
 * ``deadline()`` and ``on_timer(now)``: probes, reports, path failures, the paths' controllers,
-  reached through the session's controller
-  (:class:`~tdtp.session.multipath.congestion.MultipathController`, which replaces the single-path
-  one), so that the connection's timer needs no hook of its own.
+  reached through the session's controller (``MultipathController``, which replaces the single-path
+  one): the connection's timer needs no hook of its own.
 
 Everything a peer can grow is bounded: ``max_paths`` paths (the session's first included), new paths
 at ``new_paths_per_second``, four outstanding tokens per path, fixed rings for copies; a learned path
@@ -270,7 +269,9 @@ class Multipath:
         # The single-path controller's round trips would mix the paths (CONTROL.md 11): the
         # session's pieces that drive a controller get one that asks the paths' pacers.
         old = session._controller
-        controller = MultipathController(paths.usable_pacers, paths.deadline, paths.on_timer)
+        controller = MultipathController(
+            paths.usable_pacers, paths.deadline, paths.on_timer, paths.failed_pacers
+        )
         controller.feedback_delay = old.feedback_delay
         controller.sample_waiting = old.sample_waiting
         session._controller = controller
@@ -281,10 +282,12 @@ class Multipath:
 
     def usable_pacers(self) -> list[PathPacer]:
         """The pacers of the paths a sample may go on now (of every validated one if none is)."""
-        pacers = [path.pacer for path in self.paths.values() if path.usable]
-        if not pacers:
-            pacers = [path.pacer for path in self.paths.values() if path.validated]
-        return pacers
+        usable = [path.pacer for path in self.paths.values() if path.usable]
+        return usable or [path.pacer for path in self.paths.values() if path.validated]
+
+    def failed_pacers(self) -> list[PathPacer]:
+        """The pacers of the validated paths nothing is heard on: each takes probe copies."""
+        return [p.pacer for p in self.paths.values() if p.state is FAILED and p.validated]
 
     # ------------------------------------------------------------------ the application's
 
@@ -660,6 +663,10 @@ class Multipath:
                     continue
                 congested.append(pacer)
             chosen.append(path)
+        for path in self.paths.values():  # silent our way in, maybe not out (CONTROL.md 11.2)
+            failed = path.state is FAILED and path.validated and path not in chosen
+            if failed and path.pacer.probe_due(now):
+                chosen.append(path)
         if not chosen:
             # None of the scheduler's paths allows a copy now: a path that does, else the best.
             allowed = [path for path in ranked if path not in candidates and path.pacer.allows(now)]
