@@ -21,6 +21,9 @@ whether the cross traffic moves with it. Here:
   round trips. A queue of its own empties (the interval's standing queue falls to the target): back
   to the delay mode. A queue a window-based competitor keeps does not, since its packets in flight
   stay where they are (the flow's own leave): the flow returns to its rate and keeps competing.
+  The check compares with the base RTT from before the competitor came: while competing, the base
+  window's halves last ``BASE_HOLD`` seconds, or a queue kept standing for longer than the base
+  window (BBR's, cubic's above its troughs) would become the base and read as no queue at all.
 """
 
 from __future__ import annotations
@@ -46,6 +49,10 @@ PROBE_SHARE: Final = 0.25
 """The rate during such a check, as a share of the rate in use."""
 PROBE_RTTS: Final = 2.0
 """Round trips a check lasts."""
+BASE_HOLD: Final = 60.0
+"""Competing, the base RTT's half-windows last this long, not half of ``base_window``: a queue the
+competitor keeps standing for longer would become the base, read as no queue, and the next check
+would take it for the flow's own (docs/CONTROL.md 9.9)."""
 
 
 class Competition:

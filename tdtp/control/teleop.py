@@ -38,8 +38,8 @@ from typing import ClassVar, Final
 from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
+from tdtp.control.competition import BASE_HOLD, Competition
 from tdtp.control.competition import DECREASE as COMPETE_DECREASE
-from tdtp.control.competition import Competition
 from tdtp.control.equations import padhye_rate
 from tdtp.control.one_way_signal import OneWaySignal
 from tdtp.control.send_meter import GAP_GAIN, SendMeter
@@ -567,8 +567,9 @@ class TeleopController(RateController):
     def _on_standing_rtt(self, now: float, standing: float) -> None:
         """The base RTT is the smallest standing RTT of the last ``base_window``: a statistic of the
         same kind as the one it is compared with (the smallest of many raw samples would sit below
-        every interval's floor by the jitter's whole range)."""
-        if now - self._base_since >= 0.5 * self._cfg.base_window:
+        every interval's floor by the jitter's whole range). Competing, it keeps ``BASE_HOLD``."""
+        half = BASE_HOLD if self._competition.active else 0.5 * self._cfg.base_window
+        if now - self._base_since >= half:
             self._base_old = self._base_now
             self._base_now = math.inf
             self._base_since = now
