@@ -116,6 +116,7 @@ def test_redundant_the_first_copy_wins_and_the_others_are_duplicates(keyed: bool
         assert stats[0].first_received > 0.95 * len(got)
         assert stats[1].duplicates > 0.95 * stats[1].received
         assert max(side.latency[-1000:]) == pytest.approx(0.020, abs=0.0015)
+    assert silences(pair.master.events) == silences(pair.slave.events) == 0
     assert_conserved(pair)
 
 

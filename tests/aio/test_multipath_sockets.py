@@ -80,7 +80,8 @@ async def test_two_local_sockets_one_session_first_copy_wins(keyed: bool) -> Non
         for ep in (master, slave):
             stats = ep.stats
             assert stats.datagrams_in == stats.received.datagrams + stats.dropped
-            assert stats.peer_silences == 0
+        # (No PeerSilent is fake time's to prove, tests/test_multipath.py: here a loaded machine's
+        # event-loop stall of a silence_timeout would raise one, and that is not the protocol's.)
 
 
 @pytest.mark.asyncio
@@ -107,7 +108,6 @@ async def test_a_path_added_and_removed_during_the_session() -> None:
         await stream
         with pytest.raises(InvalidArgumentError, match="no path socket"):
             master.paths.remove(socket_number)
-        assert slave.stats.peer_silences == 0
 
 
 @pytest.mark.asyncio
