@@ -12,21 +12,25 @@ import pytest
 from test_multipath import running, silences, two_paths
 
 from tdtp.session.multipath.congestion import STALL_PROBE
+from tdtp.session.multipath.paths import Multipath
 from tdtp.session.multipath.report_clock import PathDelay
 from tdtp.session.one_way import RESET_AFTER, PeerClock
 from tdtp.wire import HEADER_SIZE, ControlCode
 
-from multipath_pair import MultipathPair
+from multipath_pair import MultipathPair, PathLink
 
 
 def _queue_growing_to(cap: float, per_datagram: float = 0.0005) -> Callable[[int], float]:
     return lambda i: min(cap, i * per_datagram)
 
 
-def _path(pair: MultipathPair, path_id: int) -> object:
+def _running() -> tuple[list[PathLink], MultipathPair, Multipath]:
+    """Two paths (10 and 12 ms each way), 1 kHz both ways past the warm-up; the master's paths."""
+    links = two_paths(0.010, 0.012)
+    pair = running(links)
     paths = pair.master.conn.multipath
     assert paths is not None
-    return paths.paths[path_id]
+    return links, pair, paths
 
 
 def test_a_queue_on_the_way_back_does_not_cut_the_way_out() -> None:
@@ -34,10 +38,7 @@ def test_a_queue_on_the_way_back_does_not_cut_the_way_out() -> None:
     150 ms; the master's copies on path 1 cross freely. Judged from round trips the master's
     path 1 controller would cut its copies for a queue that is not in its direction; judged from
     the reports' clocks it sees none, and path 1 keeps every copy."""
-    links = two_paths(0.010, 0.012)
-    pair = running(links)
-    paths = pair.master.conn.multipath
-    assert paths is not None
+    links, pair, paths = _running()
     start = links[1].sm.datagrams
     links[1].sm.extra_delay = lambda i: min(0.15, (i - start) * 0.0005)
     path = paths.paths[1]
@@ -55,10 +56,7 @@ def test_a_queue_on_the_way_back_does_not_cut_the_way_out() -> None:
 def test_a_queue_on_the_way_out_is_seen_and_drained() -> None:
     """The converse: path 1's way out queues. The reports' clocks show it as our direction's
     queue, and the path's controller cuts its copies (path 0 carries the samples meanwhile)."""
-    links = two_paths(0.010, 0.012)
-    pair = running(links)
-    paths = pair.master.conn.multipath
-    assert paths is not None
+    links, pair, paths = _running()
     free = [0.0]
 
     def slow_link(_: int) -> float:  # path 1's way out carries 500 datagrams/s
@@ -82,10 +80,7 @@ def test_a_path_whose_way_out_fails_takes_only_probes_and_returns() -> None:
     intervals and a margin, sends one copy per STALL_PROBE there, and uses it again as soon as a
     report shows progress (a stall over LONG_STALL restarts the path's controller, which had no
     feedback all along)."""
-    links = two_paths(0.010, 0.012)
-    pair = running(links)
-    paths = pair.master.conn.multipath
-    assert paths is not None
+    links, pair, paths = _running()
     path = paths.paths[1]
     links[1].ms.drop = lambda _: True
     before = len(pair.slave.received)
@@ -111,10 +106,7 @@ def test_a_path_silent_on_its_way_in_still_takes_probe_copies_out() -> None:
     path 0's way out fails too, one copy per STALL_PROBE on the failed path is all that reaches
     the slave: a sample every 50 ms instead of none (redundant's dropouts on two recorded LTE
     paths were one above what the traces allow until failed paths took these copies)."""
-    links = two_paths(0.010, 0.012)
-    pair = running(links)
-    paths = pair.master.conn.multipath
-    assert paths is not None
+    links, pair, paths = _running()
     path = paths.paths[1]
     links[1].sm.drop = lambda _: True
     pair.run_for(0.5)
@@ -134,10 +126,7 @@ def test_a_report_clock_beyond_the_round_trip_is_not_used() -> None:
     """An on-path attacker (or corruption) moves every fifth report's clock on path 1 five
     seconds ahead: those reports would read a 5 s queue in our direction, more than their round
     trip allows. They are counted and not used; the path's copies go on."""
-    links = two_paths(0.010, 0.012)
-    pair = running(links)
-    paths = pair.master.conn.multipath
-    assert paths is not None
+    links, pair, paths = _running()
     seen = [0]
 
     def rewrite(_: int, datagram: bytes) -> bytes:
