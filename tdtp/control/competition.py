@@ -14,8 +14,9 @@ whether the cross traffic moves with it. Here:
   round trips), someone else keeps the queue: the flow turns competitive, resuming at half the rate
   it had when the episode began (what a TCP keeps after a loss).
 * **Competing.** The rate follows TCP's congestion avoidance counted in bytes: ``INCREASE`` of a
-  ``tcp_segment`` more per round trip, halved per loss event (the controller's loss rule, with every
-  loss counted as congestion), under the byte-based TCP-friendly ceiling. Beside a Reno-like flow that
+  ``tcp_segment`` more per round trip, ``OVERFLOW_DECREASE`` per buffer overflow and
+  ``LOSS_DECREASE`` per loss event of its own (the controller's loss rule, with every loss counted as
+  congestion), under the byte-based TCP-friendly ceiling. Beside a Reno-like flow that
   converges to about a byte-fair share and never above it; the queue is the competitor's.
 * **Leaving.** Every ``PROBE_EVERY`` seconds the flow drops to ``PROBE_SHARE`` of its rate for two
   round trips. A queue of its own empties (the interval's standing queue falls to the target): back
@@ -39,8 +40,16 @@ INCREASE: Final = 0.35
 """Segments per round trip the competitive mode adds (Reno adds one, CUBIC's TCP-friendly region
 0.53 with a decrease of 0.7). 0.5 took 62 % of a 1 Mbit/s tbf beside the kernel's cubic and left
 TCP 36 % (median of three runs); 0.35 leaves it 44 % (docs/CONTROL.md 9.9)."""
-DECREASE: Final = 0.7
-"""The competitive mode's decrease per loss event (or full buffer): CUBIC's ``beta``."""
+LOSS_DECREASE: Final = 0.85
+"""The competitive mode's decrease per loss event of its own. Beside a loss-based competitor in a
+drop-tail buffer these are rare (our small packets mostly find room where its full-size segments do
+not: the overflow below answers those); beside one that ignores loss (BBR) they come every round
+trip, and a TCP-sized cut for each hands it the link: 0.7 took 33 % of a 1 Mbit/s tbf beside the
+kernel's bbr, 0.85 takes 42 % (docs/CONTROL.md 9.9)."""
+OVERFLOW_DECREASE: Final = 0.6
+"""The competitive mode's decrease per buffer overflow (a standing queue near the highest seen):
+where a loss-based competitor loses its segments and backs off, this flow backs off with it, a
+little more than CUBIC's 0.7 since it loses fewer of its own there."""
 FULL: Final = 0.8
 """Competitive mode: a standing queue this share of the highest seen counts as a full buffer."""
 PROBE_EVERY: Final = 10.0

@@ -39,7 +39,8 @@ from mypy_extensions import mypyc_attr
 
 from tdtp.control.base import PacingSchedule, RateController
 from tdtp.control.competition import BASE_HOLD, Competition
-from tdtp.control.competition import DECREASE as COMPETE_DECREASE
+from tdtp.control.competition import LOSS_DECREASE as COMPETE_LOSS
+from tdtp.control.competition import OVERFLOW_DECREASE as COMPETE_OVERFLOW
 from tdtp.control.equations import padhye_rate
 from tdtp.control.one_way_signal import OneWaySignal
 from tdtp.control.send_meter import GAP_GAIN, SendMeter
@@ -397,7 +398,7 @@ class TeleopController(RateController):
             or self._competition.active  # (competing: every loss is congestion, as for TCP)
         )
         if growing and now - self._last_decrease >= self._srtt:
-            factor = COMPETE_DECREASE if self._competition.active else self._cfg.loss_decrease
+            factor = COMPETE_LOSS if self._competition.active else self._cfg.loss_decrease
             self._decrease(now, self._rate_in_use() * factor)
             self._loss_decreases += 1
             self._last_decrease = self._last_congestion = now
@@ -774,7 +775,7 @@ class TeleopController(RateController):
             return
         if competition.full(now, queue):
             if now - self._last_decrease >= self._srtt:
-                self._decrease(now, self._rate_in_use() * COMPETE_DECREASE)
+                self._decrease(now, self._rate_in_use() * COMPETE_OVERFLOW)
                 self._last_decrease = now
             return
         cfg = self._cfg

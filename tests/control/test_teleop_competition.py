@@ -3,7 +3,10 @@ full whatever happens, in virtual time (tdtp.sim: no clock, no machine load)."""
 
 from __future__ import annotations
 
+import pytest
+
 from tdtp.config import ConnectionConfig
+from tdtp.control.competition import LOSS_DECREASE, OVERFLOW_DECREASE
 from tdtp.control.teleop import LIMIT_COMPETING, TeleopController
 from tdtp.sim.endpoints import TdtpSession
 from tdtp.sim.engine import Network, Packet
@@ -87,3 +90,26 @@ def test_a_queue_that_outlives_the_base_window_keeps_the_flow_competing() -> Non
     # The competitor gone, the flow's own queue empties at the next check: back to low delay.
     assert all(limits[t] != LIMIT_COMPETING for t in limits if t >= 37.0)
     assert max(q for t, q in queues.items() if t >= 37.0) < 0.02
+
+
+def test_competing_a_loss_event_costs_less_than_an_overflow() -> None:
+    # Beside a competitor that ignores loss, losses of the flow's own come every round trip; a
+    # TCP-sized cut for each handed the kernel's bbr the link (33 %, 42 % with the lighter cut).
+    net = Network(seed=1)
+    build_dumbbell(net, ["M", "X"], ["S", "Y"], "rate 1mbit delay 5ms", byte_limit=12500)
+    session = TdtpSession.create(net, "M", "S", ConnectionConfig(controller="teleop"))
+    LossAgnosticWindow(net, "X", "Y", 5001, window=13).run(start=1.0, stop=25.0)
+    controller = session.master.conn.controller
+    assert isinstance(controller, TeleopController)
+    net.run(until=8.0)
+    assert controller.rate_limit == LIMIT_COMPETING
+    cuts = []
+    for ms in range(8001, 20000):
+        rate, losses = controller.rate, controller.loss_decrease_count
+        net.run(until=ms / 1000.0)
+        if controller.loss_decrease_count == losses + 1:
+            cuts.append(controller.rate / rate)
+    assert len(cuts) > 10
+    # Each cut is the lighter one, not CUBIC's 0.7; an overflow still costs more.
+    assert all(c == pytest.approx(LOSS_DECREASE, abs=0.02) and c > 0.8 for c in cuts), cuts
+    assert OVERFLOW_DECREASE < 0.7 < LOSS_DECREASE
