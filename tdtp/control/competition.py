@@ -45,7 +45,7 @@ LOSS_DECREASE: Final = 0.85
 drop-tail buffer these are rare (our small packets mostly find room where its full-size segments do
 not: the overflow below answers those); beside one that ignores loss (BBR) they come every round
 trip, and a TCP-sized cut for each hands it the link: 0.7 took 33 % of a 1 Mbit/s tbf beside the
-kernel's bbr, 0.85 takes 42 % (docs/CONTROL.md 9.9)."""
+kernel's bbr, 0.85 takes 40 % (medians of eight runs; docs/CONTROL.md 9.9)."""
 OVERFLOW_DECREASE: Final = 0.6
 """The competitive mode's decrease per buffer overflow (a standing queue near the highest seen):
 where a loss-based competitor loses its segments and backs off, this flow backs off with it, a
