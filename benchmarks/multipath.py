@@ -262,19 +262,17 @@ def ideal_pair(run: Json, start: float, duration: float) -> Json:
     """Each way: the figures of each sample's earlier arrival over the two ideal senders of the
     paths ``run`` used, their traces' clocks started where its links' started."""
     out: Json = {}
+    generated = [start + k / RATE for k in range(round(duration * RATE))]
     for i, key in enumerate(("ms", "sm")):
-        first: dict[float, float] = {}
+        delays: dict[int, float] = {}  # sample index -> its lower delay of the two
         for spec, origin in zip(run["paths"], run["origins"][key], strict=True):
             if origin is None:
                 return {}  # static profiles: no capacity to compute an ideal from
             arrivals = ideal(spec[i], start=start, duration=duration, rate=RATE, origin=origin)
             for g, a in zip(arrivals.generated, arrivals.arrived, strict=True):
-                first[g] = min(a, first.get(g, math.inf))
-        union = Arrivals(start, start + duration, round(duration * RATE))
-        pairs = sorted((a, g) for g, a in first.items())
-        union.arrived = [a for a, _ in pairs]
-        union.generated = [g for _, g in pairs]
-        out[key] = direction_figures(union, propagation=PROPAGATION)
+                k = round((g - start) * RATE)
+                delays[k] = min(a - g, delays.get(k, math.inf))
+        out[key] = figures(generated, delays, start, start + duration, 0)
     return out
 
 

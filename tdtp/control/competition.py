@@ -16,8 +16,10 @@ whether the cross traffic moves with it. Here:
 * **Competing.** The rate follows TCP's congestion avoidance counted in bytes: ``INCREASE`` of a
   ``tcp_segment`` more per round trip, ``OVERFLOW_DECREASE`` per buffer overflow and
   ``LOSS_DECREASE`` per loss event of its own (the controller's loss rule, with every loss counted as
-  congestion), under the byte-based TCP-friendly ceiling. Beside a Reno-like flow that
-  converges to about a byte-fair share and never above it; the queue is the competitor's.
+  congestion), under the byte-based TCP-friendly ceiling; the queue is the competitor's. Where
+  losses are the only signal the lighter loss cut makes it somewhat more aggressive than Reno;
+  beside the kernel's cubic through a byte-counted buffer it takes more than TCP (docs/CONTROL.md
+  9.9 has the figures and the lock-out check).
 * **Leaving.** Every ``PROBE_EVERY`` seconds the flow drops to ``PROBE_SHARE`` of its rate for two
   round trips. A queue of its own empties (the interval's standing queue falls to the target): back
   to the delay mode. A queue a window-based competitor keeps does not, since its packets in flight
@@ -39,7 +41,8 @@ ENTER_RTTS: Final = 8.0
 INCREASE: Final = 0.35
 """Segments per round trip the competitive mode adds (Reno adds one, CUBIC's TCP-friendly region
 0.53 with a decrease of 0.7). 0.5 took 62 % of a 1 Mbit/s tbf beside the kernel's cubic and left
-TCP 36 % (median of three runs); 0.35 leaves it 44 % (docs/CONTROL.md 9.9)."""
+TCP 36 % (median of three runs); 0.35 left it 44 %, and 41 % with the base held and the two
+decreases below (docs/CONTROL.md 9.9)."""
 LOSS_DECREASE: Final = 0.85
 """The competitive mode's decrease per loss event of its own. Beside a loss-based competitor in a
 drop-tail buffer these are rare (our small packets mostly find room where its full-size segments do
