@@ -4,9 +4,9 @@
   at the receiver, so a sample is as late as the fastest path made it and lost only if every path lost
   it.
 * ``adaptive``: the best path alone while it behaves, every usable path while it does not (the 5G
-  study's partial duplication). The best path is the one whose copies take the least time to the
-  peer (the reports' clocks, our direction alone; half the round trip plus the peer's lag until
-  every path has such a sample). It
+  study's partial duplication). The best path here is the one whose copies take the least time to
+  the peer (the reports' clocks, our direction alone; :func:`rank`'s order until every path has such
+  a sample). It
   *behaves* while its recent loss is at most ``loss_bound``, its recent one-way delay is within
   ``delay_bound`` of the lowest it has shown, and the samples it carried are acknowledged in time: the
   newest of the samples it carried alone that was acknowledged left no longer ago than such a
@@ -56,18 +56,23 @@ OUTBOUND_FRESH: Final = 1.0
 
 
 def rank(paths: list[Path], now: float) -> list[Path]:
-    """The usable paths, best first: the lowest delay of our copies along the path (the reports'
-    clocks: our direction alone, report_clock.py) while every usable path has a recent sample of
-    it, else the lowest estimate from round trips and the peer's lag (``Path.one_way_delay``);
-    then the lowest id."""
+    """The usable paths, best (lowest one-way delay estimate, then lowest id) first."""
     usable = [path for path in paths if path.usable]
-    if len(usable) > 1:
-        outbound = [path.delay.outbound(now, OUTBOUND_FRESH) for path in usable]
-        if max(outbound) < math.inf:
-            order = sorted(range(len(usable)), key=lambda i: (outbound[i], usable[i].path_id))
-            return [usable[i] for i in order]
     usable.sort(key=lambda path: (path.one_way_delay(now), path.path_id))
     return usable
+
+
+def fastest_out(ranked: list[Path], now: float) -> list[Path]:
+    """``ranked`` ordered by the delay of our copies along each path (the reports' clocks: our
+    direction alone, report_clock.py; one peer clock, so one offset for all), then the lowest id,
+    while every path has a recent sample of it; else ``ranked`` as it is."""
+    if len(ranked) < 2:
+        return ranked
+    outbound = [path.delay.outbound(now, OUTBOUND_FRESH) for path in ranked]
+    if max(outbound) == math.inf:
+        return ranked
+    order = sorted(range(len(ranked)), key=lambda i: (outbound[i], ranked[i].path_id))
+    return [ranked[i] for i in order]
 
 
 class Scheduler:
@@ -139,6 +144,7 @@ class Scheduler:
             self._feedback(now)
         if not self.adaptive or len(ranked) < 2:
             return ranked
+        ranked = fastest_out(ranked, now)
         best = ranked[0]
         if self._alone(best, now):
             if self._alone_path != best.path_id:
