@@ -54,7 +54,8 @@ def test_a_crashed_labs_namespaces_and_processes_are_swept_by_the_next_lab() -> 
     tests = str(Path(__file__).resolve().parent)
     crashing = (
         f"import sys,time; sys.path.insert(0, {tests!r}); from netlab import NetLab\n"
-        "lab = NetLab('tdtptest'); lab.add('x'); lab.spawn('x', 'sleep', '60')\n"
+        "lab = NetLab('tdtptest'); lab.add('x')\n"
+        "inside = lab.spawn('x', 'sh', '-c', 'echo in; exec sleep 60'); inside.stdout.readline()\n"
         "print(lab.name('x'), flush=True); time.sleep(60)\n"
     )
     owner = subprocess.Popen([sys.executable, "-c", crashing], stdout=subprocess.PIPE, text=True)
