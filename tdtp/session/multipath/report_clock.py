@@ -22,7 +22,9 @@ tolerance for HOLD's rounding and drift) and its queue is at most the round trip
 Others are not used (``MultipathStats.report_clocks_rejected``); after
 :data:`~tdtp.session.one_way.RESET_AFTER` in a row the base starts over (the peer's clock jumped).
 Keyed, reports are authenticated; unkeyed, a forger who read the nonce can mislead a path's
-controller as it can with the report's other fields (section 5.11).
+controller as it can with the report's other fields (section 5.11), and adaptive's choice of its
+lone path (which compares the paths by these samples), within the bounds above: a path made to look
+at most its smallest round trip faster, which the stall test then judges like any other.
 """
 
 from __future__ import annotations
