@@ -14,10 +14,12 @@ from test_multipath import running, silences, two_paths
 from tdtp.session.multipath.congestion import STALL_PROBE
 from tdtp.session.multipath.paths import Multipath
 from tdtp.session.multipath.report_clock import PathDelay
+from tdtp.session.multipath.scheduler import OUTBOUND_FRESH, fastest_out, rank
 from tdtp.session.one_way import RESET_AFTER, PeerClock
 from tdtp.wire import HEADER_SIZE, ControlCode
 
 from multipath_pair import MultipathPair, PathLink
+from pair import Direction
 
 
 def _queue_growing_to(cap: float, per_datagram: float = 0.0005) -> Callable[[int], float]:
@@ -148,6 +150,30 @@ def test_a_report_clock_beyond_the_round_trip_is_not_used() -> None:
     assert path.sent_data - sent > 0.97 * 2000
 
 
+def test_adaptive_takes_the_path_whose_way_out_is_fastest() -> None:
+    """Path 0 is 10 ms each way; path 1 is 8 ms out and 30 ms back. By round trips path 0 is the
+    better (half of 20 ms and the peer's 2 ms lag against half of 38 ms), but our samples cross
+    path 1 faster, and the reports' clocks say so: adaptive sends them there alone."""
+    links = [
+        PathLink(Direction(delay=0.010), Direction(delay=0.010)),
+        PathLink(Direction(delay=0.008), Direction(delay=0.030)),
+    ]
+    pair = running(links, "adaptive", warmup=1.5)
+    paths = pair.master.conn.multipath
+    assert paths is not None
+    carried = [link.carried_ms for link in links]
+    pair.run_for(1.5)
+    extra = [link.carried_ms - c for link, c in zip(links, carried, strict=True)]
+    assert extra[0] < 0.3 * extra[1]
+    # (Acknowledgements and control messages still go by the round trips.)
+    ranked = rank(list(paths.paths.values()), pair.now)
+    assert [path.path_id for path in ranked] == [0, 1]
+    assert [path.path_id for path in fastest_out(ranked, pair.now)] == [1, 0]
+    # Without a recent sample of every path's own direction, the round trips decide again.
+    later = pair.now + OUTBOUND_FRESH + 0.1
+    assert [path.path_id for path in fastest_out(ranked, later)] == [0, 1]
+
+
 # --------------------------------------------------------------------------- the pieces
 
 
@@ -162,9 +188,12 @@ def test_the_report_clock_unwraps_forward_and_back() -> None:
 def test_path_delay_bounds_and_restart() -> None:
     delay = PathDelay()
     assert delay.base == math.inf
+    assert delay.outbound(0.0, OUTBOUND_FRESH) == math.inf
     assert delay.take(1.000, echo=0.040, min_rtt=0.040, now=0.0)
     assert delay.take(1.010, echo=0.050, min_rtt=0.040, now=0.1)
     assert delay.queue == pytest.approx(0.125 * 0.010)
+    assert delay.outbound(0.1, OUTBOUND_FRESH) == pytest.approx(1.000 + 0.125 * 0.010)
+    assert delay.outbound(0.1 + OUTBOUND_FRESH + 0.01, OUTBOUND_FRESH) == math.inf
     # Below the base by more than the smallest round trip plus 2 ms: no real sample is.
     assert not delay.take(0.950, echo=0.040, min_rtt=0.040, now=0.2)
     # A queue longer than the round trip it came with: neither.

@@ -22,7 +22,9 @@ tolerance for HOLD's rounding and drift) and its queue is at most the round trip
 Others are not used (``MultipathStats.report_clocks_rejected``); after
 :data:`~tdtp.session.one_way.RESET_AFTER` in a row the base starts over (the peer's clock jumped).
 Keyed, reports are authenticated; unkeyed, a forger who read the nonce can mislead a path's
-controller as it can with the report's other fields (section 5.11).
+controller as it can with the report's other fields (section 5.11), and adaptive's choice of its
+lone path (which compares the paths by these samples), within the bounds above: a path made to look
+at most its smallest round trip faster, which the stall test then judges like any other.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ class PathDelay:
     """One path's outbound delay samples: their base, the queue above it, and the bounds a real
     sample respects."""
 
-    __slots__ = ("_base", "_rejected_run", "queue", "rejected", "samples")
+    __slots__ = ("_base", "_rejected_run", "at", "queue", "rejected", "samples")
 
     def __init__(self) -> None:
         self._base = WindowMin(BASE_WINDOW)
@@ -49,6 +51,17 @@ class PathDelay:
         """Our copies' queue on their way along the path, seconds (moving average)."""
         self.samples = 0
         self.rejected = 0
+        self.at = -math.inf
+        """When the last sample was used."""
+
+    def outbound(self, now: float, fresh: float) -> float:
+        """Our copies' recent delay along the path plus the clocks' offset (the base plus the
+        queue above it), if a sample was used within ``fresh`` seconds; ``inf`` otherwise. The
+        offset is the same on every path (one peer clock), so the paths compare by it."""
+        base = self._base.value
+        if now - self.at > fresh or base == math.inf:
+            return math.inf
+        return base + self.queue
 
     @property
     def base(self) -> float:
@@ -71,6 +84,7 @@ class PathDelay:
                 return False
         self._rejected_run = 0
         self._base.add(now, delay)
+        self.at = now
         self.samples += 1
         self.queue += QUEUE_GAIN * (delay - self._base.value - self.queue)
         return True

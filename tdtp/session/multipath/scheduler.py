@@ -4,7 +4,9 @@
   at the receiver, so a sample is as late as the fastest path made it and lost only if every path lost
   it.
 * ``adaptive``: the best path alone while it behaves, every usable path while it does not (the 5G
-  study's partial duplication). The best path is the one with the lowest one-way delay estimate. It
+  study's partial duplication). The best path here is the one whose copies take the least time to
+  the peer (the reports' clocks, our direction alone; :func:`rank`'s order until every path has such
+  a sample). It
   *behaves* while its recent loss is at most ``loss_bound``, its recent one-way delay is within
   ``delay_bound`` of the lowest it has shown, and the samples it carried are acknowledged in time: the
   newest of the samples it carried alone that was acknowledged left no longer ago than such a
@@ -49,11 +51,28 @@ AGE_GAIN: Final = 0.25
 """Gain of their deviations (RFC 6298's beta)."""
 
 
+OUTBOUND_FRESH: Final = 1.0
+"""Seconds a path's last delay sample from the reports' clocks stays good for ranking it."""
+
+
 def rank(paths: list[Path], now: float) -> list[Path]:
     """The usable paths, best (lowest one-way delay estimate, then lowest id) first."""
     usable = [path for path in paths if path.usable]
     usable.sort(key=lambda path: (path.one_way_delay(now), path.path_id))
     return usable
+
+
+def fastest_out(ranked: list[Path], now: float) -> list[Path]:
+    """``ranked`` ordered by the delay of our copies along each path (the reports' clocks: our
+    direction alone, report_clock.py; one peer clock, so one offset for all), then the lowest id,
+    while every path has a recent sample of it; else ``ranked`` as it is."""
+    if len(ranked) < 2:
+        return ranked
+    outbound = [path.delay.outbound(now, OUTBOUND_FRESH) for path in ranked]
+    if max(outbound) == math.inf:
+        return ranked
+    order = sorted(range(len(ranked)), key=lambda i: (outbound[i], ranked[i].path_id))
+    return [ranked[i] for i in order]
 
 
 class Scheduler:
@@ -125,6 +144,7 @@ class Scheduler:
             self._feedback(now)
         if not self.adaptive or len(ranked) < 2:
             return ranked
+        ranked = fastest_out(ranked, now)
         best = ranked[0]
         if self._alone(best, now):
             if self._alone_path != best.path_id:
