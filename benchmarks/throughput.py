@@ -67,7 +67,6 @@ library was before the compiled core (the 2026-11-21 run: 0.385 one way, 0.298 b
 from __future__ import annotations
 
 import asyncio
-import functools
 import math
 import os
 import sys
@@ -476,15 +475,10 @@ def main(argv: list[str] | None = None) -> int:
         print("uvloop is not installed: skipping its variants", file=sys.stderr)
         variants = [v for v in variants if VARIANTS[v][1] != "uvloop"]
     warmup = min(WARMUP, args.seconds)
-    runs: dict[str, list[Json]] = {v: [] for v in variants}
     retrier = common.Retrier(args.repeat)
-    for rep in range(args.repeat):
-        for variant in variants:
-            label = f"rep {rep + 1}/{args.repeat}: {LABELS[variant]}"
-            print(f"{label} ...", file=sys.stderr, flush=True)
-            runs[variant].append(
-                retrier.run(label, functools.partial(run_pair, variant, args.seconds, warmup))
-            )
+    runs = retrier.interleaved(
+        args.repeat, variants, LABELS.__getitem__, lambda v: run_pair(v, args.seconds, warmup)
+    )
     profiles: Json = {}
     if args.profile and "tdtp-uvloop" in VARIANTS and common.have_uvloop():
         print("profiling tdtp uvloop ...", file=sys.stderr, flush=True)
