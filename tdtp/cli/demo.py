@@ -34,8 +34,7 @@ from tdtp.cli.options import (
     session_config,
     side_deadband,
 )
-from tdtp.cli.outcome import Outcome, Side, header_line, settings_report
-from tdtp.cli.paths_report import continuity
+from tdtp.cli.outcome import Outcome, Side, direction_summary, header_line, settings_report
 from tdtp.cli.session_tasks import (
     _settle,
     _with_display,
@@ -45,7 +44,7 @@ from tdtp.cli.session_tasks import (
     silence_note,
     watchdog_logger,
 )
-from tdtp.cli.summary import direction_report, srtt_text
+from tdtp.cli.summary import srtt_text
 from tdtp.config import ConnectionConfig
 
 
@@ -168,30 +167,20 @@ async def _demo(
                 "command": "demo",
                 "duration_s": round(spent, 3),
                 **settings_report(args, master),
-                "master_to_slave": direction_report(
-                    sender=master.stats,
-                    receiver=slave.stats,
+                "master_to_slave": direction_summary(
+                    sender=master,
+                    receiver=slave,
+                    receiving=slave_side,
                     observed_at=both,
                     duration=spent,
-                    latency=slave_side.latency_counts(),
-                )
-                | continuity(
-                    sender=master,
-                    receiver=slave.stats,
-                    counter=slave_side.continuity,
                     end=start + spent,
                 ),
-                "slave_to_master": direction_report(
-                    sender=slave.stats,
-                    receiver=master.stats,
+                "slave_to_master": direction_summary(
+                    sender=slave,
+                    receiver=master,
+                    receiving=master_side,
                     observed_at=both,
                     duration=spent,
-                    latency=master_side.latency_counts(),
-                )
-                | continuity(
-                    sender=slave,
-                    receiver=master.stats,
-                    counter=master_side.continuity,
                     end=start + spent,
                 ),
             }
