@@ -119,26 +119,20 @@ async def _demo(
         def show(interval: float) -> None:
             assert display is not None
             lines = [f"t={monotonic() - start:6.1f} s"]
-            lines.append(
-                meters[0].line(
-                    master.stats,
-                    slave.stats.received.data_packets,
-                    interval,
-                    slave_side.latency.take_window(),
-                    silence_note(slave, "slave"),
-                    receiver=slave.stats,
+            for meter, sender, receiver, receiving in (
+                (meters[0], master, slave, slave_side),
+                (meters[1], slave, master, master_side),
+            ):
+                lines.append(
+                    meter.line(
+                        sender.stats,
+                        receiver.stats.received.data_packets,
+                        interval,
+                        receiving.latency.take_window(),
+                        silence_note(receiver, receiving.name),
+                        receiver=receiver.stats,
+                    )
                 )
-            )
-            lines.append(
-                meters[1].line(
-                    slave.stats,
-                    master.stats.received.data_packets,
-                    interval,
-                    master_side.latency.take_window(),
-                    silence_note(master, "master"),
-                    receiver=master.stats,
-                )
-            )
             bands = [
                 (label, side.deadband)
                 for label, side in (("M->S", master_side), ("S->M", slave_side))
