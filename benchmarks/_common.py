@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import datetime
+import functools
 import importlib.metadata
 import json
 import math
@@ -329,6 +330,24 @@ class Retrier:
                 f"  {label}: other tenants used {others:.0f} % of a core: contended, run again",
                 file=sys.stderr,
             )
+
+    def interleaved(
+        self,
+        repeat: int,
+        variants: Sequence[str],
+        label: Callable[[str], str],
+        run: Callable[[str], Json],
+    ) -> dict[str, list[Json]]:
+        """``run(variant)`` ``repeat`` times for every variant, interleaved (each variant's first
+        run, then each one's second...) so that a neighbour's burst of load falls on all of them
+        alike, each through :meth:`run`. Says on stderr which run starts (``label(variant)``)."""
+        runs: dict[str, list[Json]] = {v: [] for v in variants}
+        for rep in range(repeat):
+            for variant in variants:
+                name = f"rep {rep + 1}/{repeat}: {label(variant)}"
+                print(f"{name} ...", file=sys.stderr, flush=True)
+                runs[variant].append(self.run(name, functools.partial(run, variant)))
+        return runs
 
 
 def _enough(clean_count: int, total: int) -> bool:

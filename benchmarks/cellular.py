@@ -183,22 +183,13 @@ async def window(
 
 
 async def tdtp_real(controller: str, ms: str, sm: str, duration: float, seed: int) -> Json:
-    config = tdtp.ConnectionConfig(controller=controller, min_peer_payload=SIZE)  # type: ignore[arg-type]
-    at_slave, at_master = Meter(), Meter()
+    logs = (Meter(), Meter())
     async with contextlib.AsyncExitStack() as stack:
         origin = tdtp.monotonic()  # the links' traces start with the first datagrams, just after
-        master, slave = await paths.tdtp_pair(
-            stack,
-            config,
-            lambda e: at_slave.arrived(e.payload, e.received_at),
-            lambda e: at_master.arrived(e.payload, e.received_at),
-            ms=ms,
-            sm=sm,
-            seed=seed,
-        )
-        offered = await window((at_slave, at_master), (master.send, slave.send), duration)
+        master, slave = await paths.tdtp_pair(stack, controller, logs, ms=ms, sm=sm, seed=seed)
+        offered = await window(logs, (master.send, slave.send), duration)
         closed = master.is_closed or slave.is_closed
-    return {"logs": (at_slave, at_master), "offered": offered, "origin": origin, "closed": closed}
+    return {"logs": logs, "offered": offered, "origin": origin, "closed": closed}
 
 
 async def relayed(row: str, ms: str, sm: str, duration: float, seed: int) -> Json:

@@ -36,7 +36,6 @@ it: its endpoints run on the layer by default where the C engine is built).
 from __future__ import annotations
 
 import asyncio
-import functools
 import json
 import os
 import socket
@@ -417,15 +416,9 @@ def main(argv: list[str] | None = None) -> int:
         )
         if binary is None:
             variants = [v for v in variants if VARIANTS[v][0] not in C_IMPLS]
-        runs: dict[str, list[Json]] = {v: [] for v in variants}
-        retrier = common.Retrier(args.repeat)
-        for rep in range(args.repeat):
-            for variant in variants:
-                label = f"rep {rep + 1}/{args.repeat}: {LABELS[variant]}"
-                print(f"{label} ...", file=sys.stderr, flush=True)
-                runs[variant].append(
-                    retrier.run(label, functools.partial(run_pair, variant, args.seconds, binary))
-                )
+        runs = common.Retrier(args.repeat).interleaved(
+            args.repeat, variants, LABELS.__getitem__, lambda v: run_pair(v, args.seconds, binary)
+        )
     rows = build_rows(runs)
     others = max((r["others_percent"] for rs in runs.values() for r in rs), default=0.0)
     text = (

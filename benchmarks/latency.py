@@ -39,7 +39,6 @@ was before the compiled core (p50 1.897 x raw in the suite's run of 2026-11-21).
 from __future__ import annotations
 
 import asyncio
-import functools
 import math
 import os
 import struct
@@ -388,15 +387,12 @@ def main(argv: list[str] | None = None) -> int:
         print(missing, file=sys.stderr)
         return common.emit("latency", args, [], details={"skipped": missing}, text=missing)
     chosen = set(args.variants or VARIANTS) | {"raw-uvloop"}
-    runs: dict[str, list[Json]] = {v: [] for v in VARIANTS if v in chosen}
-    retrier = common.Retrier(args.repeat)
-    for rep in range(args.repeat):
-        for variant, results in runs.items():
-            label = f"rep {rep + 1}/{args.repeat}: {VARIANTS[variant]}"
-            print(f"{label} ...", file=sys.stderr)
-            results.append(
-                retrier.run(label, functools.partial(run_variant, variant, args.seconds))
-            )
+    runs = common.Retrier(args.repeat).interleaved(
+        args.repeat,
+        [v for v in VARIANTS if v in chosen],
+        VARIANTS.__getitem__,
+        lambda v: run_variant(v, args.seconds),
+    )
     rows: list[Row] = []
     if "tdtp-uvloop" in runs:
         tdtp_rows = rtt_rows(runs, "tdtp-uvloop", "raw-uvloop", "tdtp/raw", ("p50", "p99", "p999"))

@@ -298,24 +298,26 @@ def directions(meters: tuple[Meter, Meter], offered: list[int], duration: float)
 
 async def tdtp_pair(
     stack: contextlib.AsyncExitStack,
-    config: tdtp.ConnectionConfig,
-    on_slave: Callable[[tdtp.DataReceived], None],
-    on_master: Callable[[tdtp.DataReceived], None],
+    controller: str,
+    meters: tuple[Meter, Meter],
     *,
     ms: str | None,
     sm: str | None,
     seed: int,
     via: Callable[[int], Awaitable[int]] | None = None,
 ) -> tuple[tdtp.Endpoint, tdtp.Endpoint]:
-    """A master and a slave on loopback, on ``stack``: the slave impairs what it sends with ``sm``
+    """A master and a slave on loopback with ``controller``, on ``stack``, the samples each receives
+    counted by ``meters`` (the slave's, the master's): the slave impairs what it sends with ``sm``
     (seed + 1), the master with ``ms`` (seed); ``via(port)`` puts something in between (a relay) and
     returns the port the master is to reach."""
+    config = tdtp.ConnectionConfig(controller=controller, min_peer_payload=SIZE)  # type: ignore[arg-type]
+    at_slave, at_master = meters
     server = await stack.enter_async_context(
         tdtp.listen(
             "127.0.0.1",
             0,
             config=config,
-            on_data=on_slave,
+            on_data=lambda e: at_slave.arrived(e.payload, e.received_at),
             netem=sm,
             netem_seed=None if sm is None else seed + 1,
         )
@@ -326,7 +328,7 @@ async def tdtp_pair(
             "127.0.0.1",
             port,
             config=config,
-            on_data=on_master,
+            on_data=lambda e: at_master.arrived(e.payload, e.received_at),
             netem=ms,
             netem_seed=None if ms is None else seed,
         )
@@ -337,8 +339,7 @@ async def tdtp_pair(
 async def tdtp_cell(
     controller: str, spec: str | None, duration: float, seed: int, via_relay: bool
 ) -> Json:
-    config = tdtp.ConnectionConfig(controller=controller, min_peer_payload=SIZE)  # type: ignore[arg-type]
-    at_slave, at_master = Meter(), Meter()
+    meters = (Meter(), Meter())
     in_process = None if via_relay else spec
     async with contextlib.AsyncExitStack() as stack:
 
@@ -350,15 +351,13 @@ async def tdtp_cell(
 
         master, slave = await tdtp_pair(
             stack,
-            config,
-            lambda e: at_slave.arrived(e.payload, e.received_at),
-            lambda e: at_master.arrived(e.payload, e.received_at),
+            controller,
+            meters,
             ms=in_process,
             sm=in_process,
             seed=seed,
             via=through_relay if via_relay else None,
         )
-        meters = (at_slave, at_master)
 
         def running() -> bool:
             return not (master.is_closed or slave.is_closed)

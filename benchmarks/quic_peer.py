@@ -283,26 +283,10 @@ def quic_worker(
 
 
 def run_quic_pair(seconds: float, warmup: float, cert: bytes, key: bytes) -> Json:
-    args: Json = {"seconds": seconds, "warmup": warmup, "cert": cert, "key": key}
     others = common.OthersMeter()
-    server = common.start_worker("quic-rx", quic_worker, role="server", port=0, cpu_slot=1, **args)
-    client = None
-    try:
-        port = server.recv(30)["port"]
-        client = common.start_worker(
-            "quic-tx", quic_worker, role="client", port=port, cpu_slot=0, **args
-        )
-        budget = 30 + warmup + seconds
-        window = server.recv(budget)["window"]
-        client.recv(budget)
-        server.send({"stop": True})
-        client.send({"stop": True})
-        rx_final = server.recv(30)["final"]
-        tx_final = client.recv(30)["final"]
-    finally:
-        server.finish()
-        if client is not None:
-            client.finish()
+    (window, _), rx_final, tx_final = throughput.drive_pair(
+        "quic", quic_worker, seconds, warmup, cert=cert, key=key
+    )
     blast = tx_final["blast"]
     queued = 1.0 - blast["dropped_at_sender"] / blast["sent"] if blast["sent"] else 0.0
     return {

@@ -67,7 +67,6 @@ library was before the compiled core (the 2026-11-21 run: 0.385 one way, 0.298 b
 from __future__ import annotations
 
 import asyncio
-import functools
 import math
 import os
 import sys
@@ -378,35 +377,32 @@ def peer_worker(
 # ---------------------------------------------------------------------------- coordinator
 
 
-def run_pair(variant: str, seconds: float, warmup: float, profile: bool = False) -> Json:
-    impl, loop, both = VARIANTS[variant]
-    common_args: Json = {
-        "impl": impl,
-        "loop": loop,
-        "send_too": both,
-        "seconds": seconds,
-        "warmup": warmup,
-        "profile": profile,
-    }
-    pure = impl == "pure"
-    others = common.OthersMeter()
+def drive_pair(
+    name: str,
+    worker: common.Worker,
+    seconds: float,
+    warmup: float,
+    *,
+    pure: bool = False,
+    **args: Any,
+) -> tuple[tuple[Json, Json | None], Json, Json]:
+    """The coordinator's side of a measured pair: start ``worker`` as the receiving ``server`` (CPU
+    slot 1), then as the sending ``client`` (slot 0) at the port the server says it bound; wait for
+    each one's ``{"window": ...}`` (the server's always, the client's ``None`` unless it receives
+    too), stop both and collect their ``{"final": ...}`` reports. Returns the windows (server's,
+    client's) and the server's and client's final reports. ``args`` go to both workers, with ``seconds``/``warmup``."""
+    args |= {"seconds": seconds, "warmup": warmup}
     server = common.start_worker(
-        f"{variant}-rx", peer_worker, pure=pure, role="server", port=0, cpu_slot=1, **common_args
+        f"{name}-rx", worker, pure=pure, role="server", port=0, cpu_slot=1, **args
     )
     client = None
     try:
         port = server.recv(timeout=30)["port"]
         client = common.start_worker(
-            f"{variant}-tx",
-            peer_worker,
-            pure=pure,
-            role="client",
-            port=port,
-            cpu_slot=0,
-            **common_args,
+            f"{name}-tx", worker, pure=pure, role="client", port=port, cpu_slot=0, **args
         )
         budget = 30 + warmup + seconds
-        windows = [server.recv(budget)["window"], client.recv(budget)["window"]]
+        windows = (server.recv(budget)["window"], client.recv(budget)["window"])
         server.send({"stop": True})
         client.send({"stop": True})
         rx_final = server.recv(30)["final"]
@@ -415,6 +411,24 @@ def run_pair(variant: str, seconds: float, warmup: float, profile: bool = False)
         server.finish()
         if client is not None:
             client.finish()
+    return windows, rx_final, tx_final
+
+
+def run_pair(variant: str, seconds: float, warmup: float, profile: bool = False) -> Json:
+    impl, loop, both = VARIANTS[variant]
+    pure = impl == "pure"
+    others = common.OthersMeter()
+    windows, rx_final, tx_final = drive_pair(
+        variant,
+        peer_worker,
+        seconds,
+        warmup,
+        pure=pure,
+        impl=impl,
+        loop=loop,
+        send_too=both,
+        profile=profile,
+    )
     builds = {rx_final["build"], tx_final["build"]}
     expected = "pure" if pure else None
     if expected is not None and builds != {expected}:
@@ -476,15 +490,10 @@ def main(argv: list[str] | None = None) -> int:
         print("uvloop is not installed: skipping its variants", file=sys.stderr)
         variants = [v for v in variants if VARIANTS[v][1] != "uvloop"]
     warmup = min(WARMUP, args.seconds)
-    runs: dict[str, list[Json]] = {v: [] for v in variants}
     retrier = common.Retrier(args.repeat)
-    for rep in range(args.repeat):
-        for variant in variants:
-            label = f"rep {rep + 1}/{args.repeat}: {LABELS[variant]}"
-            print(f"{label} ...", file=sys.stderr, flush=True)
-            runs[variant].append(
-                retrier.run(label, functools.partial(run_pair, variant, args.seconds, warmup))
-            )
+    runs = retrier.interleaved(
+        args.repeat, variants, LABELS.__getitem__, lambda v: run_pair(v, args.seconds, warmup)
+    )
     profiles: Json = {}
     if args.profile and "tdtp-uvloop" in VARIANTS and common.have_uvloop():
         print("profiling tdtp uvloop ...", file=sys.stderr, flush=True)

@@ -23,6 +23,7 @@ import asyncio
 import contextlib
 import math
 import multiprocessing.connection
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -82,6 +83,49 @@ async def _warm_up_then_start(
     return start_at, duration
 
 
+Vector = tuple[float, float, float]
+Tick = tuple[Vector, Vector, tuple[float, ...]]
+"""What a side's step returns each tick: the position and force it sends, and its log row between
+the time and the age columns."""
+
+
+async def _control_loop(
+    conn: multiprocessing.connection.Connection,
+    channel: Channel,
+    duration: float,
+    columns: tuple[str, ...],
+    step: Callable[[int, HapticSample | None], Tick],
+) -> None:
+    """One side's 1 kHz loop for ``duration`` s: at every tick read the newest sample the peer sent
+    (``None`` if there is none or it does not decode), let ``step`` act on it, send what it returns and
+    log the tick (``columns``: time, the step's row, the newest sample's age); then report the log,
+    the packet count and the transport's details to the parent and close the channel."""
+    ticks = round(duration / TICK)
+    log = np.full((ticks, len(columns)), math.nan)
+    sent_before = channel.packets_sent()
+    n = 0
+    async for tick in tdtp.Ticker(round(1 / TICK)):
+        if tick >= ticks:
+            break
+        now = tdtp.monotonic()
+        payload = channel.latest()
+        newest = HapticSample.decode(payload) if payload is not None else None
+        age = now - newest.sent_at if newest is not None else math.nan
+        position, force, row = step(tick, newest)
+        _send(channel, HapticSample(tdtp.monotonic(), tick, position, force).encode(FRAME))
+        log[n] = (now, *row, age)
+        n += 1
+    sent_after = channel.packets_sent()
+    conn.send(
+        {
+            "log": log[:n],
+            "packets_sent": _delta(sent_before, sent_after),
+            "details": channel.details(),
+        }
+    )
+    await channel.close()
+
+
 def slave(
     conn: multiprocessing.connection.Connection,
     transport: str,
@@ -99,35 +143,18 @@ def slave(
         arm = Arm()
         rest = HapticSample(0.0, 0, (*arm.tip(), 0.0), (0.0, 0.0, 0.0))
         _, duration = await _warm_up_then_start(conn, channel, rest)
-        ticks = round(duration / TICK)
-        log = np.full((ticks, len(SLAVE_COLUMNS)), math.nan)
-        sent_before = channel.packets_sent()
         command = REST
-        n = 0
-        async for tick in tdtp.Ticker(round(1 / TICK)):
-            if tick >= ticks:
-                break
-            now = tdtp.monotonic()
-            age = math.nan
-            payload = channel.latest()
-            if payload is not None and (sample := HapticSample.decode(payload)) is not None:
-                command = (sample.position[0], sample.position[1])
-                age = now - sample.sent_at
+
+        def step(tick: int, newest: HapticSample | None) -> Tick:
+            nonlocal command
+            if newest is not None:
+                command = (newest.position[0], newest.position[1])
             arm.tick(command)
             (x, y), (vx, vy), (fx, fy) = arm.tip(), arm.tip_velocity(), arm.contact_force()
-            out = HapticSample(tdtp.monotonic(), tick, (x, y, 0.0), (fx, fy, 0.0))
-            _send(channel, out.encode(FRAME))
-            log[n] = (now, command[0], command[1], x, y, vx, vy, fx, fy, arm.penetration(), age)
-            n += 1
-        sent_after = channel.packets_sent()
-        conn.send(
-            {
-                "log": log[:n],
-                "packets_sent": _delta(sent_before, sent_after),
-                "details": channel.details(),
-            }
-        )
-        await channel.close()
+            row = (command[0], command[1], x, y, vx, vy, fx, fy, arm.penetration())
+            return (x, y, 0.0), (fx, fy, 0.0), row
+
+        await _control_loop(conn, channel, duration, SLAVE_COLUMNS, step)
 
     _run(loop, main())
 
@@ -149,36 +176,17 @@ def master(
         rest = HapticSample(0.0, 0, (*REST, 0.0), (0.0, 0.0, 0.0))
         _, duration = await _warm_up_then_start(conn, channel, rest)
         operator = Operator(ReferenceMotion(motion_seed, duration))
-        ticks = round(duration / TICK)
-        log = np.full((ticks, len(MASTER_COLUMNS)), math.nan)
-        sent_before = channel.packets_sent()
         force = (0.0, 0.0)
-        n = 0
-        async for tick in tdtp.Ticker(round(1 / TICK)):
-            if tick >= ticks:
-                break
-            now = tdtp.monotonic()
-            age = math.nan
-            payload = channel.latest()
-            if payload is not None and (sample := HapticSample.decode(payload)) is not None:
-                force = (sample.force[0], sample.force[1])
-                age = now - sample.sent_at
+
+        def step(tick: int, newest: HapticSample | None) -> Tick:
+            nonlocal force
+            if newest is not None:
+                force = (newest.force[0], newest.force[1])
             x, y = operator.step(tick * TICK, force)
-            out = HapticSample(tdtp.monotonic(), tick, (x, y, 0.0), (0.0, 0.0, 0.0))
-            _send(channel, out.encode(FRAME))
-            vx, vy = operator.velocity
-            fx, fy = operator.rendered
-            log[n] = (now, x, y, vx, vy, fx, fy, age)
-            n += 1
-        sent_after = channel.packets_sent()
-        conn.send(
-            {
-                "log": log[:n],
-                "packets_sent": _delta(sent_before, sent_after),
-                "details": channel.details(),
-            }
-        )
-        await channel.close()
+            (vx, vy), (fx, fy) = operator.velocity, operator.rendered
+            return (x, y, 0.0), (0.0, 0.0, 0.0), (x, y, vx, vy, fx, fy)
+
+        await _control_loop(conn, channel, duration, MASTER_COLUMNS, step)
 
     _run(loop, main())
 

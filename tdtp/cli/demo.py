@@ -34,8 +34,7 @@ from tdtp.cli.options import (
     session_config,
     side_deadband,
 )
-from tdtp.cli.outcome import Outcome, Side, header_line, settings_report
-from tdtp.cli.paths_report import continuity
+from tdtp.cli.outcome import Outcome, Side, direction_summary, header_line, settings_report
 from tdtp.cli.session_tasks import (
     _settle,
     _with_display,
@@ -45,7 +44,7 @@ from tdtp.cli.session_tasks import (
     silence_note,
     watchdog_logger,
 )
-from tdtp.cli.summary import direction_report, srtt_text
+from tdtp.cli.summary import srtt_text
 from tdtp.config import ConnectionConfig
 
 
@@ -120,26 +119,20 @@ async def _demo(
         def show(interval: float) -> None:
             assert display is not None
             lines = [f"t={monotonic() - start:6.1f} s"]
-            lines.append(
-                meters[0].line(
-                    master.stats,
-                    slave.stats.received.data_packets,
-                    interval,
-                    slave_side.latency.take_window(),
-                    silence_note(slave, "slave"),
-                    receiver=slave.stats,
+            for meter, sender, receiver, receiving in (
+                (meters[0], master, slave, slave_side),
+                (meters[1], slave, master, master_side),
+            ):
+                lines.append(
+                    meter.line(
+                        sender.stats,
+                        receiver.stats.received.data_packets,
+                        interval,
+                        receiving.latency.take_window(),
+                        silence_note(receiver, receiving.name),
+                        receiver=receiver.stats,
+                    )
                 )
-            )
-            lines.append(
-                meters[1].line(
-                    slave.stats,
-                    master.stats.received.data_packets,
-                    interval,
-                    master_side.latency.take_window(),
-                    silence_note(master, "master"),
-                    receiver=master.stats,
-                )
-            )
             bands = [
                 (label, side.deadband)
                 for label, side in (("M->S", master_side), ("S->M", slave_side))
@@ -168,30 +161,20 @@ async def _demo(
                 "command": "demo",
                 "duration_s": round(spent, 3),
                 **settings_report(args, master),
-                "master_to_slave": direction_report(
-                    sender=master.stats,
-                    receiver=slave.stats,
+                "master_to_slave": direction_summary(
+                    sender=master,
+                    receiver=slave,
+                    receiving=slave_side,
                     observed_at=both,
                     duration=spent,
-                    latency=slave_side.latency_counts(),
-                )
-                | continuity(
-                    sender=master,
-                    receiver=slave.stats,
-                    counter=slave_side.continuity,
                     end=start + spent,
                 ),
-                "slave_to_master": direction_report(
-                    sender=slave.stats,
-                    receiver=master.stats,
+                "slave_to_master": direction_summary(
+                    sender=slave,
+                    receiver=master,
+                    receiving=master_side,
                     observed_at=both,
                     duration=spent,
-                    latency=master_side.latency_counts(),
-                )
-                | continuity(
-                    sender=slave,
-                    receiver=master.stats,
-                    counter=master_side.continuity,
                     end=start + spent,
                 ),
             }

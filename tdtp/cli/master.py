@@ -33,10 +33,10 @@ from tdtp.cli.outcome import (
     Outcome,
     Side,
     close_info,
+    direction_summary,
     header_line,
     settings_report,
 )
-from tdtp.cli.paths_report import continuity
 from tdtp.cli.session_tasks import (
     _with_display,
     every_second,
@@ -47,7 +47,6 @@ from tdtp.cli.session_tasks import (
     silence_note,
     watchdog_logger,
 )
-from tdtp.cli.summary import direction_report
 from tdtp.config import Role
 from tdtp.session.events import CloseCause
 
@@ -199,23 +198,21 @@ async def _session(
             "command": "master",
             "duration_s": round(elapsed, 3),
             **settings_report(args, ep),
-            "master_to_slave": direction_report(
-                sender=ep.stats,
+            "master_to_slave": direction_summary(
+                sender=ep,
                 receiver=None,
+                receiving=None,
                 observed_at=["master"],
                 duration=elapsed,
-                latency=None,
-            )
-            | continuity(sender=ep, receiver=None, counter=None, end=start + elapsed),
-            "slave_to_master": direction_report(
+                end=start + elapsed,
+            ),
+            "slave_to_master": direction_summary(
                 sender=None,
-                receiver=ep.stats,
+                receiver=ep,
+                receiving=side,
                 observed_at=["master"],
                 duration=elapsed,
-                latency=side.latency_counts(),
-            )
-            | continuity(
-                sender=None, receiver=ep.stats, counter=side.continuity, end=start + elapsed
+                end=start + elapsed,
             ),
             "samples_received": side.received,
             "reconnects": reconnect_report(ep, start),

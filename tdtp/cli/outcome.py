@@ -15,8 +15,8 @@ from tdtp.cli.live_stats import (
     LatencyRecorder,
 )
 from tdtp.cli.options import netem_directions
-from tdtp.cli.paths_report import DropoutCounter
-from tdtp.cli.summary import LatencyCounts
+from tdtp.cli.paths_report import DropoutCounter, continuity
+from tdtp.cli.summary import LatencyCounts, direction_report
 from tdtp.session.events import DataReceived
 from tdtp.teleop.deadband import DeadbandSender
 from tdtp.teleop.haptic_sample import HapticSample
@@ -94,6 +94,34 @@ class Outcome:
     failure: str | None = None
     terminated: bool = False
     """SIGTERM stopped the run (exit status 143)."""
+
+
+def direction_summary(
+    *,
+    sender: Endpoint | None,
+    receiver: Endpoint | None,
+    receiving: Side | None,
+    observed_at: list[str],
+    duration: float,
+    end: float,
+) -> dict[str, Any]:
+    """One direction's entry in ``--json``: its sending and receiving ends' views (``None``: that end
+    is not in this process; :func:`~tdtp.cli.summary.direction_report`), the latency and the dropouts
+    up to ``end`` the receiving application (``receiving``) saw, and the sender's paths
+    (:func:`~tdtp.cli.paths_report.continuity`)."""
+    received = None if receiver is None else receiver.stats
+    return direction_report(
+        sender=None if sender is None else sender.stats,
+        receiver=received,
+        observed_at=observed_at,
+        duration=duration,
+        latency=None if receiving is None else receiving.latency_counts(),
+    ) | continuity(
+        sender=sender,
+        receiver=received,
+        counter=None if receiving is None else receiving.continuity,
+        end=end,
+    )
 
 
 def header_line(args: argparse.Namespace, ep: Endpoint) -> str:

@@ -34,8 +34,7 @@ from tdtp.cli.options import (
     session_config,
     side_deadband,
 )
-from tdtp.cli.outcome import EXIT_FAILED, Outcome, Side, close_info
-from tdtp.cli.paths_report import continuity
+from tdtp.cli.outcome import EXIT_FAILED, Outcome, Side, close_info, direction_summary
 from tdtp.cli.session_tasks import (
     _with_display,
     every_second,
@@ -45,7 +44,6 @@ from tdtp.cli.session_tasks import (
     silence_note,
     watchdog_logger,
 )
-from tdtp.cli.summary import direction_report
 from tdtp.config import Role
 from tdtp.session.events import CloseCause
 
@@ -205,23 +203,22 @@ def _session(ep: Endpoint, side: Side | None) -> dict[str, Any]:
         "longest_silence_s": round(ep.stats.longest_silence, 3),
         "close": close_info(ep),
         "task_error": side.task_error if side is not None else None,
-        "master_to_slave": direction_report(
+        "master_to_slave": direction_summary(
             sender=None,
-            receiver=ep.stats,
+            receiver=ep,
+            receiving=side,
             observed_at=["slave"],
             duration=duration,
-            latency=side.latency_counts() if side is not None else None,
-        )
-        | continuity(
-            sender=None,
-            receiver=ep.stats,
-            counter=side.continuity if side is not None else None,
             end=monotonic(),
         ),
-        "slave_to_master": direction_report(
-            sender=ep.stats, receiver=None, observed_at=["slave"], duration=duration, latency=None
-        )
-        | continuity(sender=ep, receiver=None, counter=None, end=monotonic()),
+        "slave_to_master": direction_summary(
+            sender=ep,
+            receiver=None,
+            receiving=None,
+            observed_at=["slave"],
+            duration=duration,
+            end=monotonic(),
+        ),
     }
     if side is not None and side.deadband is not None:
         session["slave_to_master"]["deadband"] = side.deadband_report("N")

@@ -25,7 +25,7 @@ import time
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
-from typing import Any, Final, Literal
+from typing import Any, ClassVar, Final, Literal
 
 from tdtp.config import AckMode
 from tdtp.control import TfrcConfig, TrinomialConfig
@@ -421,6 +421,7 @@ class ReadingSummary:
 class PaperStudy(ScenarioResult):
     """The paper scenario under several readings, each over several seeds."""
 
+    scenario: ClassVar[str] = "paper"
     params: dict[str, Any]
     readings: dict[str, ReadingSummary]
     records: list[RunRecord] = field(default_factory=list)
@@ -443,12 +444,9 @@ class PaperStudy(ScenarioResult):
             out[name] = per
         return json_safe(out)  # type: ignore[no-any-return]
 
-    def to_dict(self) -> dict[str, Any]:
-        """The study as plain data: the reading, each scheme's figures and the ratios."""
+    def details(self) -> dict[str, Any]:
+        """Each reading's figures per scheme and ratios, and every run's record."""
         return {
-            "scenario": "paper",
-            "params": self.params,
-            "headline": self.headline(),
             "readings": {k: r.to_dict() for k, r in self.readings.items()},
             "runs": [r.to_dict() for r in self.records],
         }
@@ -630,6 +628,7 @@ class LockoutOutcome:
 
 @dataclass
 class LockoutStudy(ScenarioResult):
+    scenario: ClassVar[str] = "lockout"
     params: dict[str, Any]
     outcomes: list[LockoutOutcome]
     traces: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -673,13 +672,10 @@ class LockoutStudy(ScenarioResult):
             }
         return json_safe(out)  # type: ignore[no-any-return]
 
-    def to_dict(self) -> dict[str, Any]:
-        """The study as plain data: per-seed figures and their medians with intervals."""
+    def details(self) -> dict[str, Any]:
+        """Per controller its medians with intervals, the per-seed figures and the traces."""
         return {
-            "scenario": "lockout",
-            "params": self.params,
             "controllers": self.by_controller(),
-            "headline": self.headline(),
             "outcomes": [o.to_dict() for o in self.outcomes],
             "traces": self.traces,
         }

@@ -5,7 +5,7 @@ from __future__ import annotations
 import random
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from tdtp.sim.endpoints import CbrSource, TdtpSession
 from tdtp.sim.engine import Network
@@ -54,6 +54,7 @@ class BestEffortRun:
 
 @dataclass
 class BestEffortResult(ScenarioResult):
+    scenario: ClassVar[str] = "best-effort"
     params: dict[str, Any]
     runs: list[BestEffortRun]
 
@@ -73,13 +74,8 @@ class BestEffortResult(ScenarioResult):
             }
         )
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "scenario": "best-effort",
-            "params": self.params,
-            "headline": self.headline(),
-            "runs": [asdict(r) for r in self.runs],
-        }
+    def details(self) -> dict[str, Any]:
+        return {"runs": [asdict(r) for r in self.runs]}
 
 
 def best_effort(

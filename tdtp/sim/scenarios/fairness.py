@@ -6,7 +6,7 @@ import math
 import random
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from tdtp.sim.endpoints import TdtpSession
 from tdtp.sim.engine import Network
@@ -50,6 +50,7 @@ class FairnessRun:
 
 @dataclass
 class FairnessResult(ScenarioResult):
+    scenario: ClassVar[str] = "fairness"
     params: dict[str, Any]
     runs: list[FairnessRun]
 
@@ -64,13 +65,8 @@ class FairnessResult(ScenarioResult):
             }
         return json_safe(out)  # type: ignore[no-any-return]
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "scenario": "fairness",
-            "params": self.params,
-            "headline": self.headline(),
-            "runs": [asdict(r) for r in self.runs],
-        }
+    def details(self) -> dict[str, Any]:
+        return {"runs": [asdict(r) for r in self.runs]}
 
 
 def fairness(

@@ -6,7 +6,7 @@ import math
 import random
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from tdtp.control.equations import tcp_friendly_rate
 from tdtp.errors import InvalidArgumentError
@@ -65,6 +65,7 @@ class FriendlinessCase:
 
 @dataclass
 class FriendlinessResult(ScenarioResult):
+    scenario: ClassVar[str] = "friendliness"
     params: dict[str, Any]
     cases: list[FriendlinessCase]
 
@@ -87,13 +88,8 @@ class FriendlinessResult(ScenarioResult):
             }
         return json_safe(out)  # type: ignore[no-any-return]
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "scenario": "friendliness",
-            "params": self.params,
-            "headline": self.headline(),
-            "cases": [asdict(c) for c in self.cases],
-        }
+    def details(self) -> dict[str, Any]:
+        return {"cases": [asdict(c) for c in self.cases]}
 
 
 def friendliness(

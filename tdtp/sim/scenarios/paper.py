@@ -6,7 +6,7 @@ import math
 import random
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Final
+from typing import Any, ClassVar, Final
 
 from tdtp.sim.endpoints import TdtpSession
 from tdtp.sim.engine import Network, describe
@@ -143,6 +143,7 @@ class PaperRun(ScenarioResult):
 
 @dataclass
 class PaperResult(ScenarioResult):
+    scenario: ClassVar[str] = "paper"
     params: dict[str, Any]
     runs: dict[str, PaperRun]
     ratios: dict[str, dict[str, dict[str, float]]]
@@ -179,14 +180,8 @@ class PaperResult(ScenarioResult):
         }
         return json_safe(out)  # type: ignore[no-any-return]
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "scenario": "paper",
-            "params": self.params,
-            "headline": self.headline(),
-            "ratios": self.ratios,
-            "runs": {k: r.to_dict() for k, r in self.runs.items()},
-        }
+    def details(self) -> dict[str, Any]:
+        return {"ratios": self.ratios, "runs": {k: r.to_dict() for k, r in self.runs.items()}}
 
 
 def paper(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 
 def _finite(value: float) -> float | None:
@@ -23,7 +23,24 @@ def json_safe(data: Any) -> Any:
 
 
 class ScenarioResult:
+    """A scenario's result. As plain data (:meth:`to_dict`) every one leads with the same three keys:
+    ``scenario`` (its name), ``params`` (what it ran with) and ``headline``; then its own
+    :meth:`details`."""
+
+    scenario: ClassVar[str]
+    params: dict[str, Any]
+
     def to_dict(self) -> dict[str, Any]:
+        """The result as plain data: name, parameters, headline, then :meth:`details`."""
+        return {
+            "scenario": self.scenario,
+            "params": self.params,
+            "headline": self.headline(),
+            **self.details(),
+        }
+
+    def details(self) -> dict[str, Any]:
+        """What follows the headline in :meth:`to_dict`: the runs, per-seed records and the like."""
         raise NotImplementedError
 
     def to_json(self, *, indent: int | None = None) -> str:
