@@ -107,10 +107,13 @@ def test_one_of_two_veth_paths_cut_and_restored_at_1khz(scheduler: str) -> None:
     stalls = [tuple(s) for record in (master_record, slave_record) for s in record["stalls"]]
     for sender, receiver in ((master_record, slave_record), (slave_record, master_record)):
         # No silence on either side; every sample but the last few in flight arrived.
+        # (After the sender's stream ended only keep-alives come, which a loaded machine may
+        # delay past the watchdog: those silences are not the path's either.)
         silent = [
             round(at - cut, 3)
             for at in receiver["silences"]
             if not any(a <= at <= b + AFTERMATH for a, b in stalls)
+            and at < sender["start"] + DURATION
         ]
         gaps = [(round(gap, 3), round(at - cut, 3)) for gap, at in receiver["longest_gaps"]]
         assert silent == [], (
