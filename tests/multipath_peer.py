@@ -57,6 +57,7 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
     sent = 0
     copies: list[tuple[float, dict[int, int]]] = []
     stalls: list[tuple[float, float]] = []  # this process did not run (a loaded machine)
+    sent_at: list[float] = []  # when each sample was offered
     last = start
     async for _ in tdtp.Ticker(1000):
         now = time.monotonic()
@@ -66,6 +67,7 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
         if now - start >= duration or ep.is_closed:
             break
         ep.send(STAMP.pack(sent) + bytes(SIZE - STAMP.size))
+        sent_at.append(now)
         sent += 1
         if sent % 20 == 0:
             copies.append((now, {p.path_id: p.sent for p in ep.paths}))
@@ -76,6 +78,7 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
         duplicates_delivered=len(received) - len(set(received)),
         silences=silences,
         stalls=stalls,
+        sent_at=sent_at,
         closed=ep.is_closed,
         copies=copies,
         events=[(e.at, e.path_id, e.state) for e in ep.paths.events],

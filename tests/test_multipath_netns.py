@@ -132,7 +132,29 @@ def test_one_of_two_veth_paths_cut_and_restored_at_1khz(scheduler: str) -> None:
         assert sender["departed"] + sender["superseded"] == sender["sent"]
         lost = sender["departed"] - len(receiver["received"])
         missing = sorted(set(range(sender["sent"])) - set(receiver["received"]))
-        assert 0 <= lost <= LOST_AT_MOST[scheduler], (sender["role"], lost, missing[:20])
+        near = [
+            (round(a - cut, 3), round(b - cut, 3))
+            for a, b in stalls
+            if any(a - 0.3 <= sender["sent_at"][k] <= b + 0.3 for k in missing[:20])
+        ]
+        assert 0 <= lost <= LOST_AT_MOST[scheduler], (
+            sender["role"],
+            lost,
+            missing[:20],
+            [round(sender["sent_at"][k] - cut, 3) for k in missing[:20]],
+            "restored",
+            round(restored - cut, 3),
+            "stalls near",
+            near,
+            "send errors",
+            sender["send_errors"],
+            "drops",
+            receiver["drops"],
+            "paths",
+            sender["paths"],
+            receiver["paths"],
+            [(round(at - cut, 3), p, st) for at, p, st in master_record["events"]],
+        )
     # The cut path failed, came back within a second of the restore, and carries copies again
     # (adaptive: when it is the better path, after adaptive_hold; not pinned here).
     events = [(at, path, state) for at, path, state in master_record["events"] if at >= cut - 0.05]
