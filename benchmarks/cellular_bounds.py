@@ -74,6 +74,28 @@ def unavoidable(
     return late
 
 
+def paced_late(text: str, lag_ms: float, duration: float, bar: float) -> float:
+    """:func:`unavoidable` for a sender that never sends faster than the link carried over the
+    last 100 ms (nor over 1 kHz): each gap's late samples weighted by that rate over 1 kHz, as a
+    percentage of what the trace allowed (the most it can deliver)."""
+    trace, offset, propagation = trace_of(text)
+    times: list[float] = []
+    index = trace.first_after(max(0.0, offset - 100))
+    while (t := trace.time_ms(index) - offset) <= duration * 1e3 + 2000:
+        times.append(t)
+        index += 1
+    late = 0.0
+    for n, (a, b) in enumerate(itertools.pairwise(times)):
+        if b - a <= 0 or a < 0:
+            continue
+        carried = n + 1 - bisect.bisect_right(times, a - 100)
+        rate = min(1.0, carried * OPPORTUNITY_BYTES / WIRE / 100)
+        for k in range(math.floor(a) + 1, math.floor(min(b, a + lag_ms)) + 1):
+            if k < duration * 1e3 and b - k + propagation > bar * 1e3:
+                late += rate
+    return 100.0 * late / scenario.allowed(text, start=0.0, duration=duration)
+
+
 class Link:
     """One direction's link as Mahimahi serves it: a FIFO (unbounded) drained by the trace's
     byte-counted 1500-byte opportunities. Times are the run's milliseconds (the trace's clock minus
@@ -273,10 +295,15 @@ def _normal_cdf(x: float) -> float:
 class RateModel:
     """Sprout's model of a link, in our terms: the rate of opportunities ``lam`` walks (Brownian,
     ``SIGMA``), sticks at 0 (an outage) until it escapes (``ESCAPE`` per second), and the
-    opportunities in a tick are Poisson with mean ``lam`` times the tick. Shared tables only."""
+    opportunities in a tick are Poisson with mean ``lam`` times the tick. Shared tables only.
 
-    def __init__(self) -> None:
+    ``hazard`` (per second, 0 in Sprout) adds what Sprout's walk lacks: a stop may begin at any rate,
+    a jump to 0 (a stop then ends as an outage does)."""
+
+    def __init__(self, hazard: float = 0.0) -> None:
         dt = TICK_MS / 1e3
+        self.hazard = hazard
+        jump = 1.0 - math.exp(-hazard * dt)
         step = MAX_RATE / (RATE_BINS - 1)
         self.rates = [k * step for k in range(RATE_BINS)]
         spread = SIGMA * math.sqrt(dt)
@@ -291,6 +318,8 @@ class RateModel:
             if i == 0:  # an outage stays one, or escapes to a rate near 0
                 rest = sum(moves[1:])
                 moves = [stay, *((1 - stay) * m / rest for m in moves[1:])]
+            else:  # or the link stops
+                moves = [jump + (1 - jump) * moves[0], *((1 - jump) * m for m in moves[1:])]
             for j, m in enumerate(moves):
                 if m > 1e-12:
                     self.into[j].append((i, m))
@@ -486,18 +515,18 @@ def _predictor(trace: Trace) -> StopForecast:
     return _predictors[trace.path]
 
 
-def _sprout(job: tuple[str, float, float, bool]) -> Row:
-    text, target, duration, sees_link = job
-    return forecaster(text, target, duration, sees_link=sees_link, model=_model())
+def _sprout(job: tuple[str, float, float, bool, float]) -> Row:
+    text, target, duration, sees_link, hazard = job
+    return forecaster(text, target, duration, sees_link=sees_link, model=_model(hazard))
 
 
-_models: list[RateModel] = []
+_models: dict[float, RateModel] = {}
 
 
-def _model() -> RateModel:
-    if not _models:
-        _models.append(RateModel())
-    return _models[0]
+def _model(hazard: float) -> RateModel:
+    if hazard not in _models:
+        _models[hazard] = RateModel(hazard)
+    return _models[hazard]
 
 
 LAG_MS = 40
@@ -518,6 +547,13 @@ def bounds(texts: list[str], label: str, duration: float) -> None:
             f"> 150 ms: {statistics.median(counts[1]):.0f} {counts[1]} "
             f"({100 * statistics.median(counts[1]) / generated:.2f} %)"
         )
+    paced = [[paced_late(t, LAG_MS, duration, bar) for t in texts] for bar in BARS]
+    print(
+        f"{label}: the same ({LAG_MS} ms) for a sender at the rate the link carried over the last "
+        f"100 ms, % of what the trace allowed: > 60 ms {statistics.median(paced[0]):.2f} "
+        f"[{' '.join(f'{x:.2f}' for x in paced[0])}], > 150 ms "
+        f"{statistics.median(paced[1]):.2f} [{' '.join(f'{x:.2f}' for x in paced[1])}]"
+    )
     for stall in STALLS_MS:
         rows = [frontier(t, stall, duration) for t in texts]
         med = _median(rows)
@@ -563,15 +599,22 @@ def predictability(
         )
 
 
-def sprout(texts: list[str], label: str, duration: float, pool: ProcessPoolExecutor) -> None:
+def sprout(
+    texts: list[str], label: str, duration: float, pool: ProcessPoolExecutor, hazard: float
+) -> None:
     """The Sprout-style forecaster on one direction, each target, both ways of seeing the link."""
-    print(f"\n{label}: Sprout-style forecaster, share % / p95 / p99 (medians of the offsets)")
+    print(
+        f"\n{label}: Sprout-style forecaster (stop hazard {hazard:g}/s), share % / p95 / p99 "
+        "(medians of the offsets)"
+    )
     print("| target (ms) | sees the link | sees its own packets |")
     print("| --- | --- | --- |")
     for target in TARGETS_MS:
         cells = []
         for sees_link in (True, False):
-            rows = list(pool.map(_sprout, [(t, target, duration, sees_link) for t in texts]))
+            rows = list(
+                pool.map(_sprout, [(t, target, duration, sees_link, hazard) for t in texts])
+            )
             med = _median(rows)
             each = " ".join(f"{s:.1f}/{a:.0f}/{b:.0f}" for s, a, b in rows)
             cells.append(f"{_show(med)} ({_meets(med)}) [{each}]")
@@ -592,11 +635,19 @@ def main() -> None:
         help="what to compute (all three)",
     )
     p.add_argument("--jobs", type=int, default=1, help="worker processes (1)")
+    p.add_argument(
+        "--hazard",
+        type=float,
+        default=0.0,
+        help="the forecaster's stops per second that begin at any rate (0, as Sprout)",
+    )
     args = p.parse_args()
     if args.traces is None or not args.traces.is_dir():
         p.error("--traces: give the folder holding the recorded traces (../shared/traces)")
     if args.jobs < 1:
         p.error("--jobs: give 1 or more")
+    if not 0.0 <= args.hazard < 1000.0:
+        p.error("--hazard: give stops per second, 0 or more")
     print(
         "Medians over offsets", ", ".join(f"{o:g}" for o in OFFSETS), "s; per offset in brackets."
     )
@@ -610,7 +661,7 @@ def main() -> None:
                 if "predict" in args.part:
                     predictability(texts, label, args.duration, pool)
                 if "sprout" in args.part:
-                    sprout(texts, label, args.duration, pool)
+                    sprout(texts, label, args.duration, pool, args.hazard)
 
 
 if __name__ == "__main__":
