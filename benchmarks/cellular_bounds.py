@@ -133,7 +133,7 @@ def frontier(
     text: str, stall_ms: float, duration: float, hold: Callable[[int], bool] | None = None
 ) -> tuple[float, float, float]:
     """The reactive sender of the module's docstring: (share %, p95 ms, p99 ms). With ``hold``, it
-    also stops (the same probes) at every millisecond ``t`` for which ``hold(t)`` says so: the
+    also sends nothing (no probe) at every millisecond ``t`` for which ``hold(t)`` says so: the
     forecasting variant of section "Can a stop be seen coming?"."""
     link = Link(text)
     propagation = link.propagation
@@ -146,7 +146,8 @@ def frontier(
         known = t - propagation  # the peer's state the sender knows of
         delivered = bisect.bisect_right(arrivals, known)
         stalled = delivered < len(sent) and sent[delivered] + propagation + stall_ms < known
-        stalled = stalled or (hold is not None and hold(t))
+        if hold is not None and hold(t):
+            continue  # held: superseded by the next sample
         if stalled and t - last_probe < PROBE_MS:
             continue  # superseded by the next sample
         if stalled:
@@ -264,6 +265,20 @@ class StopForecast:
             return tau >= 0 and chosen[int(tau // GRID_MS)]
 
         return holding
+
+
+def seen_idle(text: str, lag_ms: float, idle_ms: float) -> Callable[[int], bool]:
+    """A hold for a sender that sees every opportunity of its link ``lag_ms`` late (more than any
+    sender sees): it holds while the link it sees has delivered nothing for ``idle_ms``. The best a
+    *reaction* to the link itself can do (no probes needed, no packet of its own to wait for)."""
+    trace, offset, _ = trace_of(text)
+
+    def holding(t: int) -> bool:
+        seen = t + offset - lag_ms
+        last = trace.time_ms(trace.first_after(seen) - 1) if seen >= trace.time_ms(0) else -math.inf
+        return seen - last >= idle_ms
+
+    return holding
 
 
 # ------------------------------------------------------------------ a Sprout-style forecaster
@@ -515,6 +530,15 @@ def _predictor(trace: Trace) -> StopForecast:
     return _predictors[trace.path]
 
 
+def _seen(job: tuple[str, float, float]) -> Row:
+    text, idle, duration = job
+    return frontier(text, HELD_STALL_MS, duration, seen_idle(text, LAG_MS, idle))
+
+
+SEEN_IDLE_MS = (2, 5, 10, 20)
+"""Idle times of the link (seen a lag late) at which the link-watching reactor holds."""
+
+
 def _sprout(job: tuple[str, float, float, bool, float]) -> Row:
     text, target, duration, sees_link, hazard = job
     return forecaster(text, target, duration, sees_link=sees_link, model=_model(hazard))
@@ -597,6 +621,17 @@ def predictability(
             f"| {100 * recall:.0f} % | {caught[False]:.0f} % / {caught[True]:.0f} % "
             f"| {_show(held)} ({_meets(held)}) | {_show(blind_row)} |"
         )
+    print(
+        f"\nReactive {HELD_STALL_MS} ms that also sees the link {LAG_MS} ms late and holds while it "
+        "has been idle for:"
+    )
+    print("| idle (ms) | share % / p95 / p99 |")
+    print("| --- | --- |")
+    for idle in SEEN_IDLE_MS:
+        rows = list(pool.map(_seen, [(t, idle, duration) for t in texts]))
+        med = _median(rows)
+        each = " ".join(f"{s:.1f}/{a:.0f}/{b:.0f}" for s, a, b in rows)
+        print(f"| {idle} | {_show(med)} ({_meets(med)}) [{each}] |")
 
 
 def sprout(
