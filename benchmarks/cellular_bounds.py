@@ -1,22 +1,33 @@
-"""What a recorded cellular trace leaves any reacting sender: the lower bound under issue 32's delay bars.
+"""What a recorded cellular trace leaves any causal sender under issue 32's delay bars, and what
+reacting or forecasting senders reach.
 
-``python benchmarks/cellular_bounds.py [--trace verizon tmobile att] [--way ms sm] [--duration S]``
+``python benchmarks/cellular_bounds.py [--trace verizon tmobile att] [--way ms sm] [--duration S]
+[--part bounds predict sprout] [--jobs N] [--hazard PER_S] [--quantile Q]``
 
-Two figures per trace direction, computed from the trace alone (no controller, no simulator), each over
-the five offsets of ``benchmarks/cellular.py`` (the same 20 ms each way and 1 kHz of 100-byte samples,
-133 bytes on the wire with the transport header):
+Per trace direction, each over the five offsets of ``benchmarks/cellular.py`` (the same 20 ms each
+way and 1 kHz of 100-byte samples, 133 bytes on the wire with the transport header):
 
-* **unavoidable late samples**: a sender learns that its direction stopped delivering one feedback
-  lag ``L`` after the link's last delivery at the earliest (the last packet's 20 ms there, the peer's
-  stamp's 20 ms back). The samples it generated within ``L`` of the start of a gap wait for the gap's
-  end: those that then arrive more than 60 ms (150 ms) after their generation are late whatever the
-  sender does, unless it stopped *before* it could know (a forecast).
-* **the reactive frontier**: a sender with exact, noise-free feedback and latest-value samples (a
-  sample that cannot leave is replaced by the next, as tdtp's sender does) that sends every sample
-  while the peer keeps up and stops (one probe per 50 ms) as soon as a packet of its own is ``S`` ms
-  overdue at the peer, seen 20 ms later. Its share of what the trace allowed, p95 and p99 for each
-  ``S``: how much share a reacting sender gives up for shorter tails on this link. ``S`` = 1000 is a
-  sender that never stops (the ``fixed`` row of ``cellular.py``, which it reproduces within a few ms).
+* **unavoidable late samples** (``bounds``): a sender learns that its direction stopped delivering
+  one feedback lag ``L`` after the link's last delivery at the earliest (the last packet's 20 ms
+  there, the peer's stamp's 20 ms back). The samples it generated within ``L`` of the start of a gap
+  wait for the gap's end: those that then arrive more than 60 ms (150 ms) after their generation are
+  late whatever the sender does, unless it stopped *before* it could know (a forecast). As a share
+  of a constant rate's samples, and for a sender paced at the rate the link carried over the last
+  100 ms as a share of what the trace allowed: a fraction that does not depend on the rate.
+* **the reactive frontier** (``bounds``): a sender with exact, noise-free feedback and latest-value
+  samples (a sample that cannot leave is replaced by the next, as tdtp's sender does) that sends
+  every sample while the peer keeps up and stops (one probe per 50 ms) as soon as a packet of its
+  own is ``S`` ms overdue at the peer, seen 20 ms later. Its share of what the trace allowed, p95 and
+  p99 for each ``S``. ``S`` = 1000 is a sender that never stops (the ``fixed`` row of
+  ``cellular.py``, which it reproduces within a few ms).
+* **can a stop be seen coming?** (``predict``): a predictor learnt from the trace's own past
+  opportunities (:class:`StopForecast`, judged out of sample), its lift over the base rate of stop
+  onsets, and the reactive sender at ``S`` = 20 that also holds when it fires, beside the same holds
+  drawn blind; and a reactor that sees the link itself one lag late (:func:`seen_idle`).
+* **a Sprout-style forecaster** (``sprout``; Winstein et al., NSDI 2013): a Bayesian belief about
+  the link's rate, a cautious forecast of its deliveries, and a sender that keeps queued only what
+  the forecast drains within a target (:func:`forecaster`), seeing either the link or only its own
+  packets.
 
 The link model is Mahimahi's (byte-counted 1500-byte opportunities, a FIFO, unbounded here: the
 150 kB queue never fills at these rates outside the fixed row).
@@ -194,12 +205,13 @@ class StopForecast:
     features: the time since the last opportunity, the rate over the last 100 ms against the need
     and against the last 500 ms (a trend), the gaps of over 20 ms in the last 500 ms and the time
     since the last stop ended. A decision's score is the rate of onsets in its cell on the *other*
-    half of the trace's period (two-fold, by halves), so every score is out of sample. This is
+    half of the trace's period (two-fold, by halves), so every score is out of sample (unless
+    ``in_sample``: an upper bound on what these features hold). This is
     more than a sender can know (it sees the link only through its own packets); a stop this
     predictor cannot see coming, no causal sender can.
     """
 
-    def __init__(self, trace: Trace, lag_ms: float) -> None:
+    def __init__(self, trace: Trace, lag_ms: float, *, in_sample: bool = False) -> None:
         period = trace.period_ms
         one = [trace.time_ms(i) for i in range(len(trace))]
         times = [t + k * period for k in (-1, 0, 1) for t in one]  # windows wrap at the loop
@@ -225,6 +237,8 @@ class StopForecast:
         self.base = sum(labels) / len(labels)
         half = len(cells) // 2
         folds = (range(half), range(half, len(cells)))
+        if in_sample:  # learnt and judged on the same decisions: what the features could give
+            folds = (range(len(cells)), range(len(cells)))
         self.scores = [0.0] * len(cells)
         for learn, judge in (folds, folds[::-1]):
             seen: dict[int, list[int]] = {}
@@ -539,9 +553,11 @@ SEEN_IDLE_MS = (2, 5, 10, 20)
 """Idle times of the link (seen a lag late) at which the link-watching reactor holds."""
 
 
-def _sprout(job: tuple[str, float, float, bool, float]) -> Row:
-    text, target, duration, sees_link, hazard = job
-    return forecaster(text, target, duration, sees_link=sees_link, model=_model(hazard))
+def _sprout(job: tuple[str, float, float, bool, float, float]) -> Row:
+    text, target, duration, sees_link, hazard, quantile = job
+    return forecaster(
+        text, target, duration, sees_link=sees_link, quantile=quantile, model=_model(hazard)
+    )
 
 
 _models: dict[float, RateModel] = {}
@@ -603,6 +619,13 @@ def predictability(
         f"| reactive {HELD_STALL_MS} ms + holds | same, blind holds |"
     )
     print("| --- | --- | --- | --- | --- | --- | --- |")
+    fitted = StopForecast(trace, LAG_MS, in_sample=True)
+    lifts = [fitted.judge(fitted.fires(b))[0] / fitted.base for b in BUDGETS]
+    print(
+        "(in sample, learnt on the decisions it is judged on, the lift at "
+        + ", ".join(f"{100 * b:.0f} % is {x:.2f}" for b, x in zip(BUDGETS, lifts, strict=True))
+        + ")"
+    )
     base = _median([frontier(t, HELD_STALL_MS, duration) for t in texts])
     print(f"| 0 % | | | | | {_show(base)} ({_meets(base)}) | |")
     for budget in BUDGETS:
@@ -635,12 +658,17 @@ def predictability(
 
 
 def sprout(
-    texts: list[str], label: str, duration: float, pool: ProcessPoolExecutor, hazard: float
+    texts: list[str],
+    label: str,
+    duration: float,
+    pool: ProcessPoolExecutor,
+    hazard: float,
+    quantile: float,
 ) -> None:
     """The Sprout-style forecaster on one direction, each target, both ways of seeing the link."""
     print(
-        f"\n{label}: Sprout-style forecaster (stop hazard {hazard:g}/s), share % / p95 / p99 "
-        "(medians of the offsets)"
+        f"\n{label}: Sprout-style forecaster (quantile {quantile:g}, stop hazard {hazard:g}/s), "
+        "share % / p95 / p99 (medians of the offsets)"
     )
     print("| target (ms) | sees the link | sees its own packets |")
     print("| --- | --- | --- |")
@@ -648,7 +676,9 @@ def sprout(
         cells = []
         for sees_link in (True, False):
             rows = list(
-                pool.map(_sprout, [(t, target, duration, sees_link, hazard) for t in texts])
+                pool.map(
+                    _sprout, [(t, target, duration, sees_link, hazard, quantile) for t in texts]
+                )
             )
             med = _median(rows)
             each = " ".join(f"{s:.1f}/{a:.0f}/{b:.0f}" for s, a, b in rows)
@@ -676,6 +706,12 @@ def main() -> None:
         default=0.0,
         help="the forecaster's stops per second that begin at any rate (0, as Sprout)",
     )
+    p.add_argument(
+        "--quantile",
+        type=float,
+        default=QUANTILE,
+        help="the forecaster's cautious quantile of the deliveries (0.05, as Sprout)",
+    )
     args = p.parse_args()
     if args.traces is None or not args.traces.is_dir():
         p.error("--traces: give the folder holding the recorded traces (../shared/traces)")
@@ -683,6 +719,8 @@ def main() -> None:
         p.error("--jobs: give 1 or more")
     if not 0.0 <= args.hazard < 1000.0:
         p.error("--hazard: give stops per second, 0 or more")
+    if not 0.0 < args.quantile < 1.0:
+        p.error("--quantile: give a fraction between 0 and 1, e.g. 0.05")
     print(
         "Medians over offsets", ", ".join(f"{o:g}" for o in OFFSETS), "s; per offset in brackets."
     )
@@ -696,7 +734,7 @@ def main() -> None:
                 if "predict" in args.part:
                     predictability(texts, label, args.duration, pool)
                 if "sprout" in args.part:
-                    sprout(texts, label, args.duration, pool, args.hazard)
+                    sprout(texts, label, args.duration, pool, args.hazard, args.quantile)
 
 
 if __name__ == "__main__":
