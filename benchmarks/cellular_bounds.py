@@ -614,11 +614,6 @@ def predictability(
         f"\n{label}: stops (> {STOP_MS} ms) starting within {LAG_MS} ms of a decision: "
         f"{100 * predictor.base:.2f} % of decisions"
     )
-    print(
-        "| fires on | precision | lift | recall | late > 60 ms caught (held / blind) "
-        f"| reactive {HELD_STALL_MS} ms + holds | same, blind holds |"
-    )
-    print("| --- | --- | --- | --- | --- | --- | --- |")
     fitted = StopForecast(trace, LAG_MS, in_sample=True)
     lifts = [fitted.judge(fitted.fires(b))[0] / fitted.base for b in BUDGETS]
     print(
@@ -626,6 +621,11 @@ def predictability(
         + ", ".join(f"{100 * b:.0f} % is {x:.2f}" for b, x in zip(BUDGETS, lifts, strict=True))
         + ")"
     )
+    print(
+        "| fires on | precision | lift | recall | late > 60 ms caught (held / blind) "
+        f"| reactive {HELD_STALL_MS} ms + holds | same, blind holds |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     base = _median([frontier(t, HELD_STALL_MS, duration) for t in texts])
     print(f"| 0 % | | | | | {_show(base)} ({_meets(base)}) | |")
     for budget in BUDGETS:
