@@ -2,7 +2,7 @@
 reacting or forecasting senders reach.
 
 ``python benchmarks/cellular_bounds.py [--trace verizon tmobile att] [--way ms sm] [--duration S]
-[--part bounds predict sprout] [--jobs N] [--hazard PER_S] [--quantile Q]``
+[--part bounds predict sprout] [--jobs N] [--hazard PER_S] [--quantile Q] [--stall MS]``
 
 Per trace direction, each over the five offsets of ``benchmarks/cellular.py`` (the same 20 ms each
 way and 1 kHz of 100-byte samples, 133 bytes on the wire with the transport header):
@@ -438,6 +438,7 @@ def forecaster(
     sees_link: bool,
     quantile: float = QUANTILE,
     model: RateModel | None = None,
+    stall_ms: float = math.inf,
 ) -> tuple[float, float, float]:
     """A Sprout-style sender with exact feedback: (share %, p95 ms, p99 ms).
 
@@ -450,7 +451,8 @@ def forecaster(
     sender sends the newest sample whenever its estimate of our queue now (what was queued at the
     forecast's time, plus what it sent since, less the cautious deliveries since) plus the sample
     fits in the cautious deliveries of the next ``target_ms``; otherwise the sample is superseded
-    (one probe per ``PROBE_MS`` goes anyway, so the receiver keeps seeing the link)."""
+    (one probe per ``PROBE_MS`` goes anyway, so the receiver keeps seeing the link). With
+    ``stall_ms`` it also stops as the reactive sender does (a packet of its own that overdue)."""
     link = Link(text)
     propagation = link.propagation
     allowed = scenario.allowed(text, start=0.0, duration=duration)
@@ -489,7 +491,9 @@ def forecaster(
         since = (len(sends) - before) * WIRE
         estimate = max(0.0, queued + since - _at(forecast, elapsed))
         room = _at(forecast, elapsed + target_ms) - _at(forecast, elapsed)
-        if estimate + WIRE > room and t - last < PROBE_MS:
+        heard = bisect.bisect_right(departures, t - 2 * propagation)
+        stalled = heard < len(sends) and sends[heard] + 2 * propagation + stall_ms < t
+        if (stalled or estimate + WIRE > room) and t - last < PROBE_MS:
             continue  # superseded by the next sample
         last = t
         departure = link.send(t)
@@ -553,10 +557,16 @@ SEEN_IDLE_MS = (2, 5, 10, 20)
 """Idle times of the link (seen a lag late) at which the link-watching reactor holds."""
 
 
-def _sprout(job: tuple[str, float, float, bool, float, float]) -> Row:
-    text, target, duration, sees_link, hazard, quantile = job
+def _sprout(job: tuple[str, float, float, bool, float, float, float]) -> Row:
+    text, target, duration, sees_link, hazard, quantile, stall = job
     return forecaster(
-        text, target, duration, sees_link=sees_link, quantile=quantile, model=_model(hazard)
+        text,
+        target,
+        duration,
+        sees_link=sees_link,
+        quantile=quantile,
+        model=_model(hazard),
+        stall_ms=stall,
     )
 
 
@@ -664,11 +674,13 @@ def sprout(
     pool: ProcessPoolExecutor,
     hazard: float,
     quantile: float,
+    stall: float,
 ) -> None:
     """The Sprout-style forecaster on one direction, each target, both ways of seeing the link."""
     print(
-        f"\n{label}: Sprout-style forecaster (quantile {quantile:g}, stop hazard {hazard:g}/s), "
-        "share % / p95 / p99 (medians of the offsets)"
+        f"\n{label}: Sprout-style forecaster (quantile {quantile:g}, stop hazard {hazard:g}/s"
+        + (f", and the reactor's stop {stall:g} ms overdue" if math.isfinite(stall) else "")
+        + "), share % / p95 / p99 (medians of the offsets)"
     )
     print("| target (ms) | sees the link | sees its own packets |")
     print("| --- | --- | --- |")
@@ -677,7 +689,8 @@ def sprout(
         for sees_link in (True, False):
             rows = list(
                 pool.map(
-                    _sprout, [(t, target, duration, sees_link, hazard, quantile) for t in texts]
+                    _sprout,
+                    [(t, target, duration, sees_link, hazard, quantile, stall) for t in texts],
                 )
             )
             med = _median(rows)
@@ -712,6 +725,12 @@ def main() -> None:
         default=QUANTILE,
         help="the forecaster's cautious quantile of the deliveries (0.05, as Sprout)",
     )
+    p.add_argument(
+        "--stall",
+        type=float,
+        default=math.inf,
+        help="the forecaster also stops as the reactive sender does, this many ms overdue (never)",
+    )
     args = p.parse_args()
     if args.traces is None or not args.traces.is_dir():
         p.error("--traces: give the folder holding the recorded traces (../shared/traces)")
@@ -721,6 +740,8 @@ def main() -> None:
         p.error("--hazard: give stops per second, 0 or more")
     if not 0.0 < args.quantile < 1.0:
         p.error("--quantile: give a fraction between 0 and 1, e.g. 0.05")
+    if not args.stall > 0.0:
+        p.error("--stall: give milliseconds above 0, e.g. 20")
     print(
         "Medians over offsets", ", ".join(f"{o:g}" for o in OFFSETS), "s; per offset in brackets."
     )
@@ -734,7 +755,9 @@ def main() -> None:
                 if "predict" in args.part:
                     predictability(texts, label, args.duration, pool)
                 if "sprout" in args.part:
-                    sprout(texts, label, args.duration, pool, args.hazard, args.quantile)
+                    sprout(
+                        texts, label, args.duration, pool, args.hazard, args.quantile, args.stall
+                    )
 
 
 if __name__ == "__main__":
