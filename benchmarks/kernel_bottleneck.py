@@ -34,23 +34,22 @@ least the bytes of both.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import os
 import re
-import secrets
-import shutil
 import signal
 import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+# The namespaces are tests/netlab.py's (appended: nothing of tests/ shadows an installed module).
+sys.path.append(str(Path(__file__).resolve().parents[1] / "tests"))
 import _common as common
+import netlab
 from _common import Json, Row, Stat
+from netlab import NetLab
 
 import tdtp.control
 
@@ -70,98 +69,40 @@ TDTP_TARGET_SHARE = 0.35
 
 def missing() -> str | None:
     """Why this machine cannot run the check, or None."""
-    if not hasattr(os, "geteuid") or os.geteuid() != 0:
-        return "needs root (network namespaces)"
-    for tool in ("ip", "tc", "iperf3"):
-        if shutil.which(tool) is None:
-            return f"needs {tool!r} on PATH" + (
-                " (apt-get install iperf3)" if tool == "iperf3" else ""
-            )
-    return None
+    return netlab.missing("tc", "iperf3")
 
 
-def run(*command: str, timeout: float = 10.0) -> str:
-    done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)}: {done.stderr.strip() or done.returncode}")
-    return done.stdout
+class Bottleneck(NetLab):
+    """Three namespaces M, R, S and their links (tests/netlab.py: :meth:`close` removes them and
+    their processes)."""
 
-
-@dataclass
-class Namespaces:
-    """Three namespaces M, R, S and their links; :meth:`close` removes them and their processes."""
-
-    rate: str
-    queue_ms: float
-    tag: str = field(default_factory=lambda: f"tdtpk-{os.getpid()}-{secrets.token_hex(3)}")
-    created: list[str] = field(default_factory=list)
-    processes: list[subprocess.Popen[str]] = field(default_factory=list)
-
-    def name(self, role: str) -> str:
-        return f"{self.tag}-{role}"
-
-    def ns(self, role: str, *command: str, timeout: float = 10.0) -> str:
-        return run("ip", "netns", "exec", self.name(role), *command, timeout=timeout)
+    def __init__(self, rate: str, queue_ms: float) -> None:
+        super().__init__("tdtpk")
+        self.rate, self.queue_ms = rate, queue_ms
 
     def setup(self) -> None:
         for role in ("m", "r", "s"):
-            run("ip", "netns", "add", self.name(role))
-            self.created.append(self.name(role))
-            run("ip", "-n", self.name(role), "link", "set", "lo", "up")
-        m, r, s = (self.name(x) for x in "mrs")
-        # Each veth end is created inside its namespace: no name ever exists in the host's.
-        run("ip", "link", "add", "m0", "netns", m, "type", "veth", "peer", "name", "r0", "netns", r)
-        run("ip", "link", "add", "r1", "netns", r, "type", "veth", "peer", "name", "s0", "netns", s)
-        for ns, dev, addr in ((m, "m0", M_ADDR), (r, "r0", R_M_ADDR), (r, "r1", R_S_ADDR)):
-            run("ip", "-n", ns, "addr", "add", f"{addr}/24", "dev", dev)
-            run("ip", "-n", ns, "link", "set", dev, "up")
-        run("ip", "-n", s, "addr", "add", f"{S_ADDR}/24", "dev", "s0")
-        run("ip", "-n", s, "link", "set", "s0", "up")
-        run("ip", "-n", m, "route", "add", "default", "via", R_M_ADDR)
-        run("ip", "-n", s, "route", "add", "default", "via", R_S_ADDR)
-        self.ns("r", "sysctl", "-q", "-w", "net.ipv4.ip_forward=1")
+            self.add(role)
+        self.veth("m", "m0", "r", "r0", a_addr=f"{M_ADDR}/24", b_addr=f"{R_M_ADDR}/24")
+        self.veth("r", "r1", "s", "s0", a_addr=f"{R_S_ADDR}/24", b_addr=f"{S_ADDR}/24")
+        self.route("m", R_M_ADDR)
+        self.route("s", R_S_ADDR)
+        self.forward("r")
         # Offloads would hand tbf 64 KB super-packets; the bottleneck should see real ones.
         for role, dev in (("m", "m0"), ("r", "r0"), ("r", "r1"), ("s", "s0")):
-            subprocess.run(
-                ["ip", "netns", "exec", self.name(role), "ethtool", "-K", dev, "tso", "off",
-                 "gso", "off", "gro", "off"],
-                capture_output=True, timeout=10, check=False,
-            )  # fmt: skip
-        self.ns(
-            "r", "tc", "qdisc", "add", "dev", "r1", "root", "tbf", "rate", self.rate,
-            "burst", "1600", "latency", f"{self.queue_ms:g}ms",
-        )  # fmt: skip
+            self.exec(role, "ethtool", "-K", dev, "tso", "off", "gso", "off", "gro", "off",
+                      check=False)  # fmt: skip
+        self.qdisc("r", "r1", "tbf", "rate", self.rate, "burst", "1600", "latency",
+                   f"{self.queue_ms:g}ms")  # fmt: skip
 
-    def start(self, role: str, *command: str) -> subprocess.Popen[str]:
-        process = subprocess.Popen(
-            ["ip", "netns", "exec", self.name(role), *command],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        self.processes.append(process)
-        return process
-
-    def qdisc(self) -> Json:
+    def counters(self) -> Json:
         """The tbf's counters: bytes and packets sent, drops, overlimits."""
-        text = self.ns("r", "tc", "-s", "qdisc", "show", "dev", "r1")
+        text = self.exec("r", "tc", "-s", "qdisc", "show", "dev", "r1")
         found = re.search(r"Sent (\d+) bytes (\d+) pkt \(dropped (\d+), overlimits (\d+)", text)
         if found is None:
             raise RuntimeError(f"no tbf statistics in: {text!r}")
         sent, packets, dropped, over = (int(x) for x in found.groups())
         return {"bytes": sent, "packets": packets, "dropped": dropped, "overlimits": over}
-
-    def close(self) -> None:
-        for process in self.processes:  # only ours, by their handles
-            if process.poll() is None:
-                process.kill()
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                process.communicate(timeout=5)
-        for name in reversed(self.created):
-            subprocess.run(
-                ["ip", "netns", "del", name], capture_output=True, timeout=10, check=False
-            )
-        self.created.clear()
 
 
 def finish(process: subprocess.Popen[str], timeout: float, what: str) -> str:
@@ -191,10 +132,10 @@ def stop(process: subprocess.Popen[str], what: str) -> str:
     return out
 
 
-def wait_for_packets(net: Namespaces, packets: int, master: subprocess.Popen[str]) -> None:
+def wait_for_packets(net: Bottleneck, packets: int, master: subprocess.Popen[str]) -> None:
     """Until the tbf has sent ``packets`` (tdtp's samples are crossing), at most 30 s."""
     stop_at = time.monotonic() + 30.0
-    while net.qdisc()["packets"] < packets:
+    while net.counters()["packets"] < packets:
         if master.poll() is not None:
             raise RuntimeError(f"tdtp master exited with {master.returncode}: {master.stderr}")
         if time.monotonic() > stop_at:
@@ -225,29 +166,29 @@ def tcp_figures(report: Json, rate_bps: float) -> Json:
 
 
 def one_run(
-    net: Namespaces, duration: float, controller: str | None, rate_bps: float, cc: str = "cubic"
+    net: Bottleneck, duration: float, controller: str | None, rate_bps: float, cc: str = "cubic"
 ) -> Json:
     """iperf3 (congestion control ``cc``) for ``duration`` s, with a tdtp pair beside it unless
     ``controller`` is None."""
-    server = net.start("s", "iperf3", "-s", "-1", "-B", S_ADDR, "-p", str(IPERF_PORT), "--json")
+    server = net.spawn("s", "iperf3", "-s", "-1", "-B", S_ADDR, "-p", str(IPERF_PORT), "--json")
     slave = None
     tdtp_cmd = [sys.executable, "-m", "tdtp"]
     if controller is not None:
-        slave = net.start(
+        slave = net.spawn(
             "s", *tdtp_cmd, "slave", "--host", S_ADDR, "--port", str(TDTP_PORT),
             "--controller", controller, "--json",
         )  # fmt: skip
     time.sleep(1.0)  # the servers' interpreters starting
-    before = net.qdisc()
+    before = net.counters()
     master = None
     if controller is not None:
         # The master runs until TCP's run is over (then SIGINT: it prints its summary), and TCP
         # starts once tdtp's packets cross the router: both compete for the whole of TCP's run.
-        master = net.start(
+        master = net.spawn(
             "m", *tdtp_cmd, "master", f"{S_ADDR}:{TDTP_PORT}", "--controller", controller, "--json",
         )  # fmt: skip
         wait_for_packets(net, before["packets"] + 50, master)
-    client = net.start(
+    client = net.spawn(
         "m", "iperf3", "-c", S_ADDR, "-p", str(IPERF_PORT), "-C", cc,
         "-t", f"{duration:g}", "--json",
     )  # fmt: skip
@@ -258,7 +199,7 @@ def one_run(
         time.sleep(0.5)
         slave_report = json.loads(stop(slave, "tdtp slave"))
         result["tdtp"] = tdtp_figures(master_report, slave_report)
-    after = net.qdisc()
+    after = net.counters()
     finish(server, 10.0, "iperf3 -s")
     result["tbf"] = {k: after[k] - before[k] for k in after}
     tdtp_bytes = result.get("tdtp", {}).get("ms", {}).get("wire_bytes_at_tbf", 0)
@@ -366,14 +307,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return common.emit("kernel_bottleneck", args, [], details={"skipped": why})
     default = tdtp.control.DEFAULT_CONTROLLER
     others = common.OthersMeter()
-    net = Namespaces(args.rate, args.queue_ms)
+    net = Bottleneck(args.rate, args.queue_ms)
     runs: list[Json] = []
     # SIGTERM (a timeout from make or CI) must still clean up.
     previous = signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
         try:
             net.setup()
-        except (RuntimeError, subprocess.TimeoutExpired) as exc:
+        except netlab.NetLabError as exc:
             print(
                 f"kernel_bottleneck.py: cannot set up the namespaces and tbf: {exc}",
                 file=sys.stderr,
@@ -404,7 +345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         net.close()
         signal.signal(signal.SIGTERM, previous)
     busy = others.percent()
-    leftovers = [n for n in run("ip", "netns", "list").split() if n.startswith(net.tag)]
+    leftovers = net.left()
     rows = rows_of(runs, default)
     text = markdown(runs, args, default, busy)
     details: Json = {

@@ -147,8 +147,8 @@ def _pair(lab: NatLab, name: str, seconds: float) -> tuple[Json, Json]:
         str(seconds),
         "--json",
     )
-    slave = lab.start("ha", *TDTP, "slave", *common, *ON_STOP)
-    master = lab.start("hb", *TDTP, "master", *common)
+    slave = lab.spawn("ha", *TDTP, "slave", *common, *ON_STOP)
+    master = lab.spawn("hb", *TDTP, "master", *common)
     return _json(master, "master"), _json(slave, "slave")
 
 
@@ -158,7 +158,7 @@ def _first_sample(master: Json, slave: Json) -> float | None:
     if first is None:
         return None
     at = ours["started_at"] + first
-    return at - max(ours["started_at"], theirs["started_at"])
+    return float(at - max(ours["started_at"], theirs["started_at"]))
 
 
 def _spread(values: list[float]) -> Json:
@@ -177,7 +177,7 @@ def run_pair(kind_a: str, kind_b: str, tries: int, seconds: float) -> Json:
         lab.open()
         lab.add_site("a", kind_a)  # type: ignore[arg-type]
         lab.add_site("b", kind_b)  # type: ignore[arg-type]
-        relay = lab.start("relay", *TDTP, "relay", "--port", "7700", "--json")
+        relay = lab.spawn("relay", *TDTP, "relay", "--port", "7700", "--json")
         time.sleep(1.0)
         outcome = {"tries": tries, "direct": 0, "relayed": 0, "failed": 0}
         firsts: list[float] = []
@@ -232,7 +232,7 @@ def relay_latency(repeat: int, seconds: float) -> Json:
         lab.open()
         lab.add_site("a", "eim")
         lab.add_site("b", "eim")
-        relay = lab.start("relay", *TDTP, "relay", "--port", "7700", "--json")
+        relay = lab.spawn("relay", *TDTP, "relay", "--port", "7700", "--json")
         time.sleep(1.0)
         for i in range(repeat):
             figures = {}
@@ -270,9 +270,9 @@ def relay_cpu(repeat: int, seconds: float, rate: float) -> Json:
         for _ in range(repeat):
             for mode in ("relay", "raw"):
                 if mode == "relay":
-                    server = lab.start("relay", *TDTP, "relay", "--port", "7800", "--json")
+                    server = lab.spawn("relay", *TDTP, "relay", "--port", "7800", "--json")
                 else:
-                    server = lab.start(
+                    server = lab.spawn(
                         "relay", sys.executable, "-c", RAW_FORWARDER, str(seconds + 3)
                     )
                 time.sleep(1.5)
@@ -310,7 +310,7 @@ def upgrade_and_failover(seconds: float) -> Json:
             lab.count("direct", src, dst)
         for wan in (a, b):
             lab.count("relayed", wan, RELAY_ADDR)
-        relay = lab.start("relay", *TDTP, "relay", "--port", "7700", "--json")
+        relay = lab.spawn("relay", *TDTP, "relay", "--port", "7700", "--json")
         time.sleep(1.0)
 
         def lost(master: Json, slave: Json) -> int:
@@ -321,7 +321,7 @@ def upgrade_and_failover(seconds: float) -> Json:
 
         def start(name: str) -> tuple[subprocess.Popen[str], subprocess.Popen[str]]:
             common = ("--rendezvous", RELAY, "--rendezvous-name", name, "--json")
-            return lab.start("ha", *TDTP, "slave", *common, *ON_STOP), lab.start(
+            return lab.spawn("ha", *TDTP, "slave", *common, *ON_STOP), lab.spawn(
                 "hb", *TDTP, "master", *common
             )
 

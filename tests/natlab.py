@@ -20,22 +20,21 @@ Each site is a host behind its own NAT namespace. NAT kinds:
   ICMP port unreachable (what made ``tdtp master`` say "nothing listens" to a robot behind NAT).
 
 :meth:`NatLab.cut` drops everything between two NATs' WAN addresses (the direct path dies, the relay
-still works); :meth:`NatLab.flush_conntrack` forgets a NAT's mappings mid-session. :meth:`NatLab.close`
-removes the namespaces and kills the processes started in them, whatever happened.
+still works); :meth:`NatLab.flush_conntrack` forgets a NAT's mappings mid-session. The namespaces,
+their links and processes are tests/netlab.py's: :meth:`NatLab.close` removes the namespaces and
+kills the processes started in them (:meth:`NatLab.spawn`), whatever happened.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
-import secrets
-import shutil
-import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
+
+import netlab
+from netlab import NetLab
 
 NatKind = Literal["eim", "symmetric"]
 RELAY_ADDR = "203.0.113.10"
@@ -45,20 +44,7 @@ NAT_MODES: dict[str, str] = {"eim": "masquerade", "symmetric": "masquerade fully
 
 def missing() -> str | None:
     """Why this machine cannot build the lab, or None."""
-    if not hasattr(os, "geteuid") or os.geteuid() != 0:
-        return "needs root (network namespaces)"
-    for tool in ("ip", "nft", "conntrack"):
-        if shutil.which(tool) is None:
-            package = {"nft": "nftables"}.get(tool, tool)
-            return f"needs {tool!r} on PATH (apt-get install {package})"
-    return None
-
-
-def _run(*command: str, timeout: float = 10.0) -> str:
-    done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)}: {done.stderr.strip() or done.returncode}")
-    return done.stdout
+    return netlab.missing("nft", "conntrack")
 
 
 @dataclass
@@ -73,36 +59,17 @@ class Site:
     """The address the Internet sees (the NAT's WAN address; the host's own without a NAT)."""
 
 
-@dataclass
-class NatLab:
+class NatLab(NetLab):
     """The namespaces; build with :meth:`add_site` after :meth:`open`, always :meth:`close`."""
 
-    tag: str = field(default_factory=lambda: f"tn{os.getpid() % 10000}{secrets.token_hex(2)}")
-    created: list[str] = field(default_factory=list)
-    processes: list[subprocess.Popen[str]] = field(default_factory=list)
-    sites: dict[str, Site] = field(default_factory=dict)
-
-    def ns_name(self, role: str) -> str:
-        return f"{self.tag}-{role}"
-
-    def _add_ns(self, role: str) -> str:
-        name = self.ns_name(role)
-        _run("ip", "netns", "add", name)
-        self.created.append(name)
-        _run("ip", "-n", name, "link", "set", "lo", "up")
-        return name
-
-    def _veth(self, a_ns: str, a_dev: str, b_ns: str, b_dev: str) -> None:
-        # Created inside the namespaces: no name ever exists in the host's.
-        _run("ip", "link", "add", a_dev, "netns", a_ns, "type", "veth", "peer", "name", b_dev,
-             "netns", b_ns)  # fmt: skip
-        _run("ip", "-n", a_ns, "link", "set", a_dev, "up")
-        _run("ip", "-n", b_ns, "link", "set", b_dev, "up")
+    def __init__(self) -> None:
+        super().__init__("tdtpnat")
+        self.sites: dict[str, Site] = {}
 
     def open(self, *, public_host: bool = False) -> NatLab:
-        inet = self._add_ns("inet")
-        _run("ip", "-n", inet, "link", "add", "br0", "type", "bridge")
-        _run("ip", "-n", inet, "link", "set", "br0", "up")
+        self.add("inet")
+        self.exec("inet", "ip", "link", "add", "br0", "type", "bridge")
+        self.link("inet", "br0", up=True)
         # The Internet's own filter (empty): cut() adds its drops here.
         self.nft("inet", "add table bridge lab")
         # Counters first (priority -10), then the cuts: traffic() sees what was sent, cut or not.
@@ -113,12 +80,14 @@ class NatLab:
             self._leaf("public", PUBLIC_ADDR)
         return self
 
+    def _bridged(self, role: str, dev: str, port: str, addr: str | None) -> None:
+        """A veth from ``role``'s ``dev`` to a port of the Internet's bridge."""
+        self.veth(role, dev, "inet", port, a_addr=addr)
+        self.exec("inet", "ip", "link", "set", port, "master", "br0")
+
     def _leaf(self, role: str, addr: str) -> str:
-        ns = self._add_ns(role)
-        port = f"p{role[:5]}"
-        self._veth(ns, "eth0", self.ns_name("inet"), port)
-        _run("ip", "-n", self.ns_name("inet"), "link", "set", port, "master", "br0")
-        _run("ip", "-n", ns, "addr", "add", f"{addr}/24", "dev", "eth0")
+        ns = self.add(role)
+        self._bridged(role, "eth0", f"p{role[:5]}", f"{addr}/24")
         return ns
 
     def add_site(self, name: str, nat: NatKind | None, *, firewall: bool = True) -> Site:
@@ -129,17 +98,13 @@ class NatLab:
             site = Site(name, index, None, host_ns, None, wan, wan)
             self.sites[name] = site
             return site
-        host_ns = self._add_ns(f"h{name}")
-        nat_ns = self._add_ns(f"n{name}")
+        host, nat_role = f"h{name}", f"n{name}"
+        host_ns, nat_ns = self.add(host), self.add(nat_role)
         lan_gw, lan_host = f"192.168.{index}.1", f"192.168.{index}.2"
-        self._veth(host_ns, "eth0", nat_ns, "lan")
-        self._veth(nat_ns, "wan", self.ns_name("inet"), f"pn{name}")
-        _run("ip", "-n", self.ns_name("inet"), "link", "set", f"pn{name}", "master", "br0")
-        _run("ip", "-n", host_ns, "addr", "add", f"{lan_host}/24", "dev", "eth0")
-        _run("ip", "-n", host_ns, "route", "add", "default", "via", lan_gw)
-        _run("ip", "-n", nat_ns, "addr", "add", f"{lan_gw}/24", "dev", "lan")
-        _run("ip", "-n", nat_ns, "addr", "add", f"{wan}/24", "dev", "wan")
-        _run("ip", "netns", "exec", nat_ns, "sysctl", "-q", "-w", "net.ipv4.ip_forward=1")
+        self.veth(host, "eth0", nat_role, "lan", a_addr=f"{lan_host}/24", b_addr=f"{lan_gw}/24")
+        self._bridged(nat_role, "wan", f"pn{name}", f"{wan}/24")
+        self.route(host, lan_gw)
+        self.forward(nat_role)
         rules = [
             "add table ip nat",
             "add chain ip nat postrouting_nat { type nat hook postrouting priority 100 ; }",
@@ -154,7 +119,7 @@ class NatLab:
                 'add rule inet fw input_wan iifname "wan" ct state new drop',
             ]
         for rule in rules:
-            self.nft(f"n{name}", rule)
+            self.nft(nat_role, rule)
         site = Site(name, index, nat, host_ns, nat_ns, lan_host, wan)
         self.sites[name] = site
         return site
@@ -168,8 +133,7 @@ class NatLab:
 
     def counters(self) -> dict[str, int]:
         """Packets counted by :meth:`count`, by name (added up over rules of one name)."""
-        text = _run("ip", "netns", "exec", self.ns_name("inet"), "nft", "-j", "list", "chain",
-                    "bridge", "lab", "seen")  # fmt: skip
+        text = self.exec("inet", "nft", "-j", "list", "chain", "bridge", "lab", "seen")
         found: dict[str, int] = {}
         for item in json.loads(text)["nftables"]:
             rule = item.get("rule")
@@ -191,7 +155,7 @@ class NatLab:
             time.sleep(0.05)
 
     def nft(self, role: str, rule: str) -> None:
-        _run("ip", "netns", "exec", self.ns_name(role), "nft", rule)
+        self.exec(role, "nft", rule)
 
     def cut(self, a: str, b: str) -> None:
         """Drop everything between two sites' WAN addresses (their direct path); the relay
@@ -206,41 +170,8 @@ class NatLab:
 
     def flush_conntrack(self, site: str) -> None:
         """The NAT forgets every mapping (a router reboot, a carrier's mapping expiring)."""
-        nat_ns = self.sites[site].nat_ns
-        assert nat_ns is not None
-        subprocess.run(
-            ["ip", "netns", "exec", nat_ns, "conntrack", "-F"],
-            capture_output=True,
-            timeout=10,
-            check=False,
-        )
-
-    def start(
-        self, role: str, *command: str, env: dict[str, str] | None = None
-    ) -> subprocess.Popen[str]:
-        """A process in namespace ``role`` (``relay``, ``ha``, ``hb``, ...), killed by :meth:`close`."""
-        process = subprocess.Popen(
-            ["ip", "netns", "exec", self.ns_name(role), *command],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            env={**os.environ, **(env or {})},
-        )
-        self.processes.append(process)
-        return process
-
-    def python(self, role: str, code: str, *args: str, timeout: float = 30.0) -> str:
-        """Run ``code`` with this Python in namespace ``role``; its stdout."""
-        done = subprocess.run(
-            ["ip", "netns", "exec", self.ns_name(role), sys.executable, "-c", code, *args],
-            capture_output=True,
-            text=True,
-            timeout=timeout,
-            check=False,
-        )
-        if done.returncode != 0:
-            raise RuntimeError(f"python in {role}: {done.stderr.strip()[-800:]}")
-        return done.stdout
+        assert self.sites[site].nat_ns is not None
+        self.exec(f"n{site}", "conntrack", "-F", check=False)
 
     def mappings(self, site: str) -> tuple[int, int]:
         """The source ports two destinations (the relay and the public host) see from one socket of
@@ -252,7 +183,7 @@ class NatLab:
             "s.settimeout(5)\n"
             "d,a=s.recvfrom(100);print(a[1])\n"
         )
-        seen = [self.start(role, sys.executable, "-c", listen) for role in ("relay", "public")]
+        seen = [self.spawn(role, sys.executable, "-c", listen) for role in ("relay", "public")]
         send = (
             "import socket,time\n"
             "s=socket.socket(socket.AF_INET,socket.SOCK_DGRAM)\n"
@@ -266,21 +197,3 @@ class NatLab:
             out, _ = process.communicate(timeout=10)
             ports.append(int(out.strip()))
         return ports[0], ports[1]
-
-    def close(self) -> None:
-        for process in self.processes:  # only ours, by their handles
-            if process.poll() is None:
-                process.kill()
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                process.communicate(timeout=5)
-        for name in reversed(self.created):
-            subprocess.run(
-                ["ip", "netns", "del", name], capture_output=True, timeout=10, check=False
-            )
-        self.created.clear()
-
-    def __enter__(self) -> NatLab:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()

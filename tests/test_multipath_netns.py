@@ -8,22 +8,23 @@ side (but in the wake of a spell in which a process was not scheduled, which eac
 second and carries copies. The sessions' controller is ``fixed`` at no limit (see multipath_peer.py:
 on a loaded machine each path's own controller reads late turns as queueing and holds copies back);
 ``TDTP_NETNS_CONTROLLER=teleop`` runs it with the default.
-Needs root, ``ip`` and ``tc`` (skipped otherwise, with the reason).
+Needs root, ``ip`` and ``tc`` (skipped otherwise, with the reason); the namespaces are
+tests/netlab.py's.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import secrets
-import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+import netlab
 import pytest
+from netlab import NetLab, NetLabError
 
 PEER = Path(__file__).resolve().parent / "multipath_peer.py"
 PORT = 47033
@@ -38,60 +39,15 @@ figure, 5). Adaptive: the samples sent on the cut path alone before the stall is
 trip plus the usual feedback gap and a margin: 4 to 10 at 1 kHz on an idle machine)."""
 
 
-def _missing() -> str | None:
-    if not hasattr(os, "geteuid") or os.geteuid() != 0:
-        return "needs root (network namespaces)"
-    for tool in ("ip", "tc"):
-        if shutil.which(tool) is None:
-            return f"needs {tool!r} on PATH"
-    return None
-
-
-def _run(*command: str) -> None:
-    done = subprocess.run(command, capture_output=True, text=True, timeout=10, check=False)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)}: {done.stderr.strip()}")
-
-
-class Net:
-    def __init__(self) -> None:
-        self.tag = f"tdtpmp-{secrets.token_hex(3)}"
-        self.made: list[str] = []
-
-    def name(self, side: str) -> str:
-        return f"{self.tag}-{side}"
-
-    def setup(self) -> None:
-        for side in ("m", "s"):
-            _run("ip", "netns", "add", self.name(side))
-            self.made.append(self.name(side))
-            _run("ip", "-n", self.name(side), "link", "set", "lo", "up")
-        m, s = self.name("m"), self.name("s")
-        for k in (1, 2):
-            _run("ip", "link", "add", f"m{k}", "netns", m, "type", "veth", "peer", "name",
-                 f"s{k}", "netns", s)  # fmt: skip
-            for ns, dev, host in ((m, f"m{k}", 1), (s, f"s{k}", 2)):
-                _run("ip", "-n", ns, "addr", "add", f"10.201.{k}.{host}/24", "dev", dev)
-                _run("ip", "-n", ns, "link", "set", dev, "up")
-                _run("ip", "netns", "exec", ns, "tc", "qdisc", "add", "dev", dev, "root", "tbf",
-                     "rate", "20mbit", "burst", "32kb", "latency", "20ms")  # fmt: skip
-
-    def peer(self, side: str, *args: str) -> subprocess.Popen[str]:
-        return subprocess.Popen(
-            ["ip", "netns", "exec", self.name(side), sys.executable, str(PEER), *args],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-
-    def link(self, state: str) -> None:
-        _run("ip", "-n", self.name("m"), "link", "set", "m1", state)
-
-    def close(self) -> None:
-        for name in self.made:
-            subprocess.run(
-                ["ip", "netns", "del", name], capture_output=True, timeout=10, check=False
-            )
+def _wire(lab: NetLab) -> None:
+    """Namespaces m and s joined by two veth paths (10.201.K.1 - 10.201.K.2), a tbf on every end."""
+    lab.add("m")
+    lab.add("s")
+    for k in (1, 2):
+        lab.veth("m", f"m{k}", "s", f"s{k}", a_addr=f"10.201.{k}.1/24", b_addr=f"10.201.{k}.2/24")
+        for role in ("m", "s"):
+            lab.qdisc(role, f"{role}{k}", "tbf", "rate", "20mbit", "burst", "32kb", "latency",
+                      "20ms")  # fmt: skip
 
 
 def _line(process: subprocess.Popen[str], expect: str, timeout: float) -> None:
@@ -118,41 +74,32 @@ def _result(process: subprocess.Popen[str]) -> dict[str, Any]:
 
 @pytest.mark.parametrize("scheduler", ["redundant", "adaptive"])
 def test_one_of_two_veth_paths_cut_and_restored_at_1khz(scheduler: str) -> None:
-    reason = _missing()
+    reason = netlab.missing("tc")
     if reason is not None:
         pytest.skip(reason)
-    net = Net()
-    processes: list[subprocess.Popen[str]] = []
-    try:
+    with NetLab("tdtpmp") as lab:
         try:
-            net.setup()
-        except RuntimeError as exc:
+            _wire(lab)
+        except NetLabError as exc:
             pytest.skip(f"cannot set up namespaces with veth and tbf here: {exc}")
         controller = os.environ.get("TDTP_NETNS_CONTROLLER", "")
         mode = f"{scheduler}:{controller}" if controller else scheduler
-        slave = net.peer("s", "slave", str(PORT), str(DURATION), mode)
-        processes.append(slave)
+        peer = (sys.executable, str(PEER))
+        slave = lab.spawn("s", *peer, "slave", str(PORT), str(DURATION), mode)
         _line(slave, "listening", 10)
-        master = net.peer(
-            "m", "master", str(PORT), str(DURATION), mode, "10.201.1.2",
+        master = lab.spawn(
+            "m", *peer, "master", str(PORT), str(DURATION), mode, "10.201.1.2",
             "10.201.1.1", f"10.201.2.1=10.201.2.2:{PORT}",
         )  # fmt: skip
-        processes.append(master)
         _line(master, "ready", 10)
         started = time.monotonic()
         time.sleep(max(0.0, started + CUT_AT - time.monotonic()))
-        net.link("down")
+        lab.link("m", "m1", up=False)
         cut = time.monotonic()
         time.sleep(max(0.0, started + RESTORE_AT - time.monotonic()))
         restored = time.monotonic()  # (before: a path still taking copies is heard at once)
-        net.link("up")
+        lab.link("m", "m1", up=True)
         master_record, slave_record = _result(master), _result(slave)
-    finally:
-        for process in processes:
-            if process.poll() is None:
-                process.kill()
-                process.communicate(timeout=5)
-        net.close()
     assert slave_record["paths_learned"] >= 1
     # Spells in which either process was not scheduled (a loaded machine): a silence that falls in
     # one (or within its aftermath: the watchdog's timeout and the wake-up) is the machine's, not

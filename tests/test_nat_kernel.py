@@ -7,11 +7,13 @@ rate. Skipped without root, ``ip``, ``nft`` (nftables) or ``conntrack``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +35,7 @@ def _json(process: subprocess.Popen[str], what: str, timeout: float = 30.0) -> d
 
 
 def _relay(lab: NatLab, seconds: float) -> subprocess.Popen[str]:
-    relay = lab.start(
+    relay = lab.spawn(
         "relay", *TDTP, "relay", "--port", "7700", "--duration", str(seconds), "--json"
     )
     return relay
@@ -45,20 +47,18 @@ def _pair(
     common = ("--rendezvous", RELAY, *NAME, "--duration", str(seconds), "--json", *extra)
     # Interrupted, the slave says it is gone for good: its master then ends the session instead of
     # reopening one (and reporting the empty new session) before its own interrupt arrives.
-    slave = lab.start("ha", *TDTP, "slave", *common, "--on-stop", "shutdown")
-    master = lab.start("hb", *TDTP, "master", *common)
+    slave = lab.spawn("ha", *TDTP, "slave", *common, "--on-stop", "shutdown")
+    master = lab.spawn("hb", *TDTP, "master", *common)
     return slave, master
 
 
-def _lab(a: str | None, b: str | None, *, firewall: bool = True) -> NatLab:
-    lab = NatLab().open(public_host=True)
-    try:
+@contextlib.contextmanager
+def _lab(a: str | None, b: str | None, *, firewall: bool = True) -> Iterator[NatLab]:
+    with NatLab() as lab:
+        lab.open(public_host=True)
         lab.add_site("a", a, firewall=firewall)  # type: ignore[arg-type]
         lab.add_site("b", b)  # type: ignore[arg-type]
-    except BaseException:
-        lab.close()
-        raise
-    return lab
+        yield lab
 
 
 def _flowed(master: dict[str, Any], slave: dict[str, Any]) -> None:
@@ -84,18 +84,18 @@ def test_a_master_cannot_dial_a_robot_behind_nat_but_the_robot_can_dial_out() ->
     """Today's failure, reproduced: the NAT answers the OPEN with ICMP port unreachable. The error
     now says so; the robot dialing its operator works through the same NAT."""
     with _lab("eim", None, firewall=False) as lab:
-        robot = lab.start("ha", *TDTP, "slave", "--port", "7000", "--duration", "6", "--json")
+        robot = lab.spawn("ha", *TDTP, "slave", "--port", "7000", "--duration", "6", "--json")
         time.sleep(1.0)  # the slave is up (it runs; the NAT is what answers)
         began = time.monotonic()
-        master = lab.start("hb", *TDTP, "master", f"{lab.sites['a'].wan_addr}:7000", "--json")
+        master = lab.spawn("hb", *TDTP, "master", f"{lab.sites['a'].wan_addr}:7000", "--json")
         _, err = master.communicate(timeout=30)
         assert master.returncode == 1
         assert "nothing listens" in err and "NAT" in err and "docs/NAT.md" in err, err
         assert time.monotonic() - began < 20
         robot.kill()
-        operator = lab.start("hb", *TDTP, "master", "--listen", "7000", "--duration", "4", "--json")
+        operator = lab.spawn("hb", *TDTP, "master", "--listen", "7000", "--duration", "4", "--json")
         time.sleep(1.0)
-        dialer = lab.start(
+        dialer = lab.spawn(
             "ha", *TDTP, "slave", "--connect", f"{lab.sites['b'].wan_addr}:7000",
             "--duration", "2", "--json",
         )  # fmt: skip
