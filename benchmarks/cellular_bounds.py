@@ -17,8 +17,8 @@ way and 1 kHz of 100-byte samples, 133 bytes on the wire with the transport head
 * **the reactive frontier** (``bounds``): a sender with exact, noise-free feedback and latest-value
   samples (a sample that cannot leave is replaced by the next, as tdtp's sender does) that sends
   every sample while the peer keeps up and stops (one probe per 50 ms) as soon as a packet of its
-  own is ``S`` ms overdue at the peer, seen 20 ms later. Its share of what the trace allowed, p95 and
-  p99 for each ``S``. ``S`` = 1000 is a sender that never stops (the ``fixed`` row of
+  own is ``S`` ms overdue at the peer, seen 20 ms later. Its share of what the trace allowed, p95
+  and p99 for each ``S``. ``S`` = 1000 is a sender that never stops (the ``fixed`` row of
   ``cellular.py``, which it reproduces within a few ms).
 * **can a stop be seen coming?** (``predict``): a predictor learnt from the trace's own past
   opportunities (:class:`StopForecast`, judged out of sample), its lift over the base rate of stop
@@ -134,7 +134,7 @@ class Link:
 
 
 def figures(delays: list[float], allowed: float) -> tuple[float, float, float]:
-    """(share % of what the trace allowed, p95 ms, p99 ms) of the delivered samples' one-way delays."""
+    """(share % of what the trace allowed, p95 ms, p99 ms) of the delivered samples' delays."""
     ordered = sorted(delays)
     n = len(ordered)
     return 100.0 * n / allowed, ordered[math.ceil(0.95 * n) - 1], ordered[math.ceil(0.99 * n) - 1]
@@ -306,7 +306,7 @@ MAX_RATE = 300.0
 """Opportunities per second of the top bin (3.4 times the 1 kHz stream's need; the top bin stands
 for "at least this": faster is the same to a sender that never needs more)."""
 SIGMA = 200.0
-"""Volatility of the rate's Brownian walk, opportunities/s per square root of a second (Sprout's)."""
+"""Volatility of the rate's Brownian walk, opportunities/s per root second (Sprout's)."""
 ESCAPE = 1.0
 """Rate (per second) at which an outage (rate 0) ends (Sprout's)."""
 COUNT_CAP = 16
@@ -326,8 +326,8 @@ class RateModel:
     ``SIGMA``), sticks at 0 (an outage) until it escapes (``ESCAPE`` per second), and the
     opportunities in a tick are Poisson with mean ``lam`` times the tick. Shared tables only.
 
-    ``hazard`` (per second, 0 in Sprout) adds what Sprout's walk lacks: a stop may begin at any rate,
-    a jump to 0 (a stop then ends as an outage does)."""
+    ``hazard`` (per second, 0 in Sprout) adds what Sprout's walk lacks: a stop may begin at any
+    rate, a jump to 0 (a stop then ends as an outage does)."""
 
     def __init__(self, hazard: float = 0.0) -> None:
         dt = TICK_MS / 1e3
@@ -452,7 +452,8 @@ def forecaster(
     forecast's time, plus what it sent since, less the cautious deliveries since) plus the sample
     fits in the cautious deliveries of the next ``target_ms``; otherwise the sample is superseded
     (one probe per ``PROBE_MS`` goes anyway, so the receiver keeps seeing the link). With
-    ``stall_ms`` it also stops as the reactive sender does (a packet of its own that overdue)."""
+    ``stall_ms`` it also stops as the reactive sender does, when a packet of its own is that
+    overdue."""
     link = Link(text)
     propagation = link.propagation
     allowed = scenario.allowed(text, start=0.0, duration=duration)
@@ -655,8 +656,8 @@ def predictability(
             f"| {_show(held)} ({_meets(held)}) | {_show(blind_row)} |"
         )
     print(
-        f"\nReactive {HELD_STALL_MS} ms that also sees the link {LAG_MS} ms late and holds while it "
-        "has been idle for:"
+        f"\nReactive {HELD_STALL_MS} ms that also sees the link {LAG_MS} ms late and holds "
+        "while it has been idle for:"
     )
     print("| idle (ms) | share % / p95 / p99 |")
     print("| --- | --- |")
