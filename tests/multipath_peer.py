@@ -18,6 +18,7 @@ path's copies over time. Times are on the host's monotonic clock, which both nam
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import itertools
 import json
 import math
@@ -92,6 +93,9 @@ async def stream(ep: tdtp.Endpoint, duration: float, record: dict[str, Any]) -> 
             :3
         ],
         superseded=ep.stats.samples_superseded,
+        multipath=dataclasses.asdict(ep.connection.multipath.stats)
+        if ep.connection.multipath is not None
+        else {},
         send_errors=ep.send_errors + ep.paths.send_errors,
     )
 

@@ -150,6 +150,8 @@ def test_one_of_two_veth_paths_cut_and_restored_at_1khz(scheduler: str) -> None:
             sender["send_errors"],
             "drops",
             receiver["drops"],
+            "multipath",
+            sender["multipath"],
             "paths",
             sender["paths"],
             receiver["paths"],
